@@ -1,0 +1,41 @@
+# One-command set-up: every target below creates or refreshes .venv from the
+# pinned requirements first. With a sourced ROS 2 (rclpy importable) the venv
+# sees the system packages and the ROS 2 wheels are not installed.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.qfa-installed
+DURATION ?= 10
+
+.PHONY: setup run sim test lint bench bags clean
+
+setup: $(STAMP)
+
+$(STAMP): requirements/ros.txt requirements/base.txt requirements/test.txt setup.py
+	@if $(PYTHON) -c 'import rclpy' >/dev/null 2>&1; then \
+	  echo 'rclpy found on the system: using it, not the ROS 2 wheels'; \
+	  $(PYTHON) -m venv --system-site-packages $(VENV); ros=''; \
+	else \
+	  $(PYTHON) -m venv $(VENV); ros='-r requirements/ros.txt'; \
+	fi; \
+	$(PY) -m pip install -q --disable-pip-version-check \
+	  -r requirements/base.txt -r requirements/test.txt $$ros && \
+	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e . && \
+	touch $@
+
+run: $(STAMP)
+	$(VENV)/bin/qfa-sim static --duration $(DURATION)
+
+sim: run
+
+test: $(STAMP)
+	$(PY) -m pytest
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+
+bench: $(STAMP)
+	$(PY) bench/loop_throughput.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

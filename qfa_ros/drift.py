@@ -1,0 +1,76 @@
+"""Parameter drift of the loop gains: steps and linear aging (sensor time)."""
+
+import math
+
+import numpy as np
+
+from qfa_ros.hardware import DRIFT_COMPONENTS
+
+SECONDS_PER_YEAR = 365.25 * 86400.0
+PPM = 1e-6
+
+
+class DriftModel:
+    r"""
+    Relative drift ``delta`` of every loop component of every axis.
+
+    ``delta_c(t) = step_c + rate_c * accel * t`` where ``t`` is sensor time [s],
+    ``rate_c`` the aging rate [1/s] (set in ppm/year) and ``accel`` the
+    time-acceleration factor (1 = real time; 3.15e7 makes a year pass in a second).
+
+    Parameters
+    ----------
+    n_axes : int
+        Number of axes.
+    """
+
+    def __init__(self, n_axes=3):
+        self.n_axes = n_axes
+        self.components = DRIFT_COMPONENTS
+        self.step = np.zeros((n_axes, len(DRIFT_COMPONENTS)))
+        self.rate = np.zeros((n_axes, len(DRIFT_COMPONENTS)))
+        self.time_acceleration = 1.0
+        self.version = 0
+
+    def _index(self, axis, component):
+        if component not in self.components:
+            raise ValueError(f'unknown drift component {component!r}; '
+                             f'expected one of {", ".join(self.components)}')
+        if not 0 <= axis < self.n_axes:
+            raise ValueError(f'axis must be in [0, {self.n_axes}), got {axis!r}')
+        return axis, self.components.index(component)
+
+    def set_step(self, axis, component, delta):
+        """Set the step drift of ``component`` on ``axis`` (relative, e.g. 200e-6)."""
+        _check_finite('delta', delta)
+        self.step[self._index(axis, component)] = delta
+        self.version += 1
+
+    def set_aging(self, axis, component, ppm_per_year):
+        """Set the linear aging rate of ``component`` on ``axis`` [ppm/year]."""
+        _check_finite('ppm_per_year', ppm_per_year)
+        self.rate[self._index(axis, component)] = ppm_per_year * PPM / SECONDS_PER_YEAR
+        self.version += 1
+
+    def set_time_acceleration(self, factor):
+        """Set the aging time-acceleration factor (>= 0)."""
+        _check_finite('time_acceleration', factor)
+        if factor < 0:
+            raise ValueError(f'time_acceleration must be >= 0, got {factor!r}')
+        self.time_acceleration = float(factor)
+        self.version += 1
+
+    @property
+    def aging(self):
+        """Return True if any aging rate is non-zero."""
+        return bool(np.any(self.rate != 0) and self.time_acceleration > 0)
+
+    def at(self, axis, t):
+        """Return ``{component: delta}`` of ``axis`` at sensor time ``t`` [s]."""
+        values = self.step[axis] + self.rate[axis] * self.time_acceleration * t
+        return dict(zip(self.components, values.tolist()))
+
+
+def _check_finite(name, value):
+    if not isinstance(value, (int, float, np.floating)) or not math.isfinite(value):
+        raise ValueError(f'{name} must be a finite number, got {value!r}')

@@ -1,0 +1,180 @@
+"""Compiled per-step kernel of one digital closed-loop QFA axis (numba, over chunks)."""
+
+import numpy as np
+from numba import njit
+
+# Float parameter vector layout.
+P_AD00, P_AD01, P_AD10, P_AD11, P_BD0, P_BD1 = range(6)
+P_PENDULOSITY = 6        # K0 [kg m]
+P_K_SENSE = 7            # closed-loop pick-off chain [count/rad]
+P_OPEN_LOOP_COUNTS = 8   # open-loop ADC level (eq. 16) [count]
+P_K_FB = 9               # k_DA2 k_VI k_t [N m/count]
+P_REF_MOMENT = 10        # k_t I_ref while the switch M1 is closed, else 0 [N m]
+P_STOP = 11              # stop angle [rad]
+P_ADSORPTION = 12        # open-loop latching moment [N m]
+N_FLOAT_PARAMS = 13
+
+# Integer parameter vector layout.
+Q_GAIN, Q_A1, Q_B0, Q_B1, Q_KI = range(5)
+Q_OPEN_LOOP = 5          # 1: feedback off, pendulum latched, output = k(D(z)) e
+Q_DA2_FULL_SCALE = 6     # [count]
+Q_ADC_FULL_SCALE = 7     # [count]
+Q_RANGE_COUNTS = 8       # rated range in command counts
+N_INT_PARAMS = 9
+
+# Float state: pendulum angle [rad] and rate [rad/s].
+S_THETA, S_OMEGA = range(2)
+N_FLOAT_STATE = 2
+
+# Integer state: controller memories and the DA2 word on the torquer.
+T_X_PREV, T_Y_PREV, T_INTEGRATOR, T_APPLIED, T_LAST = range(5)
+N_INT_STATE = 5
+
+_GAIN_SHIFT = 16         # Q24 gain * count -> Q8 signal
+_COEF_SHIFT = 20         # Q20 coefficients
+_SIGNAL_SHIFT = 8        # Q8 signal -> count
+
+
+@njit(cache=True, nogil=True)
+def _round_shift(value, shift):
+    # Round to nearest (ties up), as a hardware adder before an arithmetic shift does.
+    return (value + (np.int64(1) << (shift - 1))) >> shift
+
+
+@njit(cache=True, nogil=True)
+def run_axis(accel, adc_noise, decimation, params_f, params_i, state_f, state_i,
+             out_mean, out_flags):
+    """
+    Advance one axis over a chunk of loop steps and decimate its output.
+
+    Parameters
+    ----------
+    accel : float64[n]
+        Input specific force along the sensitive axis per loop step, noise and
+        model-equation terms included [m/s^2].
+    adc_noise : float64[n]
+        ADC input noise per loop step [count].
+    decimation : int
+        Loop steps per output sample; ``n`` must be a multiple of it.
+    params_f, params_i : float64[N_FLOAT_PARAMS], int64[N_INT_PARAMS]
+        Loop parameters (layout constants above).
+    state_f, state_i : float64[N_FLOAT_STATE], int64[N_INT_STATE]
+        Loop state, updated in place.
+    out_mean : float64[n // decimation]
+        Mean sensor output word per sample [count].
+    out_flags : int8[n // decimation]
+        Bit 0: DA2 command clipped; bit 1: ADC clipped; bit 2: over the rated range.
+    """
+    ad00 = params_f[P_AD00]
+    ad01 = params_f[P_AD01]
+    ad10 = params_f[P_AD10]
+    ad11 = params_f[P_AD11]
+    bd0 = params_f[P_BD0]
+    bd1 = params_f[P_BD1]
+    k0 = params_f[P_PENDULOSITY]
+    k_sense = params_f[P_K_SENSE]
+    open_counts = params_f[P_OPEN_LOOP_COUNTS]
+    k_fb = params_f[P_K_FB]
+    ref_moment = params_f[P_REF_MOMENT]
+    stop = params_f[P_STOP]
+    adsorption = params_f[P_ADSORPTION]
+    gain = params_i[Q_GAIN]
+    a1 = params_i[Q_A1]
+    b0 = params_i[Q_B0]
+    b1 = params_i[Q_B1]
+    ki = params_i[Q_KI]
+    open_loop = params_i[Q_OPEN_LOOP] != 0
+    da2_fs = params_i[Q_DA2_FULL_SCALE]
+    adc_fs = params_i[Q_ADC_FULL_SCALE]
+    range_counts = params_i[Q_RANGE_COUNTS]
+    integrator_limit = (da2_fs << _SIGNAL_SHIFT) << _COEF_SHIFT
+
+    theta = state_f[S_THETA]
+    omega = state_f[S_OMEGA]
+    x_prev = state_i[T_X_PREV]
+    y_prev = state_i[T_Y_PREV]
+    integrator = state_i[T_INTEGRATOR]
+    applied = state_i[T_APPLIED]
+    output = state_i[T_LAST]
+
+    n = accel.shape[0]
+    block_sum = 0.0
+    block_flags = 0
+    k = 0
+    for i in range(n):
+        # Pick-off, bridge, ADC: in open loop the latched bridge gives a fixed level (eq. 16).
+        if open_loop:
+            volts = open_counts + adc_noise[i]
+        else:
+            volts = k_sense * theta + adc_noise[i]
+        code = np.int64(np.floor(volts + 0.5))
+        if code > adc_fs:
+            code = adc_fs
+            block_flags |= 2
+        elif code < -adc_fs:
+            code = -adc_fs
+            block_flags |= 2
+        x = _round_shift(gain * code, _GAIN_SHIFT)
+        if open_loop:
+            output = _round_shift(x, _SIGNAL_SHIFT)
+            command = np.int64(0)
+        else:
+            y = _round_shift(a1 * y_prev + b0 * x + b1 * x_prev, _COEF_SHIFT)
+            candidate = integrator + ki * y
+            if candidate > integrator_limit:
+                candidate = integrator_limit
+            elif candidate < -integrator_limit:
+                candidate = -integrator_limit
+            command = _round_shift(y + _round_shift(candidate, _COEF_SHIFT), _SIGNAL_SHIFT)
+            if command > da2_fs:
+                command = da2_fs
+                block_flags |= 1
+                if candidate < integrator:  # anti-windup: integrate only back into range
+                    integrator = candidate
+            elif command < -da2_fs:
+                command = -da2_fs
+                block_flags |= 1
+                if candidate > integrator:
+                    integrator = candidate
+            else:
+                integrator = candidate
+            x_prev = x
+            y_prev = y
+            output = command
+        if output > range_counts or output < -range_counts:
+            block_flags |= 4
+
+        # Torquer acts with one step of computation delay; pendulum by exact ZOH.
+        moment = k0 * accel[i] - k_fb * applied - ref_moment
+        if open_loop:
+            moment += adsorption
+        theta_next = ad00 * theta + ad01 * omega + bd0 * moment
+        omega = ad10 * theta + ad11 * omega + bd1 * moment
+        theta = theta_next
+        if theta > stop:
+            theta = stop
+            if omega > 0.0:
+                omega = 0.0
+        elif theta < -stop:
+            theta = -stop
+            if omega < 0.0:
+                omega = 0.0
+        applied = command
+
+        block_sum += output
+        k += 1
+        if k == decimation:
+            j = i // decimation
+            out_mean[j] = block_sum / decimation
+            out_flags[j] = block_flags
+            block_sum = 0.0
+            block_flags = 0
+            k = 0
+
+    state_f[S_THETA] = theta
+    state_f[S_OMEGA] = omega
+    state_i[T_X_PREV] = x_prev
+    state_i[T_Y_PREV] = y_prev
+    state_i[T_INTEGRATOR] = integrator
+    state_i[T_APPLIED] = applied
+    state_i[T_LAST] = output

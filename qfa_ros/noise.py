@@ -1,0 +1,124 @@
+"""Sensor noise: velocity random walk, bias instability, ADC noise (generated per chunk)."""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from scipy.signal import lfilter
+
+MICRO_G = 9.80665e-6
+"""One micro-g [m/s^2]."""
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """
+    Noise of one axis, in SI units.
+
+    Attributes
+    ----------
+    noise_density : float
+        White acceleration noise N [(m/s^2)/sqrt(Hz)], the velocity random walk: the
+        Allan deviation of the output at tau = 1 s equals N (IEEE 1293 convention).
+    bias_instability : float
+        Flicker floor of the Allan deviation [m/s^2], modelled as a sum of
+        first-order Gauss-Markov processes with one correlation time per decade of
+        ``correlation_times``, scaled so that the floor of their Allan deviation
+        equals this value.
+    correlation_times : tuple of float
+        Correlation times of the Gauss-Markov processes [s].
+    adc_noise : float
+        White noise at the ADC input, standard deviation [count].
+    """
+
+    noise_density: float = 5.0 * MICRO_G
+    bias_instability: float = 10.0 * MICRO_G
+    correlation_times: tuple = (0.1, 1.0, 10.0, 100.0, 1000.0)
+    adc_noise: float = 0.5
+
+    def __post_init__(self):
+        for name in ('noise_density', 'bias_instability', 'adc_noise'):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value < 0:
+                raise ValueError(f'{name} must be finite and >= 0, got {value!r}')
+        if not self.correlation_times or any(
+                not math.isfinite(t) or t <= 0 for t in self.correlation_times):
+            raise ValueError('correlation_times must be positive and finite')
+
+    @classmethod
+    def off(cls):
+        """Return a configuration with every noise source switched off."""
+        return cls(noise_density=0.0, bias_instability=0.0, adc_noise=0.0)
+
+
+def gauss_markov_allan_variance(tau, variance, correlation_time):
+    """
+    Return the Allan variance of a first-order Gauss-Markov process.
+
+    For the autocovariance ``R(u) = q^2 exp(-|u|/T)``::
+
+        sigma^2(tau) = q^2 T^2 / tau^2 (2 tau / T - 3 + 4 e^(-tau/T) - e^(-2 tau/T))
+    """
+    ratio = np.asarray(tau, dtype=float) / correlation_time
+    return variance / ratio ** 2 * (2 * ratio - 3 + 4 * np.exp(-ratio) - np.exp(-2 * ratio))
+
+
+def flicker_component_variance(config):
+    """Return the variance per Gauss-Markov component that sets the configured floor."""
+    if config.bias_instability == 0:
+        return 0.0
+    times = np.asarray(config.correlation_times)
+    tau = np.logspace(math.log10(times.min()) - 1, math.log10(times.max()) + 1, 400)
+    unit = sum(gauss_markov_allan_variance(tau, 1.0, t) for t in times)
+    # The floor is the Allan deviation's flat region: its maximum between the first and
+    # last correlation time (the sum ripples slightly across the decades).
+    inside = (tau >= times.min()) & (tau <= times.max() * 2)
+    floor = math.sqrt(unit[inside].mean())
+    return (config.bias_instability / floor) ** 2
+
+
+class NoiseSource:
+    """
+    Chunked noise of ``n_axes`` independent axes.
+
+    White acceleration noise per loop step ``w ~ N(0, N^2 f_loop)``; the bias
+    instability processes advance at the sample rate, ``b[k] = phi b[k-1] + v[k]``,
+    ``phi = exp(-dt/T)``, ``v ~ N(0, q^2 (1 - phi^2))``, and are held over each
+    decimation block; ADC noise ``n ~ N(0, sigma_adc^2)`` per loop step [count].
+    Every random number comes from ``rng``.
+    """
+
+    def __init__(self, config, n_axes, loop_rate_hz, sample_rate_hz, rng):
+        self.config = config
+        self.n_axes = n_axes
+        self.decimation = int(round(loop_rate_hz / sample_rate_hz))
+        self.rng = rng
+        self.white_std = config.noise_density * math.sqrt(loop_rate_hz)
+        dt = 1.0 / sample_rate_hz
+        self.phi = np.exp(-dt / np.asarray(config.correlation_times, dtype=float))
+        variance = flicker_component_variance(config)
+        self.innovation_std = np.sqrt(variance * (1.0 - self.phi ** 2))
+        # Start the Gauss-Markov processes in their stationary distribution.
+        self.bias_state = rng.standard_normal((n_axes, len(self.phi))) * math.sqrt(variance)
+
+    def chunk(self, n_samples):
+        """Return (acceleration noise [m/s^2], ADC noise [count]), each (n_axes, n_steps)."""
+        n_steps = n_samples * self.decimation
+        accel = np.zeros((self.n_axes, n_steps))
+        if self.white_std > 0:
+            accel += self.rng.standard_normal((self.n_axes, n_steps)) * self.white_std
+        if self.config.bias_instability > 0:
+            bias = np.zeros((self.n_axes, n_samples))
+            for j, phi in enumerate(self.phi):
+                drive = self.rng.standard_normal((self.n_axes, n_samples)) \
+                    * self.innovation_std[j]
+                series, final = lfilter([1.0], [1.0, -phi], drive, axis=1,
+                                        zi=(phi * self.bias_state[:, j])[:, None])
+                self.bias_state[:, j] = final[:, 0]
+                bias += series
+            accel += np.repeat(bias, self.decimation, axis=1)
+        if self.config.adc_noise > 0:
+            adc = self.rng.standard_normal((self.n_axes, n_steps)) * self.config.adc_noise
+        else:
+            adc = np.zeros((self.n_axes, n_steps))
+        return accel, adc
