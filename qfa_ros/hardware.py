@@ -102,7 +102,7 @@ class AxisHardware:
     sense_resistor: float = 58.0
     magnet_flux_density: float = 0.4
     scale_factor: float = 1.2e-3 / STANDARD_GRAVITY
-    i_ref: float = 0.7372e-3
+    i_ref: float = 0.737237e-3
     adsorption_g: float = 5.0
     input_range_g: float = 50.0
 

@@ -1,7 +1,7 @@
 """Compiled per-step kernel of one digital closed-loop QFA axis (numba, over chunks)."""
 
-import numpy as np
 from numba import njit
+import numpy as np
 
 # Float parameter vector layout.
 P_AD00, P_AD01, P_AD10, P_AD11, P_BD0, P_BD1 = range(6)

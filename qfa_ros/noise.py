@@ -85,40 +85,48 @@ class NoiseSource:
     instability processes advance at the sample rate, ``b[k] = phi b[k-1] + v[k]``,
     ``phi = exp(-dt/T)``, ``v ~ N(0, q^2 (1 - phi^2))``, and are held over each
     decimation block; ADC noise ``n ~ N(0, sigma_adc^2)`` per loop step [count].
-    Every random number comes from ``rng``.
+    Every random number comes from ``rng``: each source of each axis draws from its own
+    child stream (``rng.spawn``), so the output does not depend on the chunk lengths.
     """
 
     def __init__(self, config, n_axes, loop_rate_hz, sample_rate_hz, rng):
         self.config = config
         self.n_axes = n_axes
         self.decimation = int(round(loop_rate_hz / sample_rate_hz))
-        self.rng = rng
+        self.white_streams = rng.spawn(n_axes)
+        self.adc_streams = rng.spawn(n_axes)
+        self.bias_streams = rng.spawn(n_axes)
         self.white_std = config.noise_density * math.sqrt(loop_rate_hz)
         dt = 1.0 / sample_rate_hz
         self.phi = np.exp(-dt / np.asarray(config.correlation_times, dtype=float))
         variance = flicker_component_variance(config)
         self.innovation_std = np.sqrt(variance * (1.0 - self.phi ** 2))
         # Start the Gauss-Markov processes in their stationary distribution.
-        self.bias_state = rng.standard_normal((n_axes, len(self.phi))) * math.sqrt(variance)
+        self.bias_state = np.array([stream.standard_normal(len(self.phi))
+                                    for stream in self.bias_streams]) * math.sqrt(variance)
 
     def chunk(self, n_samples):
         """Return (acceleration noise [m/s^2], ADC noise [count]), each (n_axes, n_steps)."""
         n_steps = n_samples * self.decimation
         accel = np.zeros((self.n_axes, n_steps))
-        if self.white_std > 0:
-            accel += self.rng.standard_normal((self.n_axes, n_steps)) * self.white_std
+        adc = np.zeros((self.n_axes, n_steps))
+        for axis in range(self.n_axes):
+            if self.white_std > 0:
+                accel[axis] = self.white_streams[axis].standard_normal(n_steps) * self.white_std
+            if self.config.adc_noise > 0:
+                adc[axis] = self.adc_streams[axis].standard_normal(n_steps) \
+                    * self.config.adc_noise
         if self.config.bias_instability > 0:
+            # Drive draws are interleaved per sample (n_samples x components) so that
+            # they too are independent of the chunk length.
+            drive = np.stack([stream.standard_normal((n_samples, len(self.phi))).T
+                              for stream in self.bias_streams]) * self.innovation_std[:, None]
             bias = np.zeros((self.n_axes, n_samples))
             for j, phi in enumerate(self.phi):
-                drive = self.rng.standard_normal((self.n_axes, n_samples)) \
-                    * self.innovation_std[j]
-                series, final = lfilter([1.0], [1.0, -phi], drive, axis=1,
+                series, final = lfilter([1.0], [1.0, -phi], drive[:, j], axis=1,
                                         zi=(phi * self.bias_state[:, j])[:, None])
-                self.bias_state[:, j] = final[:, 0]
+                # lfilter's final memory is phi * b[last]; keep b[last] itself.
+                self.bias_state[:, j] = final[:, 0] / phi
                 bias += series
             accel += np.repeat(bias, self.decimation, axis=1)
-        if self.config.adc_noise > 0:
-            adc = self.rng.standard_normal((self.n_axes, n_steps)) * self.config.adc_noise
-        else:
-            adc = np.zeros((self.n_axes, n_steps))
         return accel, adc

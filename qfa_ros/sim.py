@@ -8,7 +8,7 @@ import numpy as np
 
 from qfa_ros.allan import allan_deviation
 from qfa_ros.design import LinearLoop
-from qfa_ros.model import AXES, concatenate, QfaTriad, TriadConfig
+from qfa_ros.model import AXES, QfaTriad, TriadConfig
 from qfa_ros.noise import MICRO_G
 
 CHUNK_SECONDS = 1.0
