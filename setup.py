@@ -20,7 +20,7 @@ setup(
     description='Emulated self-calibrating IMU of digital closed-loop quartz flexible '
                 'accelerometers (QFA) for ROS 2.',
     license='Apache-2.0',
-    tests_require=['pytest'],
+    extras_require={'test': ['pytest']},
     entry_points={
         'console_scripts': [
             'qfa-sim = qfa_ros.sim:main',
