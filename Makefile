@@ -1,6 +1,7 @@
 # One-command set-up: every target below creates or refreshes .venv from the
 # pinned requirements first. With a sourced ROS 2 (rclpy importable) the venv
-# sees the system packages and the ROS 2 wheels are not installed.
+# sees the system packages and the ROS 2 wheels are not installed. setup.cfg puts the
+# executables in lib/qfa_ros (where `ros2 run` looks); they are linked into .venv/bin.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -21,6 +22,7 @@ $(STAMP): requirements/ros.txt requirements/base.txt requirements/test.txt setup
 	$(PY) -m pip install -q --disable-pip-version-check \
 	  -r requirements/base.txt -r requirements/test.txt $$ros && \
 	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e . && \
+	for script in $(VENV)/lib/qfa_ros/*; do [ -e "$$script" ] && ln -sf "../lib/qfa_ros/$${script##*/}" $(VENV)/bin/; done; \
 	touch $@
 
 run: $(STAMP)
