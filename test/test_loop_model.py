@@ -276,3 +276,13 @@ def test_run_rejects_bad_input():
         triad.set_n_fpga(0, 2 ** 20)
     with pytest.raises(ValueError, match='controller gain'):
         triad.set_controller_gain(0, float('nan'))
+
+
+def test_misalignment_couples_axes_as_configured():
+    misalignment = ((0.0, 1e-3, -2e-3), (5e-4, 0.0, 1e-3), (-1e-3, 2e-3, 0.0))
+    profile = StaticProfile.orientation(0.4, -0.3)
+    triad = QfaTriad(TriadConfig(noise=QUIET, misalignment=misalignment), rng=0,
+                     profile=profile)
+    mean = settled_mean(triad, 1.0)
+    expected = (np.eye(3) + np.asarray(misalignment)) @ np.asarray(profile.specific_force)
+    assert_allclose(mean, expected, rtol=1e-6, atol=0.5 * MICRO_G)
