@@ -1,0 +1,216 @@
+"""Tests of the double-exponential fit, polynomial fits, compensator and calibration."""
+
+import json
+import math
+
+import numpy as np
+import numpy.testing as npt
+import pytest
+
+from qfa_ros.tempfit import (
+    calibrate_zero_bias,
+    DoubleExpCompensator,
+    DoubleExpFit,
+    fit_double_exponential,
+    fit_double_exponential_reference,
+    fit_polynomial,
+    TemperatureCalibration,
+)
+
+# (alpha1, beta1, alpha2, beta2): TMP36-range voltages, m/s^2 and V-scale outputs
+COEFFICIENT_SETS = [
+    (7.8e-4, 2.0, 8.8e-3, -0.6),
+    (-1.2e-3, 1.5, -2.5e-3, -1.2),
+    (0.02, -3.0, 0.5, 0.4),
+]
+
+
+def _model(v, a1, b1, a2, b2):
+    return a1 * np.exp(b1 * v) + a2 * np.exp(b2 * v)
+
+
+def _synthetic(coefficients, seed, noise_fraction, n=400):
+    rng = np.random.default_rng(seed)
+    v = np.sort(rng.uniform(0.1, 1.2, n))
+    clean = _model(v, *coefficients)
+    return v, clean + noise_fraction * np.ptp(clean) * rng.standard_normal(n)
+
+
+@pytest.mark.parametrize('coefficients', COEFFICIENT_SETS)
+def test_noise_free_data_recovers_coefficients(coefficients):
+    v, y = _synthetic(coefficients, 0, 0.0)
+    fit = fit_double_exponential(v, y)
+    a1, b1, a2, b2 = coefficients
+    expected = sorted([(b1, a1), (b2, a2)])
+    npt.assert_allclose([fit.beta1, fit.beta2], [expected[0][0], expected[1][0]], rtol=1e-6)
+    npt.assert_allclose([fit.alpha1, fit.alpha2], [expected[0][1], expected[1][1]], rtol=1e-6)
+    assert fit.converged
+    assert fit.r_squared == pytest.approx(1.0, abs=1e-12)
+
+
+@pytest.mark.parametrize('seed', [1, 2, 3])
+@pytest.mark.parametrize('coefficients', COEFFICIENT_SETS)
+def test_noisy_data_recovers_curve_and_noise_level(coefficients, seed):
+    noise_fraction = 1e-3
+    v, y = _synthetic(coefficients, seed, noise_fraction)
+    fit = fit_double_exponential(v, y)
+    clean = _model(v, *coefficients)
+    sigma = noise_fraction * np.ptp(clean)
+    # four fitted parameters: the residual rms is sigma * sqrt((n - 4) / n)
+    assert fit.rmse == pytest.approx(sigma * math.sqrt(396 / 400), rel=0.15)
+    npt.assert_allclose(fit.evaluate(v), clean, atol=4 * sigma)
+    truth_betas = sorted([coefficients[1], coefficients[3]])
+    npt.assert_allclose([fit.beta1, fit.beta2], truth_betas, rtol=0.05, atol=0.05)
+
+
+@pytest.mark.parametrize('seed', [4, 5])
+@pytest.mark.parametrize('coefficients', COEFFICIENT_SETS)
+def test_alternating_iteration_matches_scipy_reference(coefficients, seed):
+    v, y = _synthetic(coefficients, seed, 3e-3)
+    fit = fit_double_exponential(v, y)
+    reference = fit_double_exponential_reference(v, y)
+    assert fit.rmse == pytest.approx(reference.rmse, rel=1e-8)
+    npt.assert_allclose([fit.beta1, fit.beta2], [reference.beta1, reference.beta2],
+                        rtol=1e-5, atol=1e-7)
+    npt.assert_allclose(fit.evaluate(v), reference.evaluate(v), atol=1e-6 * np.ptp(y))
+
+
+def test_mse_history_decreases_and_start_value_accepted():
+    v, y = _synthetic(COEFFICIENT_SETS[0], 6, 1e-3)
+    fit = fit_double_exponential(v, y, beta0=(1.0, -1.0))
+    history = np.array(fit.mse_history)
+    assert np.all(np.diff(history) <= 0)
+    assert history[-1] == pytest.approx(fit.rmse ** 2, rel=1e-9)
+    limited = fit_double_exponential(v, y, beta0=(5.0, -5.0), max_iter=1)
+    assert limited.iterations == 1 and not limited.converged
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'v_temp': [0.1, 0.2], 'v_out': [1.0, 2.0]}, 'at least'),
+    ({'v_temp': np.linspace(0, 1, 9), 'v_out': np.ones(8)}, 'same length'),
+    ({'v_temp': np.r_[np.linspace(0, 1, 9), np.nan], 'v_out': np.ones(10)}, 'finite'),
+    ({'v_temp': np.ones(10), 'v_out': np.arange(10.0)}, 'constant'),
+    ({'v_temp': np.linspace(0, 1, 9), 'v_out': np.ones(9), 'tol': 0.0}, 'tol'),
+    ({'v_temp': np.linspace(0, 1, 9), 'v_out': np.ones(9), 'max_iter': 0}, 'max_iter'),
+    ({'v_temp': np.linspace(0, 1, 9), 'v_out': np.ones(9), 'beta0': (1.0,)}, 'beta0'),
+])
+def test_fit_input_validation(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        fit_double_exponential(**kwargs)
+
+
+@pytest.mark.parametrize('order', [3, 4])
+@pytest.mark.parametrize('seed', [7, 8])
+def test_polynomial_fit_matches_numpy_polyfit(order, seed):
+    v, y = _synthetic(COEFFICIENT_SETS[0], seed, 2e-3)
+    fit = fit_polynomial(v, y, order)
+    expected = np.polyfit(v, y, order)
+    npt.assert_allclose(fit.coefficients, expected, rtol=1e-7, atol=1e-12 * np.abs(y).max())
+    residual = y - np.polyval(expected, v)
+    assert fit.rmse == pytest.approx(math.sqrt(np.mean(residual ** 2)), rel=1e-8)
+    r_squared = 1 - np.sum(residual ** 2) / np.sum((y - y.mean()) ** 2)
+    assert fit.r_squared == pytest.approx(r_squared, rel=1e-10)
+    npt.assert_allclose(fit.evaluate(v), np.polyval(expected, v), rtol=1e-9)
+
+
+def test_polynomial_of_degree_four_is_exact_and_order_validated():
+    v = np.linspace(0.1, 1.2, 50)
+    coefficients = [0.3, -1.0, 0.2, 0.05, -0.01]
+    fit = fit_polynomial(v, np.polyval(coefficients, v), 4)
+    npt.assert_allclose(fit.coefficients, coefficients, rtol=1e-9)
+    with pytest.raises(ValueError, match='order'):
+        fit_polynomial(v, v, -1)
+
+
+def test_double_exponential_beats_poly3_on_double_exponential_data():
+    v, y = _synthetic(COEFFICIENT_SETS[2], 9, 2e-5)
+    assert fit_double_exponential(v, y).rmse < 0.5 * fit_polynomial(v, y, 3).rmse
+
+
+def _fit(a1=7.8e-4, b1=2.0, a2=8.8e-3, b2=-0.6):
+    return DoubleExpFit(a1, a2, b1, b2, 0.0, 1.0, 0, True)
+
+
+@pytest.mark.parametrize('m_bits, bound', [(16, 2e-4), (24, 2e-6)])
+@pytest.mark.parametrize('fit', [_fit(), _fit(-0.02, -3.0, 0.5, 0.4)])
+def test_compensator_fixed_matches_float_reference(fit, m_bits, bound):
+    compensator = DoubleExpCompensator(fit, m_bits=m_bits, v_range=(0.0, 2.5))
+    v = np.random.default_rng(10).uniform(0.0, 2.5, 20000)
+    reference = compensator.evaluate_reference(v)
+    scale = np.abs(fit.alpha1 * np.exp(fit.beta1 * v)) + np.abs(fit.alpha2 * np.exp(fit.beta2 * v))
+    error = np.abs(compensator.evaluate_fixed(v) - reference)
+    assert np.all(error <= bound * scale + 2 * compensator.output_lsb)
+
+
+def test_compensator_vector_path_bit_exact_with_scalar():
+    compensator = DoubleExpCompensator(_fit(-0.02, -3.0, 0.5, 0.4), m_bits=16)
+    words = compensator.quantize_v(np.random.default_rng(11).uniform(0.0, 2.5, 300))
+    npt.assert_array_equal(compensator.evaluate_fixed_q(words),
+                           [compensator.evaluate_fixed_scalar(w) for w in words])
+
+
+def test_compensator_chooses_smallest_n_bits():
+    fit = _fit(b1=9.0)  # beta*V reaches 22.5 on 0..2.5 V: N = 5
+    compensator = DoubleExpCompensator(fit, v_range=(0.0, 2.5))
+    assert compensator.n_bits == 5
+    with pytest.raises(ValueError, match='n_bits'):
+        DoubleExpCompensator(fit, n_bits=4, v_range=(0.0, 2.5))
+
+
+def test_compensator_range_checks():
+    compensator = DoubleExpCompensator(_fit(), v_range=(0.0, 1.5))
+    with pytest.raises(ValueError, match='v_range'):
+        compensator.evaluate_fixed([1.6])
+    clipped = compensator.evaluate_fixed([1.6], clip=True)
+    npt.assert_array_equal(clipped, compensator.evaluate_fixed([1.5]))
+    with pytest.raises(ValueError, match='v_range'):
+        DoubleExpCompensator(_fit(), v_range=(1.0, 1.0))
+    with pytest.raises(ValueError, match='fit'):
+        DoubleExpCompensator((1.0, 2.0))
+
+
+def _cycle_data(seed, n=20000):
+    rng = np.random.default_rng(seed)
+    phase = np.linspace(0.0, 2.0, n)
+    v = 0.65 + 0.55 * np.sin(2 * np.pi * phase) + 2e-4 * rng.standard_normal(n)
+    bias = _model(v, 7.8e-4, 2.0, 8.8e-3, -0.6)
+    return v, bias + 5e-5 * rng.standard_normal(n), bias
+
+
+@pytest.mark.parametrize('seed', [12, 13])
+def test_calibration_reduces_peak_to_peak(seed):
+    v, output, _ = _cycle_data(seed)
+    calibration = calibrate_zero_bias(v, output, m_bits=16)
+    assert calibration.fit.converged
+    assert calibration.reduction >= 30
+    dense = _model(np.linspace(0.1, 1.2, 1001), 7.8e-4, 2.0, 8.8e-3, -0.6)
+    assert calibration.p2p_before == pytest.approx(np.ptp(dense), rel=0.05)
+    assert calibration.max_fixed_error < 1e-6
+    assert calibration.poly4.rmse <= calibration.poly3.rmse
+    assert calibration.cancellation_bits < 2
+
+
+def test_calibration_flags_degenerate_fit_of_s_curve():
+    temperature = np.linspace(-40.0, 70.0, 2000) - 25.0
+    v = 0.75 + 0.01 * temperature
+    s_curve = 1e-4 * temperature + 5e-7 * temperature ** 2 - 1.5e-8 * temperature ** 3
+    calibration = calibrate_zero_bias(v, s_curve)
+    assert calibration.fit.r_squared < 0.99
+    assert calibration.poly3.r_squared == pytest.approx(1.0, abs=1e-9)
+    assert calibration.cancellation_bits > 8
+
+
+def test_calibration_json_round_trip_and_rom_check():
+    v, output, _ = _cycle_data(14)
+    calibration = calibrate_zero_bias(v, output)
+    record = json.loads(json.dumps(calibration.to_dict()))
+    restored = TemperatureCalibration.from_dict(record)
+    assert restored == calibration
+    words = restored.compensator().evaluate_fixed_q(restored.compensator().quantize_v(v[:100]))
+    npt.assert_array_equal(words, calibration.compensator().evaluate_fixed_q(
+        calibration.compensator().quantize_v(v[:100])))
+    record['rom']['beta_q'][0] += 1
+    with pytest.raises(ValueError, match='rom'):
+        TemperatureCalibration.from_dict(record)
+    with pytest.raises(ValueError, match='invalid'):
+        TemperatureCalibration.from_dict({'alpha': [1.0]})

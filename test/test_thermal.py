@@ -1,0 +1,197 @@
+"""Tests of the chunk-wise thermal model."""
+
+import math
+
+import numpy as np
+import numpy.testing as npt
+import pytest
+
+from qfa_ros.thermal import (
+    AMBIENT_PROFILES,
+    STANDARD_GRAVITY,
+    ThermalChunk,
+    ThermalConfig,
+    ThermalModel,
+)
+
+MICRO_G = 1e-6 * STANDARD_GRAVITY
+
+
+def _run_chunked(model, total, dt, rng):
+    chunks = []
+    while total:
+        n = min(total, int(rng.integers(1, 4000)))
+        chunks.append(model.run(n, dt))
+        total -= n
+    return ThermalChunk(*(np.concatenate(arrays) for arrays in zip(*chunks)))
+
+
+@pytest.mark.parametrize('profile', AMBIENT_PROFILES)
+@pytest.mark.parametrize('seed', [0, 1])
+def test_chunked_run_equals_long_run(profile, seed):
+    config = ThermalConfig(ambient_profile=profile, cycle_period_s=20.0, sensor_tau_s=3.0,
+                           probe_tau_s=0.5, room_correlation_s=2.0,
+                           hysteresis_m_s2=(5 * MICRO_G, 0.0, 10 * MICRO_G))
+    long_run = ThermalModel(config, np.random.default_rng(seed)).run(25000, 1e-3)
+    chunked = _run_chunked(ThermalModel(config, np.random.default_rng(seed)), 25000, 1e-3,
+                           np.random.default_rng(seed + 100))
+    for name in ThermalChunk._fields:
+        npt.assert_array_equal(getattr(chunked, name), getattr(long_run, name), err_msg=name)
+
+
+def test_same_seed_same_output_and_reset_replays():
+    config = ThermalConfig(ambient_profile='room', room_correlation_s=1.0)
+    first = ThermalModel(config, np.random.default_rng(7))
+    a = first.run(3000, 1e-3)
+    b = ThermalModel(config, np.random.default_rng(7)).run(3000, 1e-3)
+    c = ThermalModel(config, np.random.default_rng(8)).run(3000, 1e-3)
+    npt.assert_array_equal(a.v_temp, b.v_temp)
+    npt.assert_array_equal(a.ambient_c, b.ambient_c)
+    assert not np.array_equal(a.ambient_c, c.ambient_c)
+    first.reset()
+    npt.assert_array_equal(first.run(3000, 1e-3).v_temp, a.v_temp)
+
+
+def test_parent_generator_use_does_not_shift_the_stream():
+    config = ThermalConfig(ambient_profile='room', room_correlation_s=1.0)
+    parent = np.random.default_rng(9)
+    model = ThermalModel(config, parent)
+    head = model.run(100, 1e-3)
+    parent.standard_normal(1000)  # another consumer of the same generator
+    tail = model.run(100, 1e-3)
+    reference = ThermalModel(config, np.random.default_rng(9)).run(200, 1e-3)
+    npt.assert_array_equal(np.r_[head.ambient_c, tail.ambient_c], reference.ambient_c)
+
+
+@pytest.mark.parametrize('tau, dt', [(2.0, 1e-3), (300.0, 0.1), (0.05, 0.01)])
+def test_lag_step_response_is_exact(tau, dt):
+    config = ThermalConfig(ambient_profile='constant', ambient_c=30.0, initial_sensor_c=-10.0,
+                           sensor_tau_s=tau)
+    chunk = ThermalModel(config, np.random.default_rng(0)).run(2000, dt)
+    expected = 30.0 - 40.0 * np.exp(-chunk.time / tau)
+    npt.assert_allclose(chunk.sensor_c, expected, rtol=0, atol=1e-10)
+
+
+def test_lag_ramp_response_is_exact():
+    rate, tau = 0.05, 20.0
+    config = ThermalConfig(ambient_profile='ramp', ambient_c=0.0, ramp_rate_c_per_s=rate,
+                           ramp_limits_c=(-100.0, 100.0), sensor_tau_s=tau)
+    chunk = ThermalModel(config, np.random.default_rng(0)).run(5000, 0.1)
+    expected = rate * chunk.time - rate * tau * (1.0 - np.exp(-chunk.time / tau))
+    npt.assert_allclose(chunk.sensor_c, expected, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize('shape', ['trapezoid', 'sine'])
+def test_cycle_profile_bounds_and_period(shape):
+    config = ThermalConfig(cycle_shape=shape, cycle_period_s=100.0, cycle_dwell_fraction=0.3)
+    model = ThermalModel(config, np.random.default_rng(0))
+    chunk = model.run(20000, 0.01)
+    assert chunk.ambient_c.max() == pytest.approx(70.0)
+    assert chunk.ambient_c.min() == pytest.approx(-40.0)
+    assert chunk.ambient_c[0] == pytest.approx(15.0)
+    npt.assert_allclose(chunk.ambient_c[10000:], chunk.ambient_c[:10000], atol=1e-9)
+    if shape == 'trapezoid':
+        on_plateau = np.isclose(np.abs(chunk.ambient_c - 15.0), 55.0)
+        assert on_plateau.mean() == pytest.approx(0.3, abs=0.002)
+
+
+@pytest.mark.parametrize('seed', [3, 4])
+def test_room_profile_stays_bounded_and_wanders(seed):
+    config = ThermalConfig(ambient_profile='room', ambient_c=22.0, room_correlation_s=5.0)
+    chunk = ThermalModel(config, np.random.default_rng(seed)).run(100000, 0.01)
+    assert np.all(np.abs(chunk.ambient_c - 22.0) < 1.5)
+    assert chunk.ambient_c.std() > 0.2
+
+
+@pytest.mark.parametrize('seed', [5, 6])
+def test_temperature_sensor_noise_and_quantization(seed):
+    config = ThermalConfig(ambient_profile='constant', ambient_c=31.3, tsensor_noise_v=1e-3,
+                           adc_bits=12)
+    chunk = ThermalModel(config, np.random.default_rng(seed)).run(50000, 1e-3)
+    npt.assert_allclose(chunk.v_temp_true, 0.75 + 0.01 * 6.3, rtol=1e-12)
+    lsb = config.adc_lsb_v
+    npt.assert_array_equal(chunk.v_temp, chunk.adc_code * lsb)
+    error = chunk.v_temp - chunk.v_temp_true
+    assert abs(error.mean()) < 5 * 1e-3 / math.sqrt(error.size)
+    assert error.std() == pytest.approx(math.sqrt(1e-6 + lsb ** 2 / 12), rel=0.03)
+
+
+def test_noiseless_sensor_rounds_to_adc_grid():
+    config = ThermalConfig(tsensor_noise_v=0.0, cycle_period_s=10.0, sensor_tau_s=1.0)
+    chunk = ThermalModel(config, np.random.default_rng(0)).run(5000, 1e-3)
+    expected = np.rint(chunk.v_temp_true / config.adc_lsb_v) * config.adc_lsb_v
+    npt.assert_array_equal(chunk.v_temp, expected)
+
+
+def test_default_bias_is_qfa_like():
+    model = ThermalModel(ThermalConfig(), np.random.default_rng(0))
+    temperature = np.linspace(-40.0, 70.0, 2201)
+    bias = model.zero_bias(temperature)
+    p2p = np.ptp(bias, axis=0)
+    assert np.all((p2p > 200 * MICRO_G) & (p2p < 2000 * MICRO_G))
+    assert np.abs(np.gradient(bias, temperature, axis=0)).max() < 30 * MICRO_G
+    voltage = 0.75 + 0.01 * (temperature - 25.0)
+    alpha, beta = np.array(model.config.bias_alpha), np.array(model.config.bias_beta)
+    npt.assert_allclose(bias[:, 1], alpha[1, 0] * np.exp(beta[1, 0] * voltage)
+                        + alpha[1, 1] * np.exp(beta[1, 1] * voltage), rtol=1e-12)
+
+
+def test_polynomial_bias_and_scale_factor():
+    config = ThermalConfig(bias_model='polynomial',
+                           bias_poly=((1e-3, 2e-5, 0.0), (0.0, 0.0, 0.0), (1e-4, 0.0, 1e-7)),
+                           sf_tc_ppm_per_c=(100.0, 50.0, 0.0),
+                           sf_tc2_ppm_per_c2=(0.0, 0.0, 0.5))
+    model = ThermalModel(config, np.random.default_rng(0))
+    bias = model.zero_bias(np.array([25.0, 35.0]))
+    npt.assert_allclose(bias, [[1e-3, 0.0, 1e-4], [1.2e-3, 0.0, 1e-4 + 1e-5]], rtol=1e-12)
+    npt.assert_allclose(model.scale_factor_error(-15.0), [-4e-3, -2e-3, 8e-4], rtol=1e-12)
+
+
+def test_hysteresis_splits_heating_and_cooling():
+    amplitude = 20 * MICRO_G
+    config = ThermalConfig(cycle_period_s=200.0, sensor_tau_s=2.0, hysteresis_c=2.0,
+                           hysteresis_m_s2=(amplitude, 0.0, 0.0), tsensor_noise_v=0.0)
+    model = ThermalModel(config, np.random.default_rng(0))
+    chunk = model.run(40000, 0.01)
+    hysteresis_free = model.zero_bias(chunk.sensor_c)
+    split = chunk.bias[:, 0] - hysteresis_free[:, 0]
+    heating = np.gradient(chunk.sensor_c) > 1e-3
+    cooling = np.gradient(chunk.sensor_c) < -1e-3
+    # mid-range, 55 degC = 27 hysteresis_c away from the turning points
+    middle = (np.abs(chunk.sensor_c - 15.0) < 10.0) & (chunk.time > 50.0)
+    npt.assert_allclose(split[heating & middle], amplitude, rtol=1e-6)
+    npt.assert_allclose(split[cooling & middle], -amplitude, rtol=1e-6)
+    npt.assert_array_equal(chunk.bias[:, 1], hysteresis_free[:, 1])
+
+
+def test_time_is_exact_across_dt_change():
+    model = ThermalModel(ThermalConfig(), np.random.default_rng(0))
+    model.run(1000, 1e-3)
+    chunk = model.run(10, 0.5)
+    npt.assert_allclose(chunk.time, 1.0 + 0.5 * np.arange(10), rtol=1e-15)
+    assert model.time == pytest.approx(6.0)
+
+
+@pytest.mark.parametrize('kwargs, name', [
+    ({'ambient_c': float('nan')}, 'ambient_c'), ({'sensor_tau_s': 0.0}, 'sensor_tau_s'),
+    ({'ambient_profile': 'arctic'}, 'ambient_profile'), ({'adc_bits': 4}, 'adc_bits'),
+    ({'bias_alpha': ((1.0, 2.0),)}, 'bias_alpha'), ({'cycle_dwell_fraction': 1.0},
+                                                    'cycle_dwell_fraction'),
+    ({'tsensor_noise_v': -1e-3}, 'tsensor_noise_v'), ({'cycle_low_c': 80.0}, 'cycle_low_c'),
+    ({'sf_tc_ppm_per_c': (1.0, float('inf'), 0.0)}, 'sf_tc_ppm_per_c'),
+    ({'initial_sensor_c': float('nan')}, 'initial_sensor_c'),
+    ({'bias_poly': ((1.0, 2.0), (1.0,), (0.0,))}, 'bias_poly'),
+])
+def test_config_validation(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        ThermalConfig(**kwargs)
+
+
+def test_run_and_constructor_validation():
+    model = ThermalModel(ThermalConfig(), np.random.default_rng(0))
+    for n, dt, name in ((-1, 1e-3, 'n'), (10, 0.0, 'dt'), (10, float('nan'), 'dt')):
+        with pytest.raises(ValueError, match=name):
+            model.run(n, dt)
+    with pytest.raises(ValueError, match='rng'):
+        ThermalModel(ThermalConfig(), 42)
+    assert model.run(0, 1e-3).bias.shape == (0, 3)
