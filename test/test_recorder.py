@@ -1,0 +1,544 @@
+"""Tests for the MCAP recorder: files are checked with independent readers (rosbags, mcap)."""
+
+import hashlib
+import json
+import os
+from pathlib import Path
+import re
+import struct
+import subprocess
+import sys
+import textwrap
+
+from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import QosDurability, QosReliability
+import yaml
+
+from qfa_ros import recorder
+from qfa_ros.msgdefs import MESSAGE_DEFINITIONS, TYPE_HASHES
+from qfa_ros.recorder import (
+    FlightRecorder,
+    iter_part_messages,
+    McapBagWriter,
+    QOS_LATCHED,
+    QOS_SENSOR_DATA,
+    QosProfile,
+    RecorderError,
+    stamp,
+)
+from qfa_ros.trace import key_values_to_dict, TraceWriter
+
+REPO = Path(__file__).resolve().parents[1]
+T0 = 1_700_000_000_123_456_789
+REQUIRED_TYPES = [
+    'sensor_msgs/msg/Imu',
+    'sensor_msgs/msg/Temperature',
+    'diagnostic_msgs/msg/DiagnosticArray',
+    'std_msgs/msg/Float64MultiArray',
+    'std_msgs/msg/String',
+    'std_msgs/msg/Bool',
+    'diagnostic_msgs/msg/KeyValue',
+    'geometry_msgs/msg/AccelStamped',
+    'rosgraph_msgs/msg/Clock',
+]
+
+
+# --- message factories ---------------------------------------------------------------------
+
+def _vector(rng):
+    return dict(zip('xyz', rng.normal(size=3).tolist()))
+
+
+def _random_message(msgtype, rng, time_ns):
+    header = {'stamp': stamp(time_ns), 'frame_id': f'frame_{rng.integers(100)}'}
+    text = ''.join(rng.choice(list('abcxyz_ 09'), size=rng.integers(0, 12)))
+    if msgtype == 'sensor_msgs/msg/Imu':
+        return {
+            'header': header,
+            'orientation': dict(zip('xyzw', rng.normal(size=4).tolist())),
+            'orientation_covariance': [-1.0] + [0.0] * 8,
+            'angular_velocity': _vector(rng),
+            'angular_velocity_covariance': rng.normal(size=9),  # numpy array accepted
+            'linear_acceleration': _vector(rng),
+            'linear_acceleration_covariance': rng.normal(size=9).tolist(),
+        }
+    if msgtype == 'sensor_msgs/msg/Temperature':
+        return {'header': header, 'temperature': float(rng.normal(25, 5)),
+                'variance': float(rng.random())}
+    if msgtype == 'diagnostic_msgs/msg/DiagnosticArray':
+        return {'header': header, 'status': [
+            {'level': int(rng.integers(0, 3)), 'name': f'axis_{i}', 'message': text,
+             'hardware_id': 'qfa', 'values': [
+                 {'key': f'k{j}', 'value': repr(float(rng.normal()))}
+                 for j in range(rng.integers(0, 4))]}
+            for i in range(rng.integers(1, 4))]}
+    if msgtype == 'std_msgs/msg/Float64MultiArray':
+        n = int(rng.integers(0, 20))
+        return {'layout': {'dim': [{'label': 'n', 'size': n, 'stride': n}], 'data_offset': 0},
+                'data': rng.normal(size=n)}
+    if msgtype == 'std_msgs/msg/String':
+        return {'data': text}
+    if msgtype == 'std_msgs/msg/Bool':
+        return {'data': bool(rng.integers(0, 2))}
+    if msgtype == 'diagnostic_msgs/msg/KeyValue':
+        return {'key': text, 'value': str(rng.integers(1000))}
+    if msgtype == 'geometry_msgs/msg/AccelStamped':
+        return {'header': header, 'accel': {'linear': _vector(rng), 'angular': _vector(rng)}}
+    if msgtype == 'rosgraph_msgs/msg/Clock':
+        return {'clock': stamp(time_ns)}
+    raise AssertionError(msgtype)
+
+
+def _assert_same(actual, expected, where='msg'):
+    """Compare a rosbags-deserialized message with the mapping it was written from."""
+    if isinstance(expected, dict):
+        for key, value in expected.items():
+            _assert_same(getattr(actual, key), value, f'{where}.{key}')
+    elif isinstance(expected, (list, tuple, np.ndarray)) and len(expected) and isinstance(
+            expected[0], dict):
+        assert len(actual) == len(expected), where
+        for index, (item_actual, item_expected) in enumerate(zip(actual, expected)):
+            _assert_same(item_actual, item_expected, f'{where}[{index}]')
+    elif isinstance(expected, (list, tuple, np.ndarray)):
+        np.testing.assert_array_equal(np.asarray(actual), np.asarray(expected), err_msg=where)
+    else:
+        assert actual == expected, f'{where}: {actual!r} != {expected!r}'
+
+
+def _string_cdr(text):
+    """Hand-encode std_msgs/String as CDR (little endian) independently of the recorder."""
+    raw = text.encode() + b'\0'
+    return b'\x00\x01\x00\x00' + struct.pack('<I', len(raw)) + raw
+
+
+def _read_all(path):
+    with AnyReader([Path(path)]) as reader:
+        return [(c.topic, c.msgtype, t, reader.deserialize(raw, c.msgtype), bytes(raw))
+                for c, t, raw in reader.messages()]
+
+
+# --- round trip ----------------------------------------------------------------------------
+
+@pytest.mark.parametrize('compression', ['zstd', 'lz4', None])
+@pytest.mark.parametrize('seed', [1, 2])
+def test_round_trip_every_type_through_rosbags(tmp_path, compression, seed):
+    rng = np.random.default_rng(seed)
+    path = tmp_path / 'trip.mcap'
+    written = []
+    qos = {'sensor_msgs/msg/Imu': QOS_SENSOR_DATA, 'std_msgs/msg/Bool': QOS_LATCHED}
+    with McapBagWriter(path, compression=compression, chunk_size=2048,
+                       storage_metadata={'seed': seed}) as bag:
+        for msgtype in REQUIRED_TYPES:
+            bag.add_topic('/t/' + msgtype.split('/')[-1].lower(), msgtype, qos.get(msgtype))
+        for index in range(300):
+            msgtype = REQUIRED_TYPES[int(rng.integers(len(REQUIRED_TYPES)))]
+            topic = '/t/' + msgtype.split('/')[-1].lower()
+            time_ns = T0 + index * 1_000_000 + int(rng.integers(0, 1000))
+            message = _random_message(msgtype, rng, time_ns)
+            bag.write(topic, message, time_ns, publish_time_ns=time_ns + 5)
+            written.append((topic, msgtype, time_ns, message))
+    assert not path.with_name('trip.mcap.part').exists()
+
+    read = _read_all(path)
+    assert len(read) == len(written)
+    for (topic, msgtype, time_ns, message), (r_topic, r_type, r_time, r_msg, _) in zip(
+            sorted(written, key=lambda w: w[2]), read):
+        assert (r_topic, r_type, r_time) == (topic, msgtype, time_ns)
+        _assert_same(r_msg, message, topic)
+
+    with AnyReader([path]) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        profiles = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
+    expected_counts = {}
+    for topic, *_ in written:
+        expected_counts[topic] = expected_counts.get(topic, 0) + 1
+    assert {t: n for t, n in counts.items() if n} == expected_counts
+    assert profiles['/t/imu'][0].reliability == QosReliability.BEST_EFFORT
+    assert profiles['/t/bool'][0].durability == QosDurability.TRANSIENT_LOCAL
+    assert profiles['/t/string'][0].reliability == QosReliability.RELIABLE
+
+    with open(path, 'rb') as stream:
+        mcap = make_reader(stream)
+        header = mcap.get_header()
+        summary = mcap.get_summary()
+        metadata = {m.name: m.metadata for m in mcap.iter_metadata()}
+    assert header.profile == 'ros2'
+    assert 'qfa_ros' in header.library
+    assert {s.name for s in summary.schemas.values()} == set(REQUIRED_TYPES)
+    assert {s.encoding for s in summary.schemas.values()} == {'ros2msg'}
+    for schema in summary.schemas.values():
+        assert schema.data.decode() == MESSAGE_DEFINITIONS[schema.name]
+    assert {c.message_encoding for c in summary.channels.values()} == {'cdr'}
+    assert summary.statistics.message_count == len(written)
+    assert len(summary.chunk_indexes) > 1
+    assert all(index.message_index_offsets for index in summary.chunk_indexes)
+    assert {index.compression for index in summary.chunk_indexes} == {compression or ''}
+    for channel in summary.channels.values():
+        schema_name = summary.schemas[channel.schema_id].name
+        assert channel.metadata['topic_type_hash'] == TYPE_HASHES[schema_name]
+        qos_list = yaml.safe_load(channel.metadata['offered_qos_profiles'])
+        assert set(qos_list[0]) == {
+            'history', 'depth', 'reliability', 'durability', 'deadline', 'lifespan',
+            'liveliness', 'liveliness_lease_duration', 'avoid_ros_namespace_conventions'}
+
+    bag_info = yaml.safe_load(metadata['rosbag2']['serialized_metadata'])
+    times = [w[2] for w in written]
+    assert bag_info['version'] == 9
+    assert bag_info['storage_identifier'] == 'mcap'
+    assert bag_info['message_count'] == len(written)
+    assert bag_info['starting_time']['nanoseconds_since_epoch'] == min(times)
+    assert bag_info['duration']['nanoseconds'] == max(times) - min(times)
+    assert bag_info['custom_data'] == {'seed': str(seed)}
+    assert bag_info['relative_file_paths'] == ['trip.mcap']
+    topic_counts = {t['topic_metadata']['name']: t['message_count']
+                    for t in bag_info['topics_with_message_count'] if t['message_count']}
+    assert topic_counts == expected_counts
+
+
+def test_serialized_path_matches_rclpy_serialization(tmp_path):
+    serialization = pytest.importorskip('rclpy.serialization')
+    msg_module = pytest.importorskip('sensor_msgs.msg')
+    imu = msg_module.Imu()
+    imu.header.stamp.sec, imu.header.stamp.nanosec = 17, 250
+    imu.header.frame_id = 'imu_link'
+    imu.linear_acceleration.x, imu.linear_acceleration.z = 0.125, -9.80665
+    imu.linear_acceleration_covariance[4] = 3.5e-9
+    path = tmp_path / 'rclpy.mcap'
+    with McapBagWriter(path) as bag:
+        bag.add_topic('/imu/data_raw', 'sensor_msgs/msg/Imu', QOS_SENSOR_DATA)
+        bag.write_serialized('/imu/data_raw', serialization.serialize_message(imu), 17_000_000_250)
+        bag.write('/imu/data_raw', {'header': {'stamp': stamp(18_000_000_000)},
+                                    'linear_acceleration': {'x': 0.125}}, 18_000_000_000)
+    (_, _, t1, first, raw1), (_, _, t2, second, raw2) = _read_all(path)
+    assert t1 == 17_000_000_250 and first.header.frame_id == 'imu_link'
+    assert first.linear_acceleration.z == -9.80665
+    assert first.linear_acceleration_covariance[4] == 3.5e-9
+    # And the dict path produces bytes rclpy itself decodes.
+    decoded = serialization.deserialize_message(raw2, msg_module.Imu)
+    assert decoded.linear_acceleration.x == 0.125 and decoded.header.stamp.sec == 18
+
+
+def test_embedded_definitions_match_installed_interfaces():
+    share = Path(sys.prefix) / 'share'
+    if not (share / 'sensor_msgs' / 'msg' / 'Imu.msg').exists():
+        pytest.skip('ROS interface files are not installed in this environment')
+    field_type = re.compile(r'(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+')
+    primitives = {'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16',
+                  'uint16', 'int32', 'uint32', 'int64', 'uint64', 'string'}
+
+    def full_text(root):
+        seen = set()
+
+        def expand(name):
+            package, type_name = name.split('/')[0], name.split('/')[-1]
+            text = (share / package / 'msg' / f'{type_name}.msg').read_text()
+            dependencies = sorted({t if '/' in t else f'{package}/{t}'
+                                   for t in field_type.findall(text) if t not in primitives})
+            for dependency in dependencies:
+                if dependency not in seen:
+                    seen.add(dependency)
+                    text += '\n' + '=' * 80 + f'\nMSG: {dependency}\n' + expand(dependency)
+            return text
+        return expand(root)
+
+    assert set(REQUIRED_TYPES) <= set(MESSAGE_DEFINITIONS)
+    for msgtype, definition in MESSAGE_DEFINITIONS.items():
+        assert definition == full_text(msgtype), msgtype
+        package, _, type_name = msgtype.split('/')
+        hashes = json.loads((share / package / 'msg' / f'{type_name}.json').read_text())
+        assert {h['type_name']: h['hash_string'] for h in hashes['type_hashes']}[msgtype] \
+            == TYPE_HASHES[msgtype]
+
+
+def test_recorder_needs_no_ros():
+    code = ('import sys, qfa_ros.recorder, qfa_ros.trace\n'
+            'ros = [m for m in sys.modules if m.split(".")[0] in '
+            '("rclpy", "sensor_msgs", "std_msgs", "rosidl_runtime_py", "diagnostic_msgs")]\n'
+            'assert not ros, ros\n')
+    subprocess.run([sys.executable, '-c', code], cwd=REPO, check=True, timeout=60)
+
+
+# --- durability ----------------------------------------------------------------------------
+
+CRASH_SCRIPT = textwrap.dedent("""
+    import os, sys
+    from qfa_ros.recorder import McapBagWriter
+    path, count = sys.argv[1], int(sys.argv[2])
+    bag = McapBagWriter(path, chunk_size=1024, compression='zstd')
+    bag.add_topic('/count', 'std_msgs/msg/String')
+    for index in range(count):
+        bag.write('/count', {'data': f'message {index:06d} ' + 'x' * 40}, 1000 + index)
+    os._exit(3)  # die without finish(): no summary, no rename
+""")
+
+
+@pytest.mark.parametrize('cut_bytes', [0, 1, 200])
+def test_crash_leaves_part_readable_up_to_last_chunk(tmp_path, cut_bytes):
+    earlier = tmp_path / 'earlier.mcap'
+    with McapBagWriter(earlier) as bag:
+        bag.add_topic('/count', 'std_msgs/msg/String')
+        bag.write('/count', {'data': 'before the crash'}, 1)
+    earlier_digest = hashlib.sha256(earlier.read_bytes()).hexdigest()
+
+    path = tmp_path / 'crashed.mcap'
+    result = subprocess.run([sys.executable, '-c', CRASH_SCRIPT, str(path), '500'], cwd=REPO,
+                            timeout=60)
+    assert result.returncode == 3
+    part = tmp_path / 'crashed.mcap.part'
+    assert part.exists() and not path.exists()
+    if cut_bytes:  # a write torn inside the last chunk
+        with open(part, 'r+b') as stream:
+            stream.truncate(part.stat().st_size - cut_bytes)
+
+    recovered = [message.data for _, message in iter_part_messages(part)]
+    assert 50 < len(recovered) < 500  # the chunk in progress is lost, complete ones are not
+    assert recovered == [_string_cdr(f'message {i:06d} ' + 'x' * 40)
+                         for i in range(len(recovered))]
+    # Same answer from the plain mcap streaming reader, stopping at the first bad record.
+    plain = []
+    with open(part, 'rb') as stream:
+        try:
+            for record in StreamReader(stream, validate_crcs=True).records:
+                if type(record).__name__ == 'Message':
+                    plain.append(record.data)
+        except Exception:
+            pass
+    assert plain == recovered
+    assert hashlib.sha256(earlier.read_bytes()).hexdigest() == earlier_digest
+    assert [m[3].data for m in _read_all(earlier)] == ['before the crash']
+    with pytest.raises(FileExistsError):
+        McapBagWriter(path)  # the stale .part is kept for recovery, not overwritten
+
+
+FULL_DISK_SCRIPT = textwrap.dedent("""
+    import resource, signal, sys
+    from qfa_ros.recorder import McapBagWriter
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write then fails with EFBIG
+    resource.setrlimit(resource.RLIMIT_FSIZE, (16384, 16384))
+    bag = McapBagWriter(sys.argv[1], compression=None, chunk_size=1000)
+    bag.add_topic('/s', 'std_msgs/msg/String')
+    try:
+        for index in range(10000):
+            bag.write('/s', {'data': 'y' * 100}, index)
+    except OSError as error:
+        print('write', type(error).__name__, error.errno)
+    try:
+        bag.finish()
+    except OSError as error:
+        print('finish', type(error).__name__, error.errno)
+""")
+
+
+def test_full_disk_raises_oserror_and_publishes_nothing(tmp_path):
+    path = tmp_path / 'full.mcap'
+    result = subprocess.run([sys.executable, '-c', FULL_DISK_SCRIPT, str(path)], cwd=REPO,
+                            capture_output=True, text=True, timeout=60, check=True)
+    lines = result.stdout.split('\n')
+    assert lines[0].startswith('write RecorderError 27'), result.stdout  # EFBIG
+    assert lines[1].startswith('finish RecorderError'), result.stdout
+    assert not path.exists()
+    assert (tmp_path / 'full.mcap.part').stat().st_size <= 16384
+
+
+def _unwritable(tmp_path, kind):
+    if kind == 'missing':
+        return tmp_path / 'no' / 'such' / 'dir'
+    if kind == 'file':
+        (tmp_path / 'plain').write_text('not a directory')
+        return tmp_path / 'plain'
+    if os.geteuid() == 0:
+        pytest.skip('permission bits do not stop root')
+    locked = tmp_path / 'locked'
+    locked.mkdir(mode=0o500)
+    return locked
+
+
+@pytest.mark.parametrize('kind', ['missing', 'file', 'readonly'])
+def test_unwritable_directory_raises_at_creation(tmp_path, kind):
+    directory = _unwritable(tmp_path, kind)
+    with pytest.raises(OSError, match='cannot create MCAP file'):
+        McapBagWriter(directory / 'x.mcap')
+    with pytest.raises(OSError, match='cannot create MCAP file'):
+        TraceWriter(directory / 'x.mcap')
+    with pytest.raises(OSError, match='recording directory'):
+        FlightRecorder(directory)
+
+
+def test_existing_file_is_never_replaced(tmp_path):
+    path = tmp_path / 'keep.mcap'
+    path.write_bytes(b'precious')
+    with pytest.raises(FileExistsError):
+        McapBagWriter(path)
+    # A file appearing while recording is not clobbered either.
+    other = tmp_path / 'race.mcap'
+    bag = McapBagWriter(other)
+    bag.add_topic('/b', 'std_msgs/msg/Bool')
+    bag.write('/b', {'data': True}, 5)
+    other.write_bytes(b'also precious')
+    with pytest.raises(RecorderError):
+        bag.finish()
+    assert path.read_bytes() == b'precious' and other.read_bytes() == b'also precious'
+
+
+def test_finish_is_idempotent_and_errors_abort(tmp_path):
+    path = tmp_path / 'once.mcap'
+    bag = McapBagWriter(path)
+    bag.add_topic('/b', 'std_msgs/msg/Bool')
+    bag.write('/b', {'data': True}, 5)
+    assert bag.finish() == path
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    assert bag.finish() == path and bag.finished
+    bag.abort()
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == digest
+    with pytest.raises(RecorderError, match='already finished'):
+        bag.write('/b', {'data': False}, 6)
+
+    aborted = tmp_path / 'aborted.mcap'
+    with pytest.raises(ZeroDivisionError):
+        with McapBagWriter(aborted) as bag:
+            bag.add_topic('/b', 'std_msgs/msg/Bool')
+            raise ZeroDivisionError
+    assert not aborted.exists() and aborted.with_name('aborted.mcap.part').exists()
+    with pytest.raises(RecorderError, match='aborted'):
+        bag.finish()
+
+
+@pytest.mark.parametrize('call, error, match', [
+    (lambda b: b.write('/b', {'data': True}, 1.5), TypeError, 'integer nanoseconds'),
+    (lambda b: b.write('/b', {'data': True}, -1), ValueError, r'\[0, 2\*\*64\)'),
+    (lambda b: b.write('/b', {'dat': True}, 1), KeyError, "no field 'dat'"),
+    (lambda b: b.write('/nope', {'data': True}, 1), KeyError, 'not registered'),
+    (lambda b: b.add_topic('/b', 'std_msgs/msg/String'), ValueError, 'already carries'),
+    (lambda b: b.add_topic('/x', 'nav_msgs/msg/Odometry'), ValueError, 'no message definition'),
+    (lambda b: b.add_topic('bad topic', 'std_msgs/msg/Bool'), ValueError, 'invalid topic'),
+    (lambda b: b.write_serialized('/b', b'\x01\x02', 1), ValueError, 'not CDR'),
+])
+def test_bad_input_is_refused(tmp_path, call, error, match):
+    with McapBagWriter(tmp_path / 'bad.mcap') as bag:
+        bag.add_topic('/b', 'std_msgs/msg/Bool')
+        with pytest.raises(error, match=match):
+            call(bag)
+        bag.write('/b', {'data': True}, 2)  # the writer is still usable afterwards
+    assert [m[3].data for m in _read_all(tmp_path / 'bad.mcap')] == [True]
+
+
+# --- flight recorder -----------------------------------------------------------------------
+
+@pytest.mark.parametrize('limits', [
+    {'max_bytes': 6000},
+    {'max_duration_ns': 250_000_000},
+    {'max_bytes': 20000, 'max_duration_ns': 400_000_000},
+])
+@pytest.mark.parametrize('seed', [3, 4])
+def test_flight_recorder_splits_without_losing_messages(tmp_path, limits, seed):
+    rng = np.random.default_rng(seed)
+    written = []
+    session = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z
+    with FlightRecorder(tmp_path, 'flight', compression='lz4', session_time_ns=session,
+                        qos={'/a': QOS_SENSOR_DATA}, **limits) as flight:
+        time_ns = T0
+        for _ in range(400):
+            time_ns += int(rng.integers(1, 6_000_000))
+            topic = '/a' if rng.random() < 0.7 else '/b'
+            data = _string_cdr('z' * int(rng.integers(0, 120)))
+            flight.record(topic, 'std_msgs/msg/String', data, time_ns)
+            written.append((topic, time_ns, data))
+    files = flight.files
+    assert flight.close() == files  # idempotent
+    assert len(files) >= 3
+    assert [f.name for f in files] == [f'flight_20260101T000000_{i:04d}.mcap'
+                                       for i in range(len(files))]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f.name for f in files]
+
+    recovered = []
+    for path in files:
+        messages = _read_all(path)
+        assert messages, path
+        times = [m[2] for m in messages]
+        if 'max_duration_ns' in limits:
+            assert times[-1] - times[0] < limits['max_duration_ns']
+        if 'max_bytes' in limits:
+            assert path.stat().st_size <= limits['max_bytes']
+        recovered.extend((m[0], m[2], m[4]) for m in messages)
+    assert recovered == written
+
+
+def test_flight_recorder_rejects_late_writes_and_keeps_sequence(tmp_path):
+    with FlightRecorder(tmp_path, max_duration_ns=10) as flight:
+        for index in range(5):
+            flight.record('/c', 'std_msgs/msg/String', _string_cdr(str(index)), 100 + 10 * index)
+    assert len(flight.files) == 5
+    with pytest.raises(RecorderError, match='closed'):
+        flight.record('/c', 'std_msgs/msg/String', _string_cdr('late'), 1000)
+
+
+# --- traces --------------------------------------------------------------------------------
+
+def test_trace_writer_is_self_describing(tmp_path):
+    rng = np.random.default_rng(7)
+    path = tmp_path / 'trace.mcap'
+    steps = np.arange(6)
+    counts = rng.normal(1000, 3, size=6)
+    row_times = T0 + steps * 50_000_000
+    settings = {'schedule': 'forward', 'delta_n0': 64, 'steps': 5, 'seed': np.int64(11),
+                'axes': ['x', 'y'], 'model': {'k0': 6.3e-6, 'enabled': True}, 'note': None}
+    result = {'delta_k_pre_ppm': 181.25, 'slope': np.float64(1.0 / 3.0), 'nan': float('nan')}
+    with TraceWriter(path, source='qfa_node') as trace:
+        trace.write_settings(settings, T0)
+        assert trace.write_table('forward/points', {'step': steps, 'n_out': counts},
+                                 row_times) == 6
+        trace.write_table('forward/fit', {'slope': [0.5], 'intercept': [2.0]}, T0 + 10**9)
+        trace.write_imu({'header': {'stamp': stamp(T0)}, 'linear_acceleration': {'z': 9.8}},
+                        T0)
+        trace.write_temperature({'temperature': 25.5}, T0)
+        trace.write_result(result, T0 + 10**9, level=1, summary='181 ppm')
+        with pytest.raises(ValueError, match='reserved'):
+            trace.write_table('settings', {'a': [1.0]}, T0)
+        with pytest.raises(ValueError, match='2\\*\\*53'):
+            trace.write_table('times', {'t_ns': row_times}, T0)
+        with pytest.raises(ValueError, match='differ in length'):
+            trace.write_table('bad', {'a': [1.0], 'b': [1.0, 2.0]}, T0)
+        with pytest.raises(ValueError, match='was written with columns'):
+            trace.write_table('forward/points', {'n_out': counts}, T0)
+    messages = _read_all(path)
+    by_topic = {}
+    for topic, msgtype, time_ns, message, _ in messages:
+        by_topic.setdefault(topic, []).append((msgtype, time_ns, message))
+
+    assert set(by_topic) == {'/qfa/trace/settings', '/qfa/trace/forward/points',
+                             '/qfa/trace/forward/fit', '/qfa/trace/imu/data_raw',
+                             '/qfa/trace/imu/temperature', '/qfa/trace/result'}
+    (msgtype, _, settings_msg), = by_topic['/qfa/trace/settings']
+    assert msgtype == 'diagnostic_msgs/msg/DiagnosticArray'
+    status = settings_msg.status[0]
+    assert status.hardware_id == 'qfa_node' and status.name == 'qfa/trace/settings'
+    assert key_values_to_dict(status.values) == {
+        'schedule': 'forward', 'delta_n0': 64, 'steps': 5, 'seed': 11, 'axes': ['x', 'y'],
+        'model.k0': 6.3e-6, 'model.enabled': True, 'note': None}
+    (_, _, result_msg), = by_topic['/qfa/trace/result']
+    decoded = key_values_to_dict(result_msg.status[0].values)
+    assert decoded['slope'] == 1.0 / 3.0 and np.isnan(decoded['nan'])
+    assert result_msg.status[0].level == 1 and result_msg.status[0].message == '181 ppm'
+
+    points = by_topic['/qfa/trace/forward/points']
+    assert [t for _, t, _ in points] == row_times.tolist()
+    assert [d.label for d in points[0][2].layout.dim] == ['step', 'n_out']
+    np.testing.assert_array_equal([m.data for _, _, m in points], np.column_stack([steps, counts]))
+    assert by_topic['/qfa/trace/imu/data_raw'][0][2].linear_acceleration.z == 9.8
+
+    with AnyReader([path]) as reader:
+        latched = {c.topic for c in reader.connections
+                   if c.ext.offered_qos_profiles[0].durability == QosDurability.TRANSIENT_LOCAL}
+    assert latched == {'/qfa/trace/settings', '/qfa/trace/result'}
+
+
+def test_qos_profile_yaml_round_trip():
+    profile = QosProfile(history='keep_all', depth=0, deadline_ns=1_500_000_000)
+    parsed = yaml.safe_load(recorder.offered_qos_yaml([profile, QOS_SENSOR_DATA]))
+    assert parsed[0]['deadline'] == {'sec': 1, 'nsec': 500_000_000}
+    assert parsed[0]['lifespan'] == {'sec': 9223372036, 'nsec': 854775807}
+    assert parsed[1]['reliability'] == 'best_effort' and parsed[1]['depth'] == 5
