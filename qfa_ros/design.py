@@ -8,7 +8,7 @@ from scipy.linalg import expm
 
 from qfa_ros.hardware import nominal_gains
 
-GAIN_FRAC_BITS = 24
+GAIN_FRAC_BITS = 32
 """Fraction bits of the controller gain word k(D(z))."""
 
 COEF_FRAC_BITS = 20
@@ -25,7 +25,7 @@ class ControllerDesign:
 
     Per loop step ``n`` (integer arithmetic, ``>>`` rounds to nearest)::
 
-        x[n] = k_D e[n]                                  k_D = gain_word / 2^24
+        x[n] = k_D e[n]                                  k_D = gain_word / 2^32
         y[n] = a1 y[n-1] + b0 x[n] + b1 x[n-1]           lead, coefficients / 2^20
         I[n] = I[n-1] + ki y[n]                          integrator, ki / 2^20
         N_PI[n] = clamp(y[n] + I[n])                     DA2 command
@@ -39,7 +39,7 @@ class ControllerDesign:
     Attributes
     ----------
     gain_word : int
-        k(D(z)) in Q24 [count/count].
+        k(D(z)) in Q32 [count/count].
     lead_a1, lead_b0, lead_b1 : int
         Lead coefficients in Q20.
     integrator_gain : int
@@ -63,7 +63,7 @@ class ControllerDesign:
         return self.gain_word / 2 ** GAIN_FRAC_BITS
 
     def with_gain(self, gain):
-        """Return the same controller with k(D(z)) = ``gain`` (quantized to Q24)."""
+        """Return the same controller with k(D(z)) = ``gain`` (quantized to Q32)."""
         if not math.isfinite(gain) or gain <= 0:
             raise ValueError(f'controller gain must be positive and finite, got {gain!r}')
         word = int(round(gain * 2 ** GAIN_FRAC_BITS))

@@ -14,9 +14,11 @@ class DriftModel:
     r"""
     Relative drift ``delta`` of every loop component of every axis.
 
-    ``delta_c(t) = step_c + rate_c * accel * t`` where ``t`` is sensor time [s],
-    ``rate_c`` the aging rate [1/s] (set in ppm/year) and ``accel`` the
-    time-acceleration factor (1 = real time; 3.15e7 makes a year pass in a second).
+    ``delta_c(t, T) = step_c + rate_c * accel * t + tc_c * (T - T_ref)`` where ``t`` is
+    sensor time [s], ``rate_c`` the aging rate [1/s] (set in ppm/year), ``accel`` the
+    time-acceleration factor (1 = real time; 3.15e7 makes a year pass in a second),
+    ``tc_c`` the temperature coefficient [1/degC] and ``T`` the sensor temperature
+    [degC] against the reference temperature ``T_ref`` (20 degC).
 
     Parameters
     ----------
@@ -29,6 +31,8 @@ class DriftModel:
         self.components = DRIFT_COMPONENTS
         self.step = np.zeros((n_axes, len(DRIFT_COMPONENTS)))
         self.rate = np.zeros((n_axes, len(DRIFT_COMPONENTS)))
+        self.temperature_coefficient = np.zeros((n_axes, len(DRIFT_COMPONENTS)))
+        self.reference_temperature = 20.0
         self.time_acceleration = 1.0
         self.version = 0
 
@@ -52,6 +56,12 @@ class DriftModel:
         self.rate[self._index(axis, component)] = ppm_per_year * PPM / SECONDS_PER_YEAR
         self.version += 1
 
+    def set_temperature_coefficient(self, axis, component, ppm_per_degc):
+        """Set the temperature coefficient of ``component`` on ``axis`` [ppm/degC]."""
+        _check_finite('ppm_per_degc', ppm_per_degc)
+        self.temperature_coefficient[self._index(axis, component)] = ppm_per_degc * PPM
+        self.version += 1
+
     def set_time_acceleration(self, factor):
         """Set the aging time-acceleration factor (>= 0)."""
         _check_finite('time_acceleration', factor)
@@ -65,9 +75,12 @@ class DriftModel:
         """Return True if any aging rate is non-zero."""
         return bool(np.any(self.rate != 0) and self.time_acceleration > 0)
 
-    def at(self, axis, t):
-        """Return ``{component: delta}`` of ``axis`` at sensor time ``t`` [s]."""
+    def at(self, axis, t, temperature=None):
+        """Return ``{component: delta}`` of ``axis`` at time ``t`` [s] and ``temperature``."""
         values = self.step[axis] + self.rate[axis] * self.time_acceleration * t
+        if temperature is not None:
+            values = values + self.temperature_coefficient[axis] \
+                * (temperature - self.reference_temperature)
         return dict(zip(self.components, values.tolist()))
 
 

@@ -93,7 +93,7 @@ class AxisHardware:
     k_amp: float = 4.0
     k_demo: float = 1.0
     open_loop_bridge_ratio: float = 0.28
-    n_ad_bits: int = 18
+    n_ad_bits: int = 24
     v_ad_ref: float = 5.0
     n_da2_bits: int = 24
     v_da2_ref: float = 5.0

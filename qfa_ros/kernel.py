@@ -30,7 +30,7 @@ N_FLOAT_STATE = 2
 T_X_PREV, T_Y_PREV, T_INTEGRATOR, T_APPLIED, T_LAST = range(5)
 N_INT_STATE = 5
 
-_GAIN_SHIFT = 16         # Q24 gain * count -> Q8 signal
+_GAIN_SHIFT = 24         # Q32 gain * count -> Q8 signal
 _COEF_SHIFT = 20         # Q20 coefficients
 _SIGNAL_SHIFT = 8        # Q8 signal -> count
 
@@ -61,7 +61,8 @@ def run_axis(accel, adc_noise, decimation, params_f, params_i, state_f, state_i,
     state_f, state_i : float64[N_FLOAT_STATE], int64[N_INT_STATE]
         Loop state, updated in place.
     out_mean : float64[n // decimation]
-        Mean sensor output word per sample [count].
+        Mean sensor output word per sample [count]: the DA2 command in closed loop,
+        ``k(D(z)) e`` with its 8 fraction bits in open loop.
     out_flags : int8[n // decimation]
         Bit 0: DA2 command clipped; bit 1: ADC clipped; bit 2: over the rated range.
     """
@@ -116,7 +117,9 @@ def run_axis(accel, adc_noise, decimation, params_f, params_i, state_f, state_i,
             block_flags |= 2
         x = _round_shift(gain * code, _GAIN_SHIFT)
         if open_loop:
+            # The open-loop readout keeps the 8 fraction bits of the FPGA word.
             output = _round_shift(x, _SIGNAL_SHIFT)
+            reading = x / 256.0
             command = np.int64(0)
         else:
             y = _round_shift(a1 * y_prev + b0 * x + b1 * x_prev, _COEF_SHIFT)
@@ -141,6 +144,7 @@ def run_axis(accel, adc_noise, decimation, params_f, params_i, state_f, state_i,
             x_prev = x
             y_prev = y
             output = command
+            reading = float(command)
         if output > range_counts or output < -range_counts:
             block_flags |= 4
 
@@ -161,7 +165,7 @@ def run_axis(accel, adc_noise, decimation, params_f, params_i, state_f, state_i,
                 omega = 0.0
         applied = command
 
-        block_sum += output
+        block_sum += reading
         k += 1
         if k == decimation:
             j = i // decimation

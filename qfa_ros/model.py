@@ -15,6 +15,7 @@ from qfa_ros.profiles import StaticProfile
 
 AXES = ('x', 'y', 'z')
 FLAG_DA2_CLIPPED, FLAG_ADC_CLIPPED, FLAG_OVER_RANGE = 1, 2, 4
+MAX_CONTROLLER_GAIN = 4.0
 
 
 @dataclass(frozen=True)
@@ -244,6 +245,7 @@ class QfaTriad:
         self._bias = np.asarray(self.config.bias, dtype=float)
         self._k2 = np.asarray(self.config.k2, dtype=float)
         self._applied_version = None
+        self.temperature = self.drift.reference_temperature
         self._refresh(force=True)
         self._start_equilibrium()
 
@@ -261,10 +263,11 @@ class QfaTriad:
 
     # Loop words --------------------------------------------------------------------------
     def _refresh(self, force=False):
-        key = (self.drift.version, self.sample_index if self.drift.aging else None)
+        key = (self.drift.version, self.temperature,
+               self.sample_index if self.drift.aging else None)
         if force or key != self._applied_version:
             for i, axis in enumerate(self.axes):
-                axis.update(self.drift.at(i, self.time))
+                axis.update(self.drift.at(i, self.time, self.temperature))
             self._applied_version = key
 
     def invalidate(self):
@@ -281,6 +284,12 @@ class QfaTriad:
             settle = int(math.ceil(self.config.settle_time / self.sample_period))
             self.settle_until[axis] = self.sample_index + settle
         self.invalidate()
+
+    def set_temperature(self, temperature):
+        """Set the sensor temperature [degC] that drives the temperature coefficients."""
+        if not math.isfinite(temperature):
+            raise ValueError(f'temperature must be finite, got {temperature!r}')
+        self.temperature = float(temperature)
 
     def set_reference_current(self, axis, on):
         """Close (True) or open (False) the switch M1 of the constant current source."""
@@ -306,9 +315,13 @@ class QfaTriad:
         self.invalidate()
 
     def set_controller_gain(self, axis, gain):
-        """Write k(D(z)) of ``axis`` (quantized to the Q24 gain word)."""
-        if not math.isfinite(gain) or not 0 < gain < 256:
-            raise ValueError(f'controller gain must be in (0, 256), got {gain!r}')
+        """Write k(D(z)) of ``axis`` (quantized to the Q32 gain word).
+
+        The bound keeps every int64 product of the kernel below 2^62 at full-scale ADC.
+        """
+        if not math.isfinite(gain) or not 0 < gain < MAX_CONTROLLER_GAIN:
+            raise ValueError(f'controller gain must be in (0, {MAX_CONTROLLER_GAIN}), '
+                             f'got {gain!r}')
         loop = self.axes[axis]
         loop.controller = loop.controller.with_gain(gain)
         self.invalidate()

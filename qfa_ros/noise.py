@@ -32,9 +32,9 @@ class NoiseConfig:
     """
 
     noise_density: float = 5.0 * MICRO_G
-    bias_instability: float = 10.0 * MICRO_G
+    bias_instability: float = 3.0 * MICRO_G
     correlation_times: tuple = (0.1, 1.0, 10.0, 100.0, 1000.0)
-    adc_noise: float = 0.5
+    adc_noise: float = 4.0
 
     def __post_init__(self):
         for name in ('noise_density', 'bias_instability', 'adc_noise'):
