@@ -1,0 +1,534 @@
+"""Forward- and feedback-gain self-estimation and in-place compensation (seed 1 §III-IV)."""
+
+from dataclasses import asdict, dataclass, field
+import math
+
+import numpy as np
+
+from qfa_ros.model import AXES, concatenate, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED
+from qfa_ros.noise import MICRO_G
+
+PPM = 1e-6
+FORWARD_ORDERS = ('ascending', 'bidirectional', 'interleaved')
+FEEDBACK_ORDERS = ('single', 'chopped')
+
+
+class EstimationError(ValueError):
+    """A schedule cannot run or its data cannot give an estimate; nothing was applied."""
+
+
+@dataclass(frozen=True)
+class ForwardSettings:
+    """
+    Forward-gain schedule (seed 1 §III-A, eq. 17-22).
+
+    Attributes
+    ----------
+    points : int
+        Number of sweep steps n; the sweep writes ``N_FPGA + i dN0`` for i = 0..n.
+    step : int
+        dN0, the modulation-word increment [count].
+    settle_s, average_s : float
+        Discarded and averaged time per point [s].
+    order : str
+        ``ascending`` (the paper), ``bidirectional`` (up then down: a linear drift of
+        the open-loop chain cancels from the slope) or ``interleaved`` (drift-decorrelating
+        fixed permutation: even steps up, then odd steps down).
+    """
+
+    points: int = 10
+    step: int = 1024
+    settle_s: float = 0.02
+    average_s: float = 0.5
+    order: str = 'ascending'
+
+    def __post_init__(self):
+        _check_int('points', self.points, 2, 1000)
+        _check_int('step', self.step, 1, 2 ** 14)
+        _check_time('settle_s', self.settle_s, allow_zero=True)
+        _check_time('average_s', self.average_s)
+        if self.order not in FORWARD_ORDERS:
+            raise ValueError(f'order must be one of {FORWARD_ORDERS}, got {self.order!r}')
+
+    def sequence(self):
+        """Return the sweep indices i in the order they are written."""
+        up = list(range(self.points + 1))
+        if self.order == 'bidirectional':
+            return up + up[::-1]
+        if self.order == 'interleaved':
+            # Fixed bit-reversal-like interleave: neighbours in i are far apart in time.
+            return sorted(up, key=lambda i: (i % 2, i if i % 2 == 0 else -i))
+        return up
+
+
+@dataclass(frozen=True)
+class FeedbackSettings:
+    """
+    Feedback-gain schedule (seed 1 §III-B, eq. 24-30).
+
+    Attributes
+    ----------
+    cycles : int
+        On/off pairs. ``single`` order: the paper's off, on (cycles = 1) repeated;
+        ``chopped``: off-on-on-off quadruples (ABBA), so a linear output drift
+        cancels in each quadruple.
+    settle_s, average_s : float
+        Discarded and averaged time per segment [s].
+    order : str
+        ``single`` or ``chopped``.
+    motion_limit : float
+        Largest standard deviation of 10 ms means within a segment beyond the
+        expected noise before the input counts as moving [m/s^2].
+    reference_tc_ppm : float
+        Temperature coefficient of I_ref [ppm/degC] known from the temperature
+        calibration. Non-zero enables the co-regression on the temperature channel:
+        the reference step is moved to the present temperature,
+        ``step0 (1 + tc (T - T0))``, before the comparison. 0 = the paper's schedule.
+    """
+
+    cycles: int = 1
+    settle_s: float = 0.05
+    average_s: float = 10.0
+    order: str = 'single'
+    motion_limit: float = 200.0 * MICRO_G
+    reference_tc_ppm: float = 0.0
+
+    def __post_init__(self):
+        _check_int('cycles', self.cycles, 1, 10000)
+        _check_time('settle_s', self.settle_s, allow_zero=True)
+        _check_time('average_s', self.average_s)
+        if self.order not in FEEDBACK_ORDERS:
+            raise ValueError(f'order must be one of {FEEDBACK_ORDERS}, got {self.order!r}')
+        if not math.isfinite(self.motion_limit) or self.motion_limit <= 0:
+            raise ValueError(f'motion_limit must be positive, got {self.motion_limit!r}')
+        if not math.isfinite(self.reference_tc_ppm):
+            raise ValueError(f'reference_tc_ppm must be finite, got {self.reference_tc_ppm!r}')
+
+    def sequence(self):
+        """Return the switch states (True = I_ref on) of the segments in time order."""
+        if self.order == 'chopped':
+            return [False, True, True, False] * self.cycles
+        return [False, True] * self.cycles
+
+
+@dataclass
+class AxisReference:
+    """
+    Reference gains of one axis (seed 1 §IV-A step 1).
+
+    Attributes
+    ----------
+    forward_slope : float or None
+        Eq-forward-gain k_pre-eq0: dN_out/dN_FPGA in open loop, including k(D(z)).
+    feedback_step : float or None
+        N_out-on - N_out-off [count] (eq. 27), i.e. -I_ref / (k_VI0 k_DA0).
+    temperature : float or None
+        Sensor temperature when the feedback reference was captured [degC].
+    """
+
+    forward_slope: float = None
+    feedback_step: float = None
+    temperature: float = None
+
+
+@dataclass
+class CalibrationState:
+    """
+    Persistable calibration state: references and the words currently applied.
+
+    Attributes
+    ----------
+    references : list of AxisReference
+        One per axis.
+    controller_gain : list of float
+        k(D(z)) per axis as last applied.
+    n_vref : list of int
+        N_VREF per axis as last applied.
+    last_estimates : dict
+        Last estimate per schedule kind: ``{'forward': [ppm x, y, z], ...}``.
+    captured_at_ns, updated_at_ns : int
+        Sensor times [ns].
+    temperature : dict
+        Temperature-compensation coefficients (filled by the temperature schedule).
+    """
+
+    references: list = field(default_factory=lambda: [AxisReference() for _ in AXES])
+    controller_gain: list = field(default_factory=list)
+    n_vref: list = field(default_factory=list)
+    last_estimates: dict = field(default_factory=dict)
+    captured_at_ns: int = 0
+    updated_at_ns: int = 0
+    temperature: dict = field(default_factory=dict)
+
+    @property
+    def has_reference(self):
+        """Return True when both references exist on every axis."""
+        return all(r.forward_slope is not None and r.feedback_step is not None
+                   for r in self.references)
+
+    def to_dict(self):
+        """Return a JSON-serializable dict."""
+        data = asdict(self)
+        data['format'] = 'qfa_ros.calibration/1'
+        return data
+
+    @classmethod
+    def from_dict(cls, data):
+        """Build a state from :meth:`to_dict` output, validating it."""
+        if not isinstance(data, dict) or data.get('format') != 'qfa_ros.calibration/1':
+            raise ValueError('calibration state: unknown or missing format tag')
+        try:
+            refs = [AxisReference(**r) for r in data['references']]
+            state = cls(references=refs,
+                        controller_gain=[float(g) for g in data['controller_gain']],
+                        n_vref=[int(n) for n in data['n_vref']],
+                        last_estimates=dict(data.get('last_estimates', {})),
+                        captured_at_ns=int(data.get('captured_at_ns', 0)),
+                        updated_at_ns=int(data.get('updated_at_ns', 0)),
+                        temperature=dict(data.get('temperature', {})))
+        except (KeyError, TypeError, ValueError) as error:
+            raise ValueError(f'calibration state: malformed ({error})') from error
+        if len(refs) != len(AXES) or len(state.controller_gain) not in (0, len(AXES)) \
+                or len(state.n_vref) not in (0, len(AXES)):
+            raise ValueError('calibration state: expected three axes')
+        for value in [v for r in refs for v in (r.forward_slope, r.feedback_step)
+                      if v is not None] + state.controller_gain:
+            if not math.isfinite(value) or value == 0:
+                raise ValueError('calibration state: non-finite or zero gain')
+        return state
+
+    def apply_to(self, triad):
+        """Write the stored controller gains and N_VREF words into ``triad``."""
+        for axis in range(len(AXES)):
+            if self.controller_gain:
+                triad.set_controller_gain(axis, self.controller_gain[axis])
+            if self.n_vref:
+                triad.set_n_vref(axis, self.n_vref[axis])
+
+    def record_words(self, triad):
+        """Store the words currently in ``triad``."""
+        self.controller_gain = [loop.controller.gain for loop in triad.axes]
+        self.n_vref = [loop.n_vref for loop in triad.axes]
+
+
+@dataclass
+class EstimationResult:
+    """
+    Everything one schedule measured, estimated and applied.
+
+    Attributes
+    ----------
+    kind : str
+        ``forward``, ``feedback`` or ``reference``.
+    settings : dict
+        The schedule settings.
+    estimate_ppm, std_error_ppm : float64[3]
+        Estimated relative drift of the channel per axis and its standard error [ppm].
+    points : dict of numpy arrays
+        Raw points, each with its end time ``time_ns`` [ns]: forward ``index, delta_n,
+        mean_x, std_x, ...``; feedback ``segment, reference_on, mean_x, std_x, ...``
+        [count].
+    residuals : float64[n, 3]
+        Fit residuals (forward: regression; feedback: segment means minus the
+        on/off model) [count].
+    measured : float64[3]
+        Forward slope dN_out/dN_FPGA or feedback step N_on - N_off [count].
+    reference : float64[3]
+        The reference it was compared with (NaN while capturing).
+    words_before, words_after : float64[3]
+        k(D(z)) (forward) or N_VREF (feedback) before and after compensation.
+    applied : bool
+        Whether the correction was written.
+    captured : bool
+        Whether this run captured the reference instead of estimating.
+    start_ns, end_ns : int
+        Sensor time span of the schedule [ns].
+    """
+
+    kind: str
+    settings: dict
+    estimate_ppm: np.ndarray
+    std_error_ppm: np.ndarray
+    points: dict
+    residuals: np.ndarray
+    measured: np.ndarray
+    reference: np.ndarray
+    words_before: np.ndarray
+    words_after: np.ndarray
+    applied: bool
+    captured: bool
+    start_ns: int
+    end_ns: int
+
+    @property
+    def duration_s(self):
+        """Sensor time the schedule took [s]."""
+        return (self.end_ns - self.start_ns) * 1e-9
+
+    def summary(self):
+        """Return a one-line human summary."""
+        if self.captured:
+            what = 'k_pre-eq0 (dN_out/dN_FPGA)' if self.kind == 'forward' \
+                else 'N_on - N_off [count]'
+            values = ', '.join(f'{a} {m:.6g}' for a, m in zip(AXES, self.measured))
+            return f'{self.kind} reference captured: {what} {values}; {self.duration_s:.2f} s'
+        axes = ', '.join(f'{a} {e:+.2f}±{s:.2f}' for a, e, s in
+                         zip(AXES, self.estimate_ppm, self.std_error_ppm))
+        word = 'k(D(z))' if self.kind == 'forward' else 'N_VREF'
+        if self.applied:
+            change = ', '.join(f'{b:.6g}->{a:.6g}' for b, a in
+                               zip(self.words_before, self.words_after))
+            action = f'applied {word} {change}'
+        else:
+            action = 'no correction applied'
+        return f'{self.kind} gain drift [ppm] {axes}; {action}; {self.duration_s:.2f} s'
+
+
+def _check_int(name, value, low, high):
+    if isinstance(value, bool) or int(value) != value or not low <= value <= high:
+        raise ValueError(f'{name} must be an integer in [{low}, {high}], got {value!r}')
+
+
+def _check_time(name, value, allow_zero=False):
+    if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0 \
+            or (value == 0 and not allow_zero):
+        raise ValueError(f'{name} must be a {"non-negative" if allow_zero else "positive"} '
+                         f'number of seconds, got {value!r}')
+
+
+def _samples(triad, seconds):
+    return max(1, int(round(seconds * triad.config.sample_rate_hz)))
+
+
+def _segment(triad, settle_s, average_s):
+    """Yield the discard and averaging requests of one segment; return the averaged output."""
+    if settle_s > 0:
+        yield _samples(triad, settle_s)
+    return (yield _samples(triad, average_s))
+
+
+def forward_schedule(triad, state, settings=ForwardSettings(), apply=True, capture=False):
+    """
+    Run the forward-gain schedule as a generator (see :func:`run_schedule`).
+
+    Opens every loop (the pendulum latches on its stop), writes
+    ``N_FPGA + i dN0`` in ``settings.sequence()`` order, averages ``N_out`` per point,
+    fits the least-squares slope of eq. 19, compares it with the reference slope
+    ``k_pre-eq0`` (``1 + dk_pre = slope / slope0``) and divides k(D(z)) by
+    ``1 + dk_pre`` (eq. 22); then re-closes the loops. With ``capture`` the slope
+    becomes the reference instead.
+    """
+    if not capture and any(r.forward_slope is None for r in state.references):
+        raise EstimationError('no forward reference captured: call capture_reference first')
+    _require_closed(triad)
+    start_ns = _now_ns(triad)
+    base = [loop.n_fpga for loop in triad.axes]
+    indices = settings.sequence()
+    means, stds, times = [], [], []
+    try:
+        for axis in range(len(AXES)):
+            triad.set_open_loop(axis, True)
+        for i in indices:
+            for axis in range(len(AXES)):
+                triad.set_n_fpga(axis, base[axis] + i * settings.step)
+            out = yield from _segment(triad, settings.settle_s, settings.average_s)
+            if np.any(out.flags & FLAG_ADC_CLIPPED):
+                raise EstimationError('ADC clipped during the forward sweep: reduce step')
+            means.append(out.counts.mean(axis=0))
+            stds.append(out.counts.std(axis=0))
+            times.append(int(out.stamps_ns[-1]))
+    finally:
+        for axis in range(len(AXES)):
+            triad.set_n_fpga(axis, base[axis])
+            triad.set_open_loop(axis, False)
+    # Wait for the loops to settle so that the schedule ends with valid output.
+    yield from _segment(triad, 0.0, triad.config.settle_time)
+    delta_n = np.asarray(indices, dtype=float) * settings.step
+    means = np.asarray(means)
+    design = np.column_stack([delta_n, np.ones_like(delta_n)])
+    coef, *_ = np.linalg.lstsq(design, means, rcond=None)
+    slope = coef[0]
+    residuals = means - design @ coef
+    dof = max(1, len(delta_n) - 2)
+    slope_se = np.sqrt((residuals ** 2).sum(axis=0) / dof
+                       / ((delta_n - delta_n.mean()) ** 2).sum())
+    gains_before = np.array([loop.controller.gain for loop in triad.axes])
+    points = {'time_ns': np.asarray(times, dtype=np.int64),
+              'index': np.asarray(indices, dtype=float), 'delta_n': delta_n}
+    for axis, name in enumerate(AXES):
+        points[f'mean_{name}'] = means[:, axis]
+        points[f'std_{name}'] = np.asarray(stds)[:, axis]
+    if capture:
+        reference = np.full(len(AXES), np.nan)
+        ratio = np.ones(len(AXES))
+    else:
+        reference = np.array([r.forward_slope for r in state.references])
+        ratio = slope / reference
+    estimate = (ratio - 1.0) / PPM
+    std_error = np.abs(slope_se / (reference if not capture else slope)) / PPM
+    applied = False
+    if capture:
+        for axis, ref in enumerate(state.references):
+            ref.forward_slope = float(slope[axis])
+    elif apply:
+        for axis in range(len(AXES)):
+            triad.set_controller_gain(axis, gains_before[axis] / ratio[axis])
+        applied = True
+    gains_after = np.array([loop.controller.gain for loop in triad.axes])
+    state.record_words(triad)
+    state.updated_at_ns = _now_ns(triad)
+    if not capture:
+        state.last_estimates['forward'] = estimate.tolist()
+    return EstimationResult('forward', asdict(settings), estimate, std_error, points, residuals,
+                            slope, reference, gains_before, gains_after, applied, capture,
+                            start_ns, _now_ns(triad))
+
+
+def feedback_schedule(triad, state, settings=FeedbackSettings(), apply=True, capture=False):
+    """
+    Run the feedback-gain schedule as a generator (see :func:`run_schedule`).
+
+    With the loops closed, switches the constant current source ``I_ref`` into the
+    torquer (switch M1) in ``settings.sequence()`` order and averages ``N_out`` per
+    segment. ``N_on - N_off = -I_ref / (k_VI k_DA (1 + dk_fb))`` (eq. 26-28), so
+    ``1 + dk_fb = step0 / step``; the compensation writes
+    ``N_VREF <- N_VREF / (1 + dk_fb)`` (eq. 29-30). With ``capture`` the step
+    becomes the reference instead. The input must be static and in range.
+    """
+    if not capture and any(r.feedback_step is None for r in state.references):
+        raise EstimationError('no feedback reference captured: call capture_reference first')
+    _require_closed(triad)
+    start_ns = _now_ns(triad)
+    sequence = settings.sequence()
+    means, stds, times = [], [], []
+    block = max(1, int(round(0.01 * triad.config.sample_rate_hz)))
+    noise_std = _block_noise_std(triad, block)
+    try:
+        for on in sequence:
+            for axis in range(len(AXES)):
+                triad.set_reference_current(axis, on)
+            out = yield from _segment(triad, settings.settle_s, settings.average_s)
+            if np.any(out.flags & (FLAG_DA2_CLIPPED | FLAG_ADC_CLIPPED)):
+                raise EstimationError('output saturated: the input must be in range')
+            usable = len(out.accel) // block * block
+            if usable >= 2 * block:
+                block_means = out.accel[:usable].reshape(-1, block, 3).mean(axis=1)
+                excess = block_means.std(axis=0) - noise_std
+                if np.any(excess > settings.motion_limit):
+                    worst = float(np.max(excess) / MICRO_G)
+                    raise EstimationError(
+                        f'input is moving: 10 ms means scatter {worst:.0f} ug beyond the '
+                        f'noise (limit {settings.motion_limit / MICRO_G:.0f} ug); '
+                        'hold the sensor still')
+            means.append(out.counts.mean(axis=0))
+            stds.append(out.counts.std(axis=0))
+            times.append(int(out.stamps_ns[-1]))
+    finally:
+        for axis in range(len(AXES)):
+            triad.set_reference_current(axis, False)
+    # Let the loops settle from the last switching so that the schedule ends valid.
+    yield from _segment(triad, 0.0, settings.settle_s + triad.config.settle_time)
+    means = np.asarray(means)
+    on = np.asarray(sequence)
+    # Least squares of the segment means on [switch state, 1]: the step is the on/off
+    # difference, and for the ABBA order the linear drift cancels by symmetry.
+    design = np.column_stack([on.astype(float), np.ones(len(on))])
+    coef, *_ = np.linalg.lstsq(design, means, rcond=None)
+    step = coef[0]
+    residuals = means - design @ coef
+    if len(on) > 2:
+        dof = len(on) - 2
+        step_se = np.sqrt((residuals ** 2).sum(axis=0) / dof
+                          / ((on - on.mean()) ** 2).sum())
+    else:
+        per_segment = np.asarray(stds) / math.sqrt(_samples(triad, settings.average_s))
+        step_se = np.sqrt((per_segment ** 2).sum(axis=0))
+    words_before = np.array([loop.n_vref for loop in triad.axes], dtype=float)
+    points = {'time_ns': np.asarray(times, dtype=np.int64),
+              'segment': np.arange(len(on), dtype=float), 'reference_on': on.astype(float)}
+    for axis, name in enumerate(AXES):
+        points[f'mean_{name}'] = means[:, axis]
+        points[f'std_{name}'] = np.asarray(stds)[:, axis]
+    if capture:
+        reference = np.full(len(AXES), np.nan)
+        ratio = np.ones(len(AXES))
+        std_error = np.abs(step_se / step) / PPM
+    else:
+        reference = np.array([r.feedback_step for r in state.references])
+        if settings.reference_tc_ppm:
+            # Co-regression on the temperature channel: I_ref has moved with temperature.
+            shift = np.array([triad.temperature - (r.temperature if r.temperature is not None
+                                                   else triad.temperature)
+                              for r in state.references])
+            reference = reference * (1.0 + settings.reference_tc_ppm * PPM * shift)
+        ratio = reference / step
+        std_error = np.abs(step_se / step) / PPM
+    estimate = (ratio - 1.0) / PPM
+    applied = False
+    if capture:
+        for axis, ref in enumerate(state.references):
+            ref.feedback_step = float(step[axis])
+            ref.temperature = float(triad.temperature)
+    elif apply:
+        for axis in range(len(AXES)):
+            triad.set_n_vref(axis, int(round(words_before[axis] / ratio[axis])))
+        applied = True
+    words_after = np.array([loop.n_vref for loop in triad.axes], dtype=float)
+    state.record_words(triad)
+    state.updated_at_ns = _now_ns(triad)
+    if not capture:
+        state.last_estimates['feedback'] = estimate.tolist()
+    return EstimationResult('feedback', asdict(settings), estimate, std_error, points,
+                            residuals, step, reference, words_before, words_after, applied,
+                            capture, start_ns, _now_ns(triad))
+
+
+def capture_reference(triad, state, forward=ForwardSettings(), feedback=FeedbackSettings()):
+    """Measure both references (seed 1 §IV-A step 1); return the two results."""
+    forward_result = yield from forward_schedule(triad, state, forward, capture=True)
+    feedback_result = yield from feedback_schedule(triad, state, feedback, capture=True)
+    state.captured_at_ns = _now_ns(triad)
+    return forward_result, feedback_result
+
+
+def self_calibrate(triad, state, forward=ForwardSettings(), feedback=FeedbackSettings()):
+    """Run the forward schedule, then the feedback schedule; return the two results."""
+    forward_result = yield from forward_schedule(triad, state, forward)
+    feedback_result = yield from feedback_schedule(triad, state, feedback)
+    return forward_result, feedback_result
+
+
+def run_schedule(triad, schedule, chunk_samples=1000):
+    """
+    Drive a schedule generator offline, as fast as possible; return its result.
+
+    The generator yields how many samples it needs; the driver runs the triad for that
+    many (in chunks of at most ``chunk_samples``) and sends back the output.
+    """
+    try:
+        request = next(schedule)
+        while True:
+            parts = []
+            remaining = request
+            while remaining > 0:
+                n = min(chunk_samples, remaining)
+                parts.append(triad.run(n))
+                remaining -= n
+            request = schedule.send(concatenate(parts))
+    except StopIteration as stop:
+        return stop.value
+
+
+def _now_ns(triad):
+    return int(triad.sample_index * 1e9 / triad.config.sample_rate_hz)
+
+
+def _require_closed(triad):
+    if any(loop.open_loop for loop in triad.axes):
+        raise EstimationError('a loop is open: another schedule is running')
+
+
+def _block_noise_std(triad, block):
+    """Return the expected std of ``block``-sample means from the white noise [m/s^2]."""
+    density = triad.config.noise.noise_density
+    return density * math.sqrt(triad.config.sample_rate_hz / block)

@@ -1,0 +1,55 @@
+"""Write estimation results as self-describing trace MCAP files (no ROS needed)."""
+
+from pathlib import Path
+
+import numpy as np
+
+from qfa_ros.model import AXES
+from qfa_ros.trace import TraceWriter
+
+
+def trace_path(directory, kind, time_ns):
+    """Return the trace file name for a ``kind`` schedule ending at ``time_ns`` [ns]."""
+    return Path(directory) / f'qfa_{kind}_{int(time_ns):019d}.mcap'
+
+
+def result_mapping(result):
+    """Return the scalar and per-axis fields of an ``EstimationResult`` as a mapping."""
+    per_axis = {}
+    for name in ('estimate_ppm', 'std_error_ppm', 'measured', 'reference', 'words_before',
+                 'words_after'):
+        values = np.asarray(getattr(result, name), dtype=float)
+        per_axis[name] = {axis: float(v) for axis, v in zip(AXES, values)}
+    return {**per_axis, 'applied': bool(result.applied), 'duration_s': result.duration_s,
+            'start_ns': int(result.start_ns), 'end_ns': int(result.end_ns),
+            'summary': result.summary()}
+
+
+def write_estimation_trace(path, kind, results, *, source='qfa_ros', context=None):
+    """
+    Write one trace file for a schedule run and return its final path.
+
+    Topics (all under ``/qfa/trace``): ``settings`` (the settings of every result plus
+    ``context``), ``<result kind>/points`` (every raw point, logged at its sensor
+    time), ``<result kind>/residuals`` (fit residuals per axis), ``result`` (estimate,
+    standard error, measured and reference gain, words before and after, summary).
+    The file appears under its final name only once complete (``.part`` until then);
+    an ``OSError`` leaves no file under that name.
+    """
+    results = list(results)
+    if not results:
+        raise ValueError('results must not be empty')
+    settings = {'kind': kind, **{r.kind: r.settings for r in results}, **(context or {})}
+    with TraceWriter(path, source=source) as trace:
+        trace.write_settings(settings, results[0].start_ns)
+        for r in results:
+            times = np.asarray(r.points['time_ns'], dtype=np.int64)
+            columns = {k: v for k, v in r.points.items() if k != 'time_ns'}
+            trace.write_table(f'{r.kind}/points', columns, times)
+            residuals = np.asarray(r.residuals, dtype=float)
+            trace.write_table(f'{r.kind}/residuals',
+                              {axis: residuals[:, i] for i, axis in enumerate(AXES)}, times)
+        summary = '; '.join(r.summary() for r in results)
+        trace.write_result({r.kind: result_mapping(r) for r in results}, results[-1].end_ns,
+                           summary=summary)
+        return trace.finish()
