@@ -18,7 +18,7 @@ class DriftModel:
     sensor time [s], ``rate_c`` the aging rate [1/s] (set in ppm/year), ``accel`` the
     time-acceleration factor (1 = real time; 3.15e7 makes a year pass in a second),
     ``tc_c`` the temperature coefficient [1/degC] and ``T`` the sensor temperature
-    [degC] against the reference temperature ``T_ref`` (20 degC).
+    [degC] against the reference temperature ``T_ref`` (25 degC, the datasheet's).
 
     Parameters
     ----------
@@ -32,7 +32,7 @@ class DriftModel:
         self.step = np.zeros((n_axes, len(DRIFT_COMPONENTS)))
         self.rate = np.zeros((n_axes, len(DRIFT_COMPONENTS)))
         self.temperature_coefficient = np.zeros((n_axes, len(DRIFT_COMPONENTS)))
-        self.reference_temperature = 20.0
+        self.reference_temperature = 25.0
         self.time_acceleration = 1.0
         self.version = 0
 

@@ -198,12 +198,16 @@ class CalibrationState:
         return state
 
     def apply_to(self, triad):
-        """Write the stored controller gains and N_VREF words into ``triad``."""
+        """Write the stored words and temperature ROM into ``triad``."""
         for axis in range(len(AXES)):
             if self.controller_gain:
                 triad.set_controller_gain(axis, self.controller_gain[axis])
             if self.n_vref:
                 triad.set_n_vref(axis, self.n_vref[axis])
+        if self.temperature:
+            # Imported here: the temperature module builds on this one.
+            from qfa_ros.temperature import install_compensation
+            install_compensation(triad, self.temperature)
 
     def record_words(self, triad):
         """Store the words currently in ``triad``."""
@@ -264,6 +268,17 @@ class EstimationResult:
     def duration_s(self):
         """Sensor time the schedule took [s]."""
         return (self.end_ns - self.start_ns) * 1e-9
+
+    def to_mapping(self):
+        """Return the scalar and per-axis fields as a mapping (trace result)."""
+        per_axis = {}
+        for name in ('estimate_ppm', 'std_error_ppm', 'measured', 'reference', 'words_before',
+                     'words_after'):
+            values = np.asarray(getattr(self, name), dtype=float)
+            per_axis[name] = {axis: float(v) for axis, v in zip(AXES, values)}
+        return {**per_axis, 'applied': bool(self.applied), 'captured': bool(self.captured),
+                'duration_s': self.duration_s, 'start_ns': int(self.start_ns),
+                'end_ns': int(self.end_ns), 'summary': self.summary()}
 
     def summary(self):
         """Return a one-line human summary."""

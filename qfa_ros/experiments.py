@@ -97,7 +97,7 @@ class PaperTrial:
 
 def paper_experiment(seed=0, trials=6, forward_ppm=-200.0, feedback_ppm=200.0,
                      profile=ErrorProfile(), static_s=10.0, forward=ForwardSettings(),
-                     feedback=FeedbackSettings()):
+                     feedback=FeedbackSettings(), recorder=None):
     """
     Run seed 1 §IV-A steps 1-5 ``trials`` times and return the list of :class:`PaperTrial`.
 
@@ -107,28 +107,36 @@ def paper_experiment(seed=0, trials=6, forward_ppm=-200.0, feedback_ppm=200.0,
     falls, ``|N_on - N_off|`` grows as in its Table 4), the room now at
     ``profile.trial_temperature_offset``; static output N'_out(1) without
     compensation; (4) self-estimation and compensation, static output N_out(1). Each
-    trial starts from a fresh sensor of the same design (seeded per trial).
+    trial starts from a fresh sensor of the same design (seeded per trial). A
+    ``recorder`` (:class:`qfa_ros.scenario_bag.ScenarioBag`) receives the first
+    trial: its phases, static outputs and estimation traces.
     """
     results = []
     root = np.random.SeedSequence(seed)
-    for trial_seed in root.spawn(trials):
+    for number, trial_seed in enumerate(root.spawn(trials)):
+        record = recorder if number == 0 else None
         triad = QfaTriad(TriadConfig(), rng=np.random.default_rng(trial_seed))
         profile.apply(triad)
         state = CalibrationState()
         triad.run_for(1.0)
         forward_ref, feedback_ref = run_schedule(
             triad, capture_reference(triad, state, forward, feedback))
-        reference = triad.run_for(static_s).accel[:, 2].mean()
+        reference = _static_phase(triad, static_s, 'reference', record)
         for axis in range(len(AXES)):
             triad.drift.set_step(axis, 'k_amp', forward_ppm * PPM)
             triad.drift.set_step(axis, 'k_vi', 1.0 / (1.0 + feedback_ppm * PPM) - 1.0)
         triad.set_temperature(triad.drift.reference_temperature
                               + profile.trial_temperature_offset)
         triad.run_for(0.5)
-        drifted = triad.run_for(static_s).accel[:, 2].mean()
+        drifted = _static_phase(triad, static_s, 'drifted', record)
+        if record:
+            record.write_phase('estimation', triad.stamp_ns(triad.sample_index))
         forward_est, feedback_est = run_schedule(
             triad, self_calibrate(triad, state, forward, feedback))
-        compensated = triad.run_for(static_s).accel[:, 2].mean()
+        compensated = _static_phase(triad, static_s, 'compensated', record)
+        if record:
+            record.write_trace('reference', 'reference', (forward_ref, feedback_ref))
+            record.write_trace('self_calibrate', 'self_calibrate', (forward_est, feedback_est))
         results.append(PaperTrial(
             forward_reference=forward_ref.measured[2], forward_drifted=forward_est.measured[2],
             forward_estimate_ppm=forward_est.estimate_ppm[2],
@@ -139,6 +147,16 @@ def paper_experiment(seed=0, trials=6, forward_ppm=-200.0, feedback_ppm=200.0,
             / PPM,
             output_reference=reference, output_drifted=drifted, output_compensated=compensated))
     return results
+
+
+def _static_phase(triad, seconds, name, recorder):
+    """Run a static measurement and return the z-axis mean [m/s^2]; record it if asked."""
+    if recorder:
+        recorder.write_phase(name, triad.stamp_ns(triad.sample_index))
+    output = triad.run_for(seconds)
+    if recorder:
+        recorder.write_imu(output)
+    return output.accel[:, 2].mean()
 
 
 def format_paper_tables(trials, forward_ppm=-200.0, feedback_ppm=200.0):
@@ -190,11 +208,23 @@ def _residual(estimate, injected):
 
 @dataclass(frozen=True)
 class Schedule:
-    """A named pair of forward and feedback settings."""
+    """
+    A named pair of forward and feedback settings.
+
+    ``capture_feedback`` (default: ``feedback``) is used for the reference capture,
+    which happens once in the initial state and may average longer than an
+    in-service estimation.
+    """
 
     name: str
     forward: ForwardSettings
     feedback: FeedbackSettings
+    capture_feedback: FeedbackSettings = None
+
+    @property
+    def reference_feedback(self):
+        """Return the feedback settings of the reference capture."""
+        return self.capture_feedback or self.feedback
 
 
 PAPER_SCHEDULE = Schedule('paper', ForwardSettings(), FeedbackSettings())
@@ -203,6 +233,8 @@ IMPROVED_SCHEDULE = Schedule(
     ForwardSettings(points=10, step=1024, settle_s=0.005, average_s=0.245,
                     order='bidirectional'),
     FeedbackSettings(cycles=16, settle_s=0.02, average_s=0.28, order='chopped',
+                     reference_tc_ppm=ErrorProfile().i_ref_tc_ppm),
+    FeedbackSettings(cycles=64, settle_s=0.02, average_s=0.28, order='chopped',
                      reference_tc_ppm=ErrorProfile().i_ref_tc_ppm))
 
 
@@ -278,7 +310,7 @@ def monte_carlo(schedule, draws=200, seed=0, torquer_drift=False, span_ppm=1000.
         state = CalibrationState()
         triad.run_for(0.2)
         run_schedule(triad, capture_reference(triad, state, schedule.forward,
-                                              schedule.feedback))
+                                              schedule.reference_feedback))
         before = [(loop.gains, loop.controller.gain) for loop in triad.axes]
         for axis in range(len(AXES)):
             for components in (OBSERVABLE_FORWARD, OBSERVABLE_FEEDBACK):

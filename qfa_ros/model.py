@@ -12,6 +12,7 @@ from qfa_ros.drift import DriftModel
 from qfa_ros.hardware import AxisHardware, counts_to_accel, loop_gains, STANDARD_GRAVITY
 from qfa_ros.noise import MICRO_G, NoiseConfig, NoiseSource
 from qfa_ros.profiles import StaticProfile
+from qfa_ros.thermal import ThermalModel
 
 AXES = ('x', 'y', 'z')
 FLAG_DA2_CLIPPED, FLAG_ADC_CLIPPED, FLAG_OVER_RANGE = 1, 2, 4
@@ -47,6 +48,10 @@ class TriadConfig:
         Share of the reference-capacitor drift seen by the open-loop bridge.
     settle_time : float
         Time after re-closing a loop during which its output is flagged invalid [s].
+    thermal : ThermalConfig or None
+        Thermal model (ambient, body lag, temperature sensor, zero bias and
+        scale-factor error versus temperature, seed 2); None keeps the sensor at the
+        drift model's reference temperature with no thermal errors.
     """
 
     hardware: AxisHardware = field(default_factory=AxisHardware)
@@ -61,6 +66,7 @@ class TriadConfig:
     lead_pole_ratio: float = 6.0
     open_loop_cref_sensitivity: float = 1.0
     settle_time: float = 0.05
+    thermal: object = None
 
     def __post_init__(self):
         for name in ('loop_rate_hz', 'sample_rate_hz', 'settle_time', 'crossover_hz'):
@@ -115,6 +121,10 @@ class TriadOutput:
         False while the axis is open loop or settling after re-closing.
     truth : float64[n, 3]
         True specific force averaged over each sample [m/s^2].
+    temperature : float64[n]
+        Sensor body temperature [degC].
+    v_temp : float64[n]
+        On-board temperature-sensor reading [V] (NaN without a thermal model).
     """
 
     stamps_ns: np.ndarray
@@ -123,6 +133,11 @@ class TriadOutput:
     flags: np.ndarray
     valid: np.ndarray
     truth: np.ndarray
+    temperature: np.ndarray
+    v_temp: np.ndarray
+
+    FIELDS = ('stamps_ns', 'accel', 'counts', 'flags', 'valid', 'truth', 'temperature',
+              'v_temp')
 
     @property
     def saturated(self):
@@ -212,8 +227,11 @@ class QfaTriad:
     ``dt = 1/loop_rate_hz`` in the compiled kernel; the published output is the
     mean of ``decimation = loop_rate_hz / sample_rate_hz`` loop outputs (anti-alias
     averaging), converted with the nominal scale factor ``k_fb,nom / K0``. The loop
-    input of axis ``i`` is ``bias_i + a_i + k2_i a_i^2 + w_i`` with
-    ``a = (I + M) f`` and ``w`` the acceleration noise.
+    input of axis ``i`` is ``(bias_i + a_i + k2_i a_i^2)(1 + e_i(T)) + b_i(T) + w_i``
+    with ``a = (I + M) f``, ``w`` the acceleration noise and, with a thermal model,
+    ``b_i(T)`` the zero bias and ``e_i(T)`` the scale-factor error at the body
+    temperature. With temperature compensation on, the published output subtracts the
+    fixed-point double-exponential zero-bias model evaluated at the measured V_temp.
 
     Parameters
     ----------
@@ -238,6 +256,11 @@ class QfaTriad:
         self.drift = DriftModel(len(AXES))
         self.noise = NoiseSource(self.config.noise, len(AXES), self.config.loop_rate_hz,
                                  self.config.sample_rate_hz, rng)
+        self.thermal = None
+        if self.config.thermal is not None:
+            self.thermal = ThermalModel(self.config.thermal, rng.spawn(1)[0])
+        self.temperature_compensators = None
+        self.temperature_compensation = False
         self.scale = counts_to_accel(self.config.hardware)
         self.sample_index = 0
         self.settle_until = np.zeros(len(AXES), dtype=np.int64)
@@ -246,6 +269,8 @@ class QfaTriad:
         self._k2 = np.asarray(self.config.k2, dtype=float)
         self._applied_version = None
         self.temperature = self.drift.reference_temperature
+        if self.thermal is not None:
+            self.temperature = self.thermal.sensor_c
         self._refresh(force=True)
         self._start_equilibrium()
 
@@ -371,9 +396,21 @@ class QfaTriad:
                                  f'({n_steps}, 3), got {force.shape}')
             if not np.all(np.isfinite(force)):
                 raise ValueError('specific_force must be finite')
+        sensed = self._sensed(force)
+        if self.thermal is not None:
+            chunk = self.thermal.run(n_samples, self.sample_period)
+            temperature = chunk.sensor_c
+            v_temp = chunk.v_temp
+            # Gains follow the chunk's mean temperature: it moves far slower than a chunk.
+            self.temperature = float(temperature.mean())
+            sensed = sensed * np.repeat(1.0 + chunk.scale_factor_error, self.decimation, axis=0) \
+                + np.repeat(chunk.bias, self.decimation, axis=0)
+        else:
+            temperature = np.full(n_samples, self.temperature)
+            v_temp = np.full(n_samples, np.nan)
         self._refresh()
         accel_noise, adc_noise = self.noise.chunk(n_samples)
-        loop_input = self._sensed(force).T + accel_noise
+        loop_input = sensed.T + accel_noise
         counts = np.empty((3, n_samples))
         flags = np.empty((3, n_samples), dtype=np.int8)
         for i, loop in enumerate(self.axes):
@@ -385,9 +422,13 @@ class QfaTriad:
             valid[:, i] = (not loop.open_loop) & (index >= self.settle_until[i])
         truth = force.reshape(n_samples, self.decimation, 3).mean(axis=1)
         self.sample_index += n_samples
-        return TriadOutput(stamps_ns=self.stamp_ns(index), accel=counts.T * self.scale,
+        accel = counts.T * self.scale
+        if self.temperature_compensation and self.temperature_compensators:
+            for i, compensator in enumerate(self.temperature_compensators):
+                accel[:, i] -= compensator.evaluate_fixed(v_temp, clip=True)
+        return TriadOutput(stamps_ns=self.stamp_ns(index), accel=accel,
                            counts=counts.T.copy(), flags=flags.T.copy(), valid=valid,
-                           truth=truth)
+                           truth=truth, temperature=temperature, v_temp=v_temp)
 
     def run_for(self, duration_s, chunk_samples=1000):
         """Run ``duration_s`` seconds in chunks and return the concatenated output."""
@@ -405,6 +446,7 @@ def concatenate(outputs):
     if not outputs:
         empty = np.empty((0, 3))
         return TriadOutput(np.empty(0, np.int64), empty, empty.copy(),
-                           np.empty((0, 3), np.int8), np.empty((0, 3), bool), empty.copy())
+                           np.empty((0, 3), np.int8), np.empty((0, 3), bool), empty.copy(),
+                           np.empty(0), np.empty(0))
     return TriadOutput(*(np.concatenate([getattr(o, f) for o in outputs])
-                         for f in ('stamps_ns', 'accel', 'counts', 'flags', 'valid', 'truth')))
+                         for f in TriadOutput.FIELDS))

@@ -130,3 +130,13 @@ class NoiseSource:
                 bias += series
             accel += np.repeat(bias, self.decimation, axis=1)
         return accel, adc
+
+
+def acceleration_variance(config, sample_rate_hz):
+    """
+    Return the variance of one published sample per axis [(m/s^2)^2] (REP-145 covariance).
+
+    White noise averaged over one sample period: ``N^2 f_s`` (N the density of the
+    IEEE 1293 convention); plus the bias-instability variance ``B^2``.
+    """
+    return config.noise_density ** 2 * sample_rate_hz + config.bias_instability ** 2

@@ -5,6 +5,7 @@ Everything is advanced chunk by chunk with explicit state; a run split into chun
 any lengths (same ``dt``) equals one long run sample for sample, bit for bit.
 """
 
+import dataclasses
 from dataclasses import dataclass
 import math
 from typing import NamedTuple
@@ -295,6 +296,7 @@ class ThermalModel:
         self._segment_index = 0
         self._segment_time = 0.0
         self._dt = None
+        self._profile_origin = 0.0
         self._room_x = 0.0
         self._ambient_now = float(self.ambient_at(np.zeros(1))[0])
         initial = self.config.initial_sensor_c
@@ -317,7 +319,7 @@ class ThermalModel:
     def ambient_at(self, t):
         """Return the deterministic ambient profile at times ``t`` [s] (room: its centre)."""
         cfg = self.config
-        t = np.asarray(t, dtype=float)
+        t = np.asarray(t, dtype=float) - self._profile_origin
         if cfg.ambient_profile == 'ramp':
             low, high = cfg.ramp_limits_c
             return np.clip(cfg.ambient_c + cfg.ramp_rate_c_per_s * t, low, high)
@@ -332,6 +334,24 @@ class ThermalModel:
             return middle + half * np.clip(triangle / (1.0 - cfg.cycle_dwell_fraction),
                                            -1.0, 1.0)
         return np.full(t.shape, cfg.ambient_c)
+
+    def set_ambient(self, **changes):
+        """Change the ambient profile (a chamber program) from the present time on.
+
+        ``changes`` are :class:`ThermalConfig` ambient fields (``ambient_profile``,
+        ``ambient_c``, ``cycle_low_c``, ``cycle_high_c``, ``cycle_period_s``, ...); the
+        new profile's time origin is now, so a cycle starts at its midpoint, heating.
+        The body and probe temperatures continue from their present values.
+        """
+        allowed = {'ambient_profile', 'ambient_c', 'ramp_rate_c_per_s', 'ramp_limits_c',
+                   'cycle_low_c', 'cycle_high_c', 'cycle_period_s', 'cycle_shape',
+                   'cycle_dwell_fraction', 'room_amplitude_c', 'room_correlation_s'}
+        unknown = set(changes) - allowed
+        if unknown:
+            raise ValueError(f'not ambient fields: {sorted(unknown)}')
+        self.config = dataclasses.replace(self.config, **changes)
+        self._profile_origin = self.time
+        self._ambient_now = float(self.ambient_at(np.array([self.time]))[0])
 
     def voltage_at(self, temperature_c):
         """Return the noiseless temperature-sensor voltage at ``temperature_c`` [V]."""

@@ -139,15 +139,26 @@ class TraceWriter:
     """
 
     def __init__(self, path, *, namespace='/qfa/trace', source='qfa_ros', compression='zstd',
-                 chunk_size=DEFAULT_CHUNK_SIZE, storage_metadata=None, overwrite=False):
+                 chunk_size=DEFAULT_CHUNK_SIZE, storage_metadata=None, overwrite=False,
+                 bag=None):
         namespace = '/' + namespace.strip('/')
         if not _NAME_RE.match(namespace[1:]):
             raise ValueError(f'invalid namespace {namespace!r}')
         self.namespace = namespace
         self.source = str(source)
-        self._bag = McapBagWriter(path, compression=compression, chunk_size=chunk_size,
-                                  storage_metadata=storage_metadata, overwrite=overwrite)
+        if bag is None:
+            bag = McapBagWriter(path, compression=compression, chunk_size=chunk_size,
+                                storage_metadata=storage_metadata, overwrite=overwrite)
+        self._bag = bag
         self._table_columns = {}
+
+    @classmethod
+    def in_bag(cls, bag, namespace, source='qfa_ros'):
+        """Return a writer of trace topics under ``namespace`` inside an open ``bag``.
+
+        The caller owns ``bag`` and finishes it; this writer's ``finish`` is not used.
+        """
+        return cls(bag.path, namespace=namespace, source=source, bag=bag)
 
     @property
     def path(self):

@@ -13,18 +13,6 @@ def trace_path(directory, kind, time_ns):
     return Path(directory) / f'qfa_{kind}_{int(time_ns):019d}.mcap'
 
 
-def result_mapping(result):
-    """Return the scalar and per-axis fields of an ``EstimationResult`` as a mapping."""
-    per_axis = {}
-    for name in ('estimate_ppm', 'std_error_ppm', 'measured', 'reference', 'words_before',
-                 'words_after'):
-        values = np.asarray(getattr(result, name), dtype=float)
-        per_axis[name] = {axis: float(v) for axis, v in zip(AXES, values)}
-    return {**per_axis, 'applied': bool(result.applied), 'duration_s': result.duration_s,
-            'start_ns': int(result.start_ns), 'end_ns': int(result.end_ns),
-            'summary': result.summary()}
-
-
 def write_estimation_trace(path, kind, results, *, source='qfa_ros', context=None):
     """
     Write one trace file for a schedule run and return its final path.
@@ -36,20 +24,25 @@ def write_estimation_trace(path, kind, results, *, source='qfa_ros', context=Non
     The file appears under its final name only once complete (``.part`` until then);
     an ``OSError`` leaves no file under that name.
     """
+    with TraceWriter(path, source=source) as trace:
+        write_results(trace, kind, results, context)
+        return trace.finish()
+
+
+def write_results(trace, kind, results, context=None):
+    """Write the settings, points, residuals and result of ``results`` to ``trace``."""
     results = list(results)
     if not results:
         raise ValueError('results must not be empty')
     settings = {'kind': kind, **{r.kind: r.settings for r in results}, **(context or {})}
-    with TraceWriter(path, source=source) as trace:
-        trace.write_settings(settings, results[0].start_ns)
-        for r in results:
-            times = np.asarray(r.points['time_ns'], dtype=np.int64)
-            columns = {k: v for k, v in r.points.items() if k != 'time_ns'}
-            trace.write_table(f'{r.kind}/points', columns, times)
-            residuals = np.asarray(r.residuals, dtype=float)
-            trace.write_table(f'{r.kind}/residuals',
-                              {axis: residuals[:, i] for i, axis in enumerate(AXES)}, times)
-        summary = '; '.join(r.summary() for r in results)
-        trace.write_result({r.kind: result_mapping(r) for r in results}, results[-1].end_ns,
-                           summary=summary)
-        return trace.finish()
+    trace.write_settings(settings, results[0].start_ns)
+    for r in results:
+        times = np.asarray(r.points['time_ns'], dtype=np.int64)
+        columns = {k: v for k, v in r.points.items() if k != 'time_ns'}
+        trace.write_table(f'{r.kind}/points', columns, times)
+        residuals = np.asarray(r.residuals, dtype=float)
+        trace.write_table(f'{r.kind}/residuals',
+                          {axis: residuals[:, i] for i, axis in enumerate(AXES)}, times)
+    summary = '; '.join(r.summary() for r in results)
+    trace.write_result({r.kind: r.to_mapping() for r in results}, results[-1].end_ns,
+                       summary=summary)

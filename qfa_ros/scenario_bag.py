@@ -1,0 +1,74 @@
+"""Record a simulated scenario as a rosbag2-compatible MCAP (no ROS needed)."""
+
+import numpy as np
+
+from qfa_ros.noise import acceleration_variance
+from qfa_ros.recorder import McapBagWriter, QOS_LATCHED, QOS_SENSOR_DATA, stamp
+from qfa_ros.trace import TraceWriter
+from qfa_ros.traces import write_results
+
+IMU_TOPIC = '/imu/data_raw'
+TEMPERATURE_TOPIC = '/imu/temperature'
+PHASE_TOPIC = '/qfa/scenario/phase'
+
+
+class ScenarioBag:
+    """
+    The output of a ``qfa-sim`` scenario: IMU stream, temperature, phases and traces.
+
+    Topics: ``/imu/data_raw`` (sensor_msgs/Imu, REP-145, log time = header stamp =
+    sensor time [ns]), ``/imu/temperature`` (sensor_msgs/Temperature [degC]),
+    ``/qfa/scenario/phase`` (std_msgs/String naming the phase that starts at its log
+    time) and estimation traces under ``/qfa/trace/<run>/...`` (see
+    :mod:`qfa_ros.traces`). A context manager with an idempotent ``finish()``.
+    """
+
+    def __init__(self, path, noise, sample_rate_hz, frame_id='imu_link'):
+        self.bag = McapBagWriter(path, compression='zstd')
+        self.frame_id = frame_id
+        variance = acceleration_variance(noise, sample_rate_hz)
+        self._covariance = [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0, variance]
+        self.bag.add_topic(IMU_TOPIC, 'sensor_msgs/msg/Imu', QOS_SENSOR_DATA)
+        self.bag.add_topic(TEMPERATURE_TOPIC, 'sensor_msgs/msg/Temperature', QOS_SENSOR_DATA)
+        self.bag.add_topic(PHASE_TOPIC, 'std_msgs/msg/String', QOS_LATCHED)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, traceback):
+        return self.bag.__exit__(exc_type, exc, traceback)
+
+    def finish(self):
+        """Complete the bag under its final name; idempotent."""
+        return self.bag.finish()
+
+    def write_imu(self, output):
+        """Write the valid samples of a ``TriadOutput`` to ``/imu/data_raw``."""
+        valid = output.valid.all(axis=1)
+        unknown = [-1.0] + [0.0] * 8
+        for time_ns, accel in zip(output.stamps_ns[valid].tolist(),
+                                  output.accel[valid].tolist()):
+            self.bag.write(IMU_TOPIC, {
+                'header': {'stamp': stamp(time_ns), 'frame_id': self.frame_id},
+                'orientation_covariance': unknown,
+                'angular_velocity_covariance': unknown,
+                'linear_acceleration': {'x': accel[0], 'y': accel[1], 'z': accel[2]},
+                'linear_acceleration_covariance': self._covariance,
+            }, time_ns)
+
+    def write_temperature(self, stamps_ns, celsius, variance=0.0):
+        """Write sensor temperatures [degC] at ``stamps_ns``."""
+        for time_ns, value in zip(np.asarray(stamps_ns).tolist(),
+                                  np.asarray(celsius, dtype=float).tolist()):
+            self.bag.write(TEMPERATURE_TOPIC, {
+                'header': {'stamp': stamp(time_ns), 'frame_id': self.frame_id},
+                'temperature': value, 'variance': variance}, time_ns)
+
+    def write_phase(self, name, time_ns):
+        """Mark the start of phase ``name`` at ``time_ns``."""
+        self.bag.write(PHASE_TOPIC, {'data': name}, int(time_ns))
+
+    def write_trace(self, run, kind, results, context=None):
+        """Write estimation ``results`` under ``/qfa/trace/<run>``."""
+        trace = TraceWriter.in_bag(self.bag, f'/qfa/trace/{run}')
+        write_results(trace, kind, results, context)
