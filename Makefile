@@ -10,6 +10,8 @@ DURATION ?= 10
 
 .PHONY: setup run sim test lint bench bags clean
 
+BAGS := bags/static_10s.mcap bags/paper_2019.mcap bags/temperature_cycle.mcap
+
 setup: $(STAMP)
 
 $(STAMP): requirements/ros.txt requirements/base.txt requirements/test.txt setup.py
@@ -38,6 +40,14 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/loop_throughput.py
+
+# Example bags, deterministic for the seeds given here (see bags/README.md).
+bags: $(STAMP)
+	rm -f $(BAGS)
+	$(VENV)/bin/qfa-sim static --duration 10 --seed 1 --out bags/static_10s.mcap
+	$(VENV)/bin/qfa-sim paper-2019 --seed 0 --out bags/paper_2019.mcap
+	$(VENV)/bin/qfa-sim temperature-cycle --duration 3600 --seed 0 \
+	  --out bags/temperature_cycle.mcap
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

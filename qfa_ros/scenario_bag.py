@@ -69,6 +69,7 @@ class ScenarioBag:
         self.bag.write(PHASE_TOPIC, {'data': name}, int(time_ns))
 
     def write_trace(self, run, kind, results, context=None):
-        """Write estimation ``results`` under ``/qfa/trace/<run>``."""
-        trace = TraceWriter.in_bag(self.bag, f'/qfa/trace/{run}')
+        """Write ``results`` under ``/qfa/trace/<run>`` (``run`` None: ``/qfa/trace``)."""
+        namespace = '/qfa/trace' if run is None else f'/qfa/trace/{run}'
+        trace = TraceWriter.in_bag(self.bag, namespace)
         write_results(trace, kind, results, context)

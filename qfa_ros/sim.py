@@ -53,6 +53,7 @@ def run_static(args, out=None):
             done += n
             if bag:
                 bag.write_imu(part)
+                bag.write_temperature(part.stamps_ns[-1:], part.temperature[-1:])
     print_summary(triad, accel, truth, saturated, out)
     return 0
 
@@ -115,7 +116,7 @@ def run_temperature_cycle(args, out=None):
         if bag:
             bag.write_phase('cycle', result.start_ns)
             bag.write_temperature(result.blocks['time_ns'], result.blocks['temperature'])
-            bag.write_trace('temperature', 'temperature', [result])
+            bag.write_trace(None, 'temperature', [result])
             bag.write_phase('verification', verify_ns)
             bag.write_temperature([b[2] for b in blocks], [b[1] for b in blocks])
     before = _minute_means(result.blocks['zero'])
