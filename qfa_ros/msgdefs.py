@@ -1,15 +1,22 @@
 """Embedded ROS 2 message definitions (ros2msg) and type hashes for the recorder.
 
-Generated from the Kilted ``.msg`` and ``.json`` interface files shipped with the
-``ros-*-msgs`` wheels, concatenated the way rosbag2's local message definition
-source does it: the root text, then for every dependency, depth first in sorted
-order and each only once, a line of 80 ``=``, ``MSG: pkg/Name`` and its text.
-The recorder therefore needs no ROS installation to write self-describing bags.
-``test/test_recorder.py`` checks the texts against the installed files when those
-are present.
+The own text of every Kilted ``.msg`` file the recorder needs (from the ``ros-*-msgs``
+wheels), composed into the full definitions the way rosbag2's local message
+definition source does it: the root text, then for every dependency, depth first in
+sorted order and each only once, a line of 80 ``=``, ``MSG: pkg/Name`` and its text,
+the blocks joined by newlines. The recorder therefore needs no ROS installation to
+write self-describing bags. ``test/test_recorder.py`` checks the composed texts
+against the installed files when those are present.
 """
 
-MESSAGE_DEFINITIONS = {
+import re
+
+_JOIN = '\n' + '=' * 80 + '\n'
+_PRIMITIVES = frozenset({'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8',
+                         'int16', 'uint16', 'int32', 'uint32', 'int64', 'uint64', 'string',
+                         'wstring'})
+
+MESSAGE_TEXTS = {
     'builtin_interfaces/msg/Time': (
         '# This message communicates ROS Time defined here:\n'
         '# https://design.ros2.org/articles/clock_and_time.html\n'
@@ -24,58 +31,6 @@ MESSAGE_DEFINITIONS = {
         '# This message is used to send diagnostic information about the state of the robot.\n'
         'std_msgs/Header header # for timestamp\n'
         'DiagnosticStatus[] status # an array of components being reported on\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: diagnostic_msgs/DiagnosticStatus\n'
-        '# This message holds the status of an individual component of the robot.\n'
-        '\n'
-        '# Possible levels of operations.\n'
-        'byte OK=0\n'
-        'byte WARN=1\n'
-        'byte ERROR=2\n'
-        'byte STALE=3\n'
-        '\n'
-        '# Level of operation enumerated above.\n'
-        'byte level\n'
-        '# A description of the test/component reporting.\n'
-        'string name\n'
-        '# A description of the status.\n'
-        'string message\n'
-        '# A hardware unique string.\n'
-        'string hardware_id\n'
-        '# An array of values associated with the status.\n'
-        'KeyValue[] values\n'
-        '\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: diagnostic_msgs/KeyValue\n'
-        '# What to label this value when viewing.\n'
-        'string key\n'
-        '# A value to track over time.\n'
-        'string value\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: std_msgs/Header\n'
-        '# Standard metadata for higher-level stamped data types.\n'
-        '# This is generally used to communicate timestamped data\n'
-        '# in a particular coordinate frame.\n'
-        '\n'
-        '# Two-integer timestamp that is expressed as seconds and nanoseconds.\n'
-        'builtin_interfaces/Time stamp\n'
-        '\n'
-        '# Transform frame with which this data is associated.\n'
-        'string frame_id\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        '# This message communicates ROS Time defined here:\n'
-        '# https://design.ros2.org/articles/clock_and_time.html\n'
-        '\n'
-        '# The seconds component, valid over all int32 values.\n'
-        'int32 sec\n'
-        '\n'
-        '# The nanoseconds component, valid in the range [0, 1e9).\n'
-        'uint32 nanosec\n'
     ),
     'diagnostic_msgs/msg/DiagnosticStatus': (
         '# This message holds the status of an individual component of the robot.\n'
@@ -97,13 +52,6 @@ MESSAGE_DEFINITIONS = {
         '# An array of values associated with the status.\n'
         'KeyValue[] values\n'
         '\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: diagnostic_msgs/KeyValue\n'
-        '# What to label this value when viewing.\n'
-        'string key\n'
-        '# A value to track over time.\n'
-        'string value\n'
     ),
     'diagnostic_msgs/msg/KeyValue': (
         '# What to label this value when viewing.\n'
@@ -111,19 +59,25 @@ MESSAGE_DEFINITIONS = {
         '# A value to track over time.\n'
         'string value\n'
     ),
+    'geometry_msgs/msg/Accel': (
+        '# This expresses acceleration in free space broken into its linear and angular parts.\n'
+        'Vector3  linear\n'
+        'Vector3  angular\n'
+    ),
     'geometry_msgs/msg/AccelStamped': (
         '# An accel with reference coordinate frame and timestamp\n'
         'std_msgs/Header header\n'
         'Accel accel\n'
+    ),
+    'geometry_msgs/msg/Quaternion': (
+        '# This represents an orientation in free space in quaternion form.\n'
         '\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Accel\n'
-        '# This expresses acceleration in free space broken into its linear and angular parts.\n'
-        'Vector3  linear\n'
-        'Vector3  angular\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Vector3\n'
+        'float64 x 0\n'
+        'float64 y 0\n'
+        'float64 z 0\n'
+        'float64 w 1\n'
+    ),
+    'geometry_msgs/msg/Vector3': (
         '# This represents a vector in free space.\n'
         '\n'
         '# This is semantically different than a point.\n'
@@ -133,111 +87,42 @@ MESSAGE_DEFINITIONS = {
         'float64 x\n'
         'float64 y\n'
         'float64 z\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: std_msgs/Header\n'
-        '# Standard metadata for higher-level stamped data types.\n'
-        '# This is generally used to communicate timestamped data\n'
-        '# in a particular coordinate frame.\n'
-        '\n'
-        '# Two-integer timestamp that is expressed as seconds and nanoseconds.\n'
-        'builtin_interfaces/Time stamp\n'
-        '\n'
-        '# Transform frame with which this data is associated.\n'
-        'string frame_id\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        '# This message communicates ROS Time defined here:\n'
-        '# https://design.ros2.org/articles/clock_and_time.html\n'
-        '\n'
-        '# The seconds component, valid over all int32 values.\n'
-        'int32 sec\n'
-        '\n'
-        '# The nanoseconds component, valid in the range [0, 1e9).\n'
-        'uint32 nanosec\n'
     ),
     'geometry_msgs/msg/Vector3Stamped': (
         '# This represents a Vector3 with reference coordinate frame and timestamp\n'
         '\n'
         '# Note that this follows vector semantics with it always anchored at the origin,\n'
-        '# so the rotational elements of a transform are the only parts applied when transforming.'
-        '\n'
+        '# so the rotational elements of a transform are the only parts applied when'
+        ' transforming.\n'
         '\n'
         'std_msgs/Header header\n'
         'Vector3 vector\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Vector3\n'
-        '# This represents a vector in free space.\n'
-        '\n'
-        '# This is semantically different than a point.\n'
-        '# A vector is always anchored at the origin.\n'
-        '# When a transform is applied to a vector, only the rotational component is applied.\n'
-        '\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: std_msgs/Header\n'
-        '# Standard metadata for higher-level stamped data types.\n'
-        '# This is generally used to communicate timestamped data\n'
-        '# in a particular coordinate frame.\n'
-        '\n'
-        '# Two-integer timestamp that is expressed as seconds and nanoseconds.\n'
-        'builtin_interfaces/Time stamp\n'
-        '\n'
-        '# Transform frame with which this data is associated.\n'
-        'string frame_id\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        '# This message communicates ROS Time defined here:\n'
-        '# https://design.ros2.org/articles/clock_and_time.html\n'
-        '\n'
-        '# The seconds component, valid over all int32 values.\n'
-        'int32 sec\n'
-        '\n'
-        '# The nanoseconds component, valid in the range [0, 1e9).\n'
-        'uint32 nanosec\n'
     ),
     'rosgraph_msgs/msg/Clock': (
         '# This message communicates the current time.\n'
         '#\n'
         '# For more information, see https://design.ros2.org/articles/clock_and_time.html.\n'
         'builtin_interfaces/Time clock\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        '# This message communicates ROS Time defined here:\n'
-        '# https://design.ros2.org/articles/clock_and_time.html\n'
-        '\n'
-        '# The seconds component, valid over all int32 values.\n'
-        'int32 sec\n'
-        '\n'
-        '# The nanoseconds component, valid in the range [0, 1e9).\n'
-        'uint32 nanosec\n'
     ),
     'sensor_msgs/msg/Imu': (
         '# This is a message to hold data from an IMU (Inertial Measurement Unit)\n'
         '#\n'
-        "# Accelerations should be in m/s^2 (not in g's), and rotational velocity should be in rad"
-        '/sec\n'
+        "# Accelerations should be in m/s^2 (not in g's), and rotational velocity should"
+        ' be in rad/sec\n'
         '#\n'
-        '# If the covariance of the measurement is known, it should be filled in (if all you know '
-        'is the\n'
-        '# variance of each measurement, e.g. from the datasheet, just put those along the diagona'
-        'l)\n'
-        '# A covariance matrix of all zeros will be interpreted as "covariance unknown", and to us'
-        'e the\n'
+        '# If the covariance of the measurement is known, it should be filled in (if all'
+        ' you know is the\n'
+        '# variance of each measurement, e.g. from the datasheet, just put those along'
+        ' the diagonal)\n'
+        '# A covariance matrix of all zeros will be interpreted as "covariance unknown",'
+        ' and to use the\n'
         '# data a covariance will have to be assumed or gotten from some other source\n'
         '#\n'
-        "# If you have no estimate for one of the data elements (e.g. your IMU doesn't produce an"
-        '\n'
+        "# If you have no estimate for one of the data elements (e.g. your IMU doesn't"
+        ' produce an\n'
         '# orientation estimate), please set element 0 of the associated covariance matrix to -1\n'
-        '# If you are interpreting this message, please check for a value of -1 in the first eleme'
-        'nt of each\n'
+        '# If you are interpreting this message, please check for a value of -1 in the'
+        ' first element of each\n'
         '# covariance matrix, and disregard the associated estimate.\n'
         '\n'
         'std_msgs/Header header\n'
@@ -250,50 +135,6 @@ MESSAGE_DEFINITIONS = {
         '\n'
         'geometry_msgs/Vector3 linear_acceleration\n'
         'float64[9] linear_acceleration_covariance # Row major x, y z\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Quaternion\n'
-        '# This represents an orientation in free space in quaternion form.\n'
-        '\n'
-        'float64 x 0\n'
-        'float64 y 0\n'
-        'float64 z 0\n'
-        'float64 w 1\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: geometry_msgs/Vector3\n'
-        '# This represents a vector in free space.\n'
-        '\n'
-        '# This is semantically different than a point.\n'
-        '# A vector is always anchored at the origin.\n'
-        '# When a transform is applied to a vector, only the rotational component is applied.\n'
-        '\n'
-        'float64 x\n'
-        'float64 y\n'
-        'float64 z\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: std_msgs/Header\n'
-        '# Standard metadata for higher-level stamped data types.\n'
-        '# This is generally used to communicate timestamped data\n'
-        '# in a particular coordinate frame.\n'
-        '\n'
-        '# Two-integer timestamp that is expressed as seconds and nanoseconds.\n'
-        'builtin_interfaces/Time stamp\n'
-        '\n'
-        '# Transform frame with which this data is associated.\n'
-        'string frame_id\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        '# This message communicates ROS Time defined here:\n'
-        '# https://design.ros2.org/articles/clock_and_time.html\n'
-        '\n'
-        '# The seconds component, valid over all int32 values.\n'
-        'int32 sec\n'
-        '\n'
-        '# The nanoseconds component, valid in the range [0, 1e9).\n'
-        'uint32 nanosec\n'
     ),
     'sensor_msgs/msg/Temperature': (
         '# Single temperature reading.\n'
@@ -304,9 +145,39 @@ MESSAGE_DEFINITIONS = {
         'float64 temperature          # Measurement of the Temperature in Degrees Celsius.\n'
         '\n'
         'float64 variance             # 0 is interpreted as variance unknown.\n'
+    ),
+    'std_msgs/msg/Bool': (
+        '# This was originally provided as an example message.\n'
+        '# It is deprecated as of Foxy\n'
+        '# It is recommended to create your own semantically meaningful message.\n'
+        '# However if you would like to continue using this please use the equivalent in'
+        ' example_msgs.\n'
         '\n'
-        '================================================================================\n'
-        'MSG: std_msgs/Header\n'
+        'bool data\n'
+    ),
+    'std_msgs/msg/Float64': (
+        '# This was originally provided as an example message.\n'
+        '# It is deprecated as of Foxy\n'
+        '# It is recommended to create your own semantically meaningful message.\n'
+        '# However if you would like to continue using this please use the equivalent in'
+        ' example_msgs.\n'
+        '\n'
+        'float64 data\n'
+    ),
+    'std_msgs/msg/Float64MultiArray': (
+        '# This was originally provided as an example message.\n'
+        '# It is deprecated as of Foxy\n'
+        '# It is recommended to create your own semantically meaningful message.\n'
+        '# However if you would like to continue using this please use the equivalent in'
+        ' example_msgs.\n'
+        '\n'
+        '# Please look at the MultiArrayLayout message definition for\n'
+        '# documentation on all multiarrays.\n'
+        '\n'
+        'MultiArrayLayout  layout        # specification of data layout\n'
+        'float64[]         data          # array of data\n'
+    ),
+    'std_msgs/msg/Header': (
         '# Standard metadata for higher-level stamped data types.\n'
         '# This is generally used to communicate timestamped data\n'
         '# in a particular coordinate frame.\n'
@@ -316,56 +187,24 @@ MESSAGE_DEFINITIONS = {
         '\n'
         '# Transform frame with which this data is associated.\n'
         'string frame_id\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        '# This message communicates ROS Time defined here:\n'
-        '# https://design.ros2.org/articles/clock_and_time.html\n'
-        '\n'
-        '# The seconds component, valid over all int32 values.\n'
-        'int32 sec\n'
-        '\n'
-        '# The nanoseconds component, valid in the range [0, 1e9).\n'
-        'uint32 nanosec\n'
     ),
-    'std_msgs/msg/Bool': (
+    'std_msgs/msg/MultiArrayDimension': (
         '# This was originally provided as an example message.\n'
         '# It is deprecated as of Foxy\n'
         '# It is recommended to create your own semantically meaningful message.\n'
-        '# However if you would like to continue using this please use the equivalent in example_m'
-        'sgs.\n'
+        '# However if you would like to continue using this please use the equivalent in'
+        ' example_msgs.\n'
         '\n'
-        'bool data\n'
+        'string label   # label of given dimension\n'
+        'uint32 size    # size of given dimension (in type units)\n'
+        'uint32 stride  # stride of given dimension\n'
     ),
-    'std_msgs/msg/Float64': (
+    'std_msgs/msg/MultiArrayLayout': (
         '# This was originally provided as an example message.\n'
         '# It is deprecated as of Foxy\n'
         '# It is recommended to create your own semantically meaningful message.\n'
-        '# However if you would like to continue using this please use the equivalent in example_m'
-        'sgs.\n'
-        '\n'
-        'float64 data\n'
-    ),
-    'std_msgs/msg/Float64MultiArray': (
-        '# This was originally provided as an example message.\n'
-        '# It is deprecated as of Foxy\n'
-        '# It is recommended to create your own semantically meaningful message.\n'
-        '# However if you would like to continue using this please use the equivalent in example_m'
-        'sgs.\n'
-        '\n'
-        '# Please look at the MultiArrayLayout message definition for\n'
-        '# documentation on all multiarrays.\n'
-        '\n'
-        'MultiArrayLayout  layout        # specification of data layout\n'
-        'float64[]         data          # array of data\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: std_msgs/MultiArrayLayout\n'
-        '# This was originally provided as an example message.\n'
-        '# It is deprecated as of Foxy\n'
-        '# It is recommended to create your own semantically meaningful message.\n'
-        '# However if you would like to continue using this please use the equivalent in example_m'
-        'sgs.\n'
+        '# However if you would like to continue using this please use the equivalent in'
+        ' example_msgs.\n'
         '\n'
         '# The multiarray declares a generic multi-dimensional array of a\n'
         '# particular data type.  Dimensions are ordered from outer most\n'
@@ -393,51 +232,68 @@ MESSAGE_DEFINITIONS = {
         '\n'
         'MultiArrayDimension[] dim # Array of dimension properties\n'
         'uint32 data_offset        # padding bytes at front of data\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: std_msgs/MultiArrayDimension\n'
-        '# This was originally provided as an example message.\n'
-        '# It is deprecated as of Foxy\n'
-        '# It is recommended to create your own semantically meaningful message.\n'
-        '# However if you would like to continue using this please use the equivalent in example_m'
-        'sgs.\n'
-        '\n'
-        'string label   # label of given dimension\n'
-        'uint32 size    # size of given dimension (in type units)\n'
-        'uint32 stride  # stride of given dimension\n'
-    ),
-    'std_msgs/msg/Header': (
-        '# Standard metadata for higher-level stamped data types.\n'
-        '# This is generally used to communicate timestamped data\n'
-        '# in a particular coordinate frame.\n'
-        '\n'
-        '# Two-integer timestamp that is expressed as seconds and nanoseconds.\n'
-        'builtin_interfaces/Time stamp\n'
-        '\n'
-        '# Transform frame with which this data is associated.\n'
-        'string frame_id\n'
-        '\n'
-        '================================================================================\n'
-        'MSG: builtin_interfaces/Time\n'
-        '# This message communicates ROS Time defined here:\n'
-        '# https://design.ros2.org/articles/clock_and_time.html\n'
-        '\n'
-        '# The seconds component, valid over all int32 values.\n'
-        'int32 sec\n'
-        '\n'
-        '# The nanoseconds component, valid in the range [0, 1e9).\n'
-        'uint32 nanosec\n'
     ),
     'std_msgs/msg/String': (
         '# This was originally provided as an example message.\n'
         '# It is deprecated as of Foxy\n'
         '# It is recommended to create your own semantically meaningful message.\n'
-        '# However if you would like to continue using this please use the equivalent in example_m'
-        'sgs.\n'
+        '# However if you would like to continue using this please use the equivalent in'
+        ' example_msgs.\n'
         '\n'
         'string data\n'
     ),
 }
+"""Own text of each message definition, without its dependencies."""
+
+
+def dependencies(msgtype):
+    """Return the sorted message types the fields of ``msgtype`` use directly."""
+    package = msgtype.split('/')[0]
+    found = set()
+    for line in MESSAGE_TEXTS[msgtype].splitlines():
+        words = line.split('#')[0].split()
+        if len(words) < 2 or '=' in words[1]:  # comment, blank or constant
+            continue
+        base = re.sub(r'(\[.*\]|<=\d+)$', '', words[0])
+        if base in _PRIMITIVES:
+            continue
+        owner, short = base.split('/') if '/' in base else (package, base)
+        found.add(f'{owner}/msg/{short}')
+    return sorted(found)
+
+
+def compose_definition(msgtype):
+    """Return the full ros2msg definition of ``msgtype`` as rosbag2 writes it."""
+    order = []
+
+    def visit(name):
+        for dependency in dependencies(name):
+            if dependency not in order:
+                order.append(dependency)
+                visit(dependency)
+
+    visit(msgtype)
+    blocks = [f"MSG: {name.replace('/msg/', '/')}\n{MESSAGE_TEXTS[name]}" for name in order]
+    return _JOIN.join([MESSAGE_TEXTS[msgtype]] + blocks)
+
+
+MESSAGE_DEFINITIONS = {name: compose_definition(name) for name in (
+    'builtin_interfaces/msg/Time',
+    'diagnostic_msgs/msg/DiagnosticArray',
+    'diagnostic_msgs/msg/DiagnosticStatus',
+    'diagnostic_msgs/msg/KeyValue',
+    'geometry_msgs/msg/AccelStamped',
+    'geometry_msgs/msg/Vector3Stamped',
+    'rosgraph_msgs/msg/Clock',
+    'sensor_msgs/msg/Imu',
+    'sensor_msgs/msg/Temperature',
+    'std_msgs/msg/Bool',
+    'std_msgs/msg/Float64',
+    'std_msgs/msg/Float64MultiArray',
+    'std_msgs/msg/Header',
+    'std_msgs/msg/String',
+)}
+"""Full definition of every type the recorder writes."""
 
 TYPE_HASHES = {
     'builtin_interfaces/msg/Time':
