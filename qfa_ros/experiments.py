@@ -161,43 +161,43 @@ def _static_phase(triad, seconds, name, recorder):
 
 def format_paper_tables(trials, forward_ppm=-200.0, feedback_ppm=200.0):
     """Return seed 1 Tables 3-4 and the eq. 31 comparison as Markdown text."""
-    lines = ['Table 3 - Eq-forward-gain (dN_out/dN_FPGA, z axis)', '',
-             '| trial | k_pre-eq0 | k_pre-eq1 | dk_pre (ppm) | residual |',
-             '|---|---|---|---|---|']
-    for i, t in enumerate(trials, 1):
-        lines.append(f'| {i} | {t.forward_reference:.4f} | {t.forward_drifted:.4f} | '
-                     f'{t.forward_estimate_ppm:+.2f} | '
-                     f'{_residual(t.forward_estimate_ppm, forward_ppm):.2f} % |')
+    lines = _gain_table('Table 3 - Eq-forward-gain (dN_out/dN_FPGA, z axis)',
+                        ('k_pre-eq0', 'k_pre-eq1', 'dk_pre'), 4, forward_ppm,
+                        [(t.forward_reference, t.forward_drifted, t.forward_estimate_ppm)
+                         for t in trials])
+    lines += [''] + _gain_table(
+        'Table 4 - feedback gain (N_out-on - N_out-off [count], z axis)',
+        ('k_VI0 k_DA0', 'k_VI1 k_DA1', 'dk_fb'), 2, feedback_ppm,
+        [(t.feedback_reference, t.feedback_drifted, t.feedback_estimate_ppm) for t in trials])
     mean_f = np.mean([t.forward_estimate_ppm for t in trials])
-    lines.append(f'| mean | {np.mean([t.forward_reference for t in trials]):.4f} | '
-                 f'{np.mean([t.forward_drifted for t in trials]):.4f} | {mean_f:+.2f} | '
-                 f'{_residual(mean_f, forward_ppm):.2f} % |')
-    lines += ['', 'Table 4 - feedback gain (N_out-on - N_out-off [count], z axis)', '',
-              '| trial | k_VI0 k_DA0 | k_VI1 k_DA1 | dk_fb (ppm) | residual |',
-              '|---|---|---|---|---|']
-    for i, t in enumerate(trials, 1):
-        lines.append(f'| {i} | {t.feedback_reference:.2f} | {t.feedback_drifted:.2f} | '
-                     f'{t.feedback_estimate_ppm:+.2f} | '
-                     f'{_residual(t.feedback_estimate_ppm, feedback_ppm):.2f} % |')
     mean_b = np.mean([t.feedback_estimate_ppm for t in trials])
-    lines.append(f'| mean | {np.mean([t.feedback_reference for t in trials]):.2f} | '
-                 f'{np.mean([t.feedback_drifted for t in trials]):.2f} | {mean_b:+.2f} | '
-                 f'{_residual(mean_b, feedback_ppm):.2f} % |')
-    feedback_share = 100 * (1 - abs(mean_b - feedback_ppm) / feedback_ppm)
     drifted = np.mean([abs(t.drifted_error_ug) for t in trials])
     compensated = np.mean([abs(t.compensated_error_ug) for t in trials])
+    restrained = 100 * (1 - compensated / drifted)
     lines += ['', 'Eq. 31 - static output error against N_out(0) (z axis, 1 g), mean of |.|',
               '', '| | error (ug) |', '|---|---|',
               f"| N'_out(1) - N_out(0), drifted | {drifted:.1f} |",
               f'| N_out(1) - N_out(0), compensated | {compensated:.1f} |',
               f'| residual error (eq. 31) | {100 * compensated / drifted:.2f} % |',
-              f'| output error restrained | {100 * (1 - compensated / drifted):.2f} % |',
+              f'| output error restrained | {restrained:.2f} % |',
               '',
-              f'forward drift estimated {100 * mean_f / forward_ppm:.2f} % '
-              f'(seed: 90.26 %); feedback {feedback_share:.2f} % (seed: 90.92 %); '
-              'output error restrained '
-              f'{100 * (1 - compensated / drifted):.2f} % (seed: 87.56 %)']
+              f'forward drift estimated {100 - _residual(mean_f, forward_ppm):.2f} % '
+              f'(seed: 90.26 %); feedback {100 - _residual(mean_b, feedback_ppm):.2f} % '
+              f'(seed: 90.92 %); output error restrained {restrained:.2f} % '
+              '(seed: 87.56 %)']
     return '\n'.join(lines)
+
+
+def _gain_table(title, names, decimals, injected_ppm, rows):
+    """Return one table of seed 1 Tables 3-4: reference, drifted, estimate, residual."""
+    lines = [title, '', f'| trial | {names[0]} | {names[1]} | {names[2]} (ppm) | residual |',
+             '|---|---|---|---|---|']
+    rows = np.asarray(rows, dtype=float)
+    labelled = [(str(i), row) for i, row in enumerate(rows, 1)] + [('mean', rows.mean(axis=0))]
+    for label, (reference, drifted, estimate) in labelled:
+        lines.append(f'| {label} | {reference:.{decimals}f} | {drifted:.{decimals}f} | '
+                     f'{estimate:+.2f} | {_residual(estimate, injected_ppm):.2f} % |')
+    return lines
 
 
 def _residual(estimate, injected):
