@@ -8,7 +8,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.qfa-installed
 DURATION ?= 10
 
-.PHONY: setup run sim test lint bench bags clean
+.PHONY: setup run sim test lint bench bags figures clean
 
 BAGS := bags/static_10s.mcap bags/paper_2019.mcap bags/temperature_cycle.mcap
 
@@ -48,6 +48,11 @@ bags: $(STAMP)
 	$(VENV)/bin/qfa-sim paper-2019 --seed 0 --out bags/paper_2019.mcap
 	$(VENV)/bin/qfa-sim temperature-cycle --duration 3600 --seed 0 \
 	  --out bags/temperature_cycle.mcap
+
+# README figures, drawn from the example bags.
+figures: $(STAMP)
+	$(VENV)/bin/qfa-report bags/paper_2019.mcap --out docs/figures
+	$(VENV)/bin/qfa-report bags/temperature_cycle.mcap --out docs/figures
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

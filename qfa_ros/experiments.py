@@ -156,6 +156,10 @@ def _static_phase(triad, seconds, name, recorder):
     output = triad.run_for(seconds)
     if recorder:
         recorder.write_imu(output)
+        once_a_second = slice(int(triad.config.sample_rate_hz) - 1, None,
+                              int(triad.config.sample_rate_hz))
+        recorder.write_temperature(output.stamps_ns[once_a_second],
+                                   output.temperature[once_a_second])
     return output.accel[:, 2].mean()
 
 

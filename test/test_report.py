@@ -1,0 +1,253 @@
+"""Tests of ``qfa-report``: figures from real estimation traces and scenario bags."""
+
+from pathlib import Path
+import struct
+
+import matplotlib.image
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+
+from qfa_ros.estimation import (
+    CalibrationState,
+    capture_reference,
+    FeedbackSettings,
+    ForwardSettings,
+    run_schedule,
+    self_calibrate,
+)
+from qfa_ros.model import AXES, QfaTriad, TriadConfig
+from qfa_ros.noise import MICRO_G
+from qfa_ros.report import build_figures, load_bag, main, report
+from qfa_ros.scenario_bag import ScenarioBag
+from qfa_ros.temperature import temperature_schedule, TemperatureSettings
+from qfa_ros.thermal import ThermalConfig
+from qfa_ros.traces import trace_path, write_estimation_trace
+
+FORWARD = ForwardSettings(points=5, average_s=0.1)
+FEEDBACK = FeedbackSettings(average_s=0.5)
+DRIFT_PPM = 200.0
+PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
+
+
+def _drift(triad):
+    for axis in range(len(AXES)):
+        triad.drift.set_step(axis, 'k_amp', -DRIFT_PPM * 1e-6)
+        triad.drift.set_step(axis, 'k_vi', 1 / (1 + DRIFT_PPM * 1e-6) - 1)
+
+
+@pytest.fixture(scope='module')
+def traces(tmp_path_factory):
+    """Write a reference and a self-calibration trace file; return paths and results."""
+    directory = tmp_path_factory.mktemp('traces')
+    triad = QfaTriad(TriadConfig(), rng=1)
+    state = CalibrationState()
+    reference = run_schedule(triad, capture_reference(triad, state, FORWARD, FEEDBACK))
+    reference_path = write_estimation_trace(
+        trace_path(directory, 'reference', reference[-1].end_ns), 'reference', reference)
+    _drift(triad)
+    calibration = run_schedule(triad, self_calibrate(triad, state, FORWARD, FEEDBACK))
+    calibration_path = write_estimation_trace(
+        trace_path(directory, 'self_calibrate', calibration[-1].end_ns), 'self_calibrate',
+        calibration)
+    return {'directory': directory, 'paths': [reference_path, calibration_path],
+            'reference': reference, 'calibration': calibration}
+
+
+@pytest.fixture(scope='module')
+def scenario(tmp_path_factory):
+    """Write a paper-2019-like scenario bag: static phases around a self-calibration."""
+    path = tmp_path_factory.mktemp('scenario') / 'paper.mcap'
+    config = TriadConfig()
+    triad = QfaTriad(config, rng=2)
+    state = CalibrationState()
+    samples = int(config.sample_rate_hz)
+    static = {}
+    with ScenarioBag(path, config.noise, config.sample_rate_hz) as bag:
+        reference = run_schedule(triad, capture_reference(triad, state, FORWARD, FEEDBACK))
+
+        def static_phase(name):
+            bag.write_phase(name, triad.stamp_ns(triad.sample_index))
+            output = triad.run(samples)
+            bag.write_imu(output)
+            static[name] = output.accel[output.valid.all(axis=1)]
+
+        static_phase('reference')
+        _drift(triad)
+        static_phase('drifted')
+        bag.write_phase('estimation', triad.stamp_ns(triad.sample_index))
+        calibration = run_schedule(triad, self_calibrate(triad, state, FORWARD, FEEDBACK))
+        static_phase('compensated')
+        bag.write_trace('reference', 'reference', reference)
+        bag.write_trace('self_calibrate', 'self_calibrate', calibration)
+        bag.finish()
+    return {'path': path, 'static': static, 'reference': reference,
+            'calibration': calibration}
+
+
+@pytest.fixture(scope='module')
+def temperature(tmp_path_factory):
+    """Write a temperature-cycle scenario bag from a short real calibration."""
+    path = tmp_path_factory.mktemp('temperature') / 'temperature.mcap'
+    config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant'))
+    triad = QfaTriad(config, rng=3)
+    settings = TemperatureSettings(period_s=240.0, bins=40)
+    with ScenarioBag(path, config.noise, config.sample_rate_hz) as bag:
+        result = run_schedule(triad, temperature_schedule(triad, CalibrationState(), settings))
+        bag.write_phase('cycle', result.start_ns)
+        bag.write_temperature(result.blocks['time_ns'], result.blocks['temperature'])
+        bag.write_trace('temperature', 'temperature', [result])
+        bag.finish()
+    return {'path': path, 'result': result}
+
+
+def _figures(paths):
+    figures = {item.name: item for item in build_figures(paths)}
+    for item in figures.values():
+        plt.close(item.figure)
+    return figures
+
+
+def assert_valid_png(path, min_width=800, min_height=400):
+    """Check the PNG signature, its IHDR size and that it is not blank."""
+    data = Path(path).read_bytes()
+    assert data[:8] == PNG_SIGNATURE, path
+    width, height = struct.unpack('>II', data[16:24])
+    assert width >= min_width and height >= min_height, (path, width, height)
+    pixels = matplotlib.image.imread(path)
+    assert pixels.shape[:2] == (height, width)
+    assert pixels[..., :3].std() > 0.05, f'{path} looks blank'
+
+
+# --- trace files ---------------------------------------------------------------------------
+
+def test_trace_files_give_forward_and_feedback_pngs(traces, tmp_path):
+    written = report(traces['paths'], tmp_path / 'out')
+    assert [path.name for path in written] == ['forward_gain.png', 'feedback_gain.png']
+    for path in written:
+        assert_valid_png(path)
+
+
+def test_forward_figure_plots_the_written_sweep(traces):
+    data = _figures(traces['paths'])['forward_gain'].data
+    reference, calibration = traces['reference'][0], traces['calibration'][0]
+    assert set(data) == {'reference', 'self_calibrate'}
+    for axis_index, axis in enumerate(AXES):
+        plotted = data['reference'][axis]
+        np.testing.assert_array_equal(plotted['delta_n'], reference.points['delta_n'])
+        np.testing.assert_array_equal(plotted['n_out'], reference.points[f'mean_{axis}'])
+        assert plotted['slope'] == pytest.approx(reference.measured[axis_index], rel=1e-10)
+        drifted = data['self_calibrate'][axis]
+        assert drifted['slope'] == pytest.approx(calibration.measured[axis_index], rel=1e-10)
+        assert drifted['estimate_ppm'] == pytest.approx(calibration.estimate_ppm[axis_index])
+        # The slope change read off the figure is the estimate of the trace.
+        assert drifted['slope_change_ppm'] == pytest.approx(
+            calibration.estimate_ppm[axis_index], abs=1e-3)
+        assert drifted['slope_change_ppm'] == pytest.approx(-DRIFT_PPM, abs=5.0)
+
+
+def test_feedback_figure_plots_the_written_segments(traces):
+    data = _figures(traces['paths'])['feedback_gain'].data
+    reference, calibration = traces['reference'][1], traces['calibration'][1]
+    for axis_index, axis in enumerate(AXES):
+        plotted = data['reference'][axis]
+        np.testing.assert_array_equal(plotted['means'], reference.points[f'mean_{axis}'])
+        np.testing.assert_array_equal(plotted['reference_on'],
+                                      reference.points['reference_on'] > 0.5)
+        assert plotted['step'] == pytest.approx(reference.measured[axis_index], rel=1e-10)
+        drifted = data['self_calibrate'][axis]
+        assert drifted['step'] == pytest.approx(calibration.measured[axis_index], rel=1e-10)
+        # The estimate is reference/step - 1, the bar step/reference - 1.
+        estimate = calibration.estimate_ppm[axis_index] * 1e-6
+        assert drifted['step_change_ppm'] == pytest.approx((1 / (1 + estimate) - 1) * 1e6,
+                                                           abs=1e-3)
+        assert drifted['estimate_ppm'] == pytest.approx(calibration.estimate_ppm[axis_index])
+
+
+def test_trace_directory_is_read_like_its_files(traces):
+    figures = _figures([traces['directory']])
+    assert set(figures) == {'forward_gain', 'feedback_gain'}
+    assert set(figures['forward_gain'].data) == {'reference', 'self_calibrate'}
+
+
+def test_single_reference_file_plots_without_a_comparison(traces):
+    figures = _figures(traces['paths'][:1])
+    assert set(figures['forward_gain'].data) == {'reference'}
+    assert 'deviation' in figures['forward_gain'].data['reference']['z']
+
+
+# --- scenario bags -------------------------------------------------------------------------
+
+def test_scenario_bag_loads_runs_imu_and_phases(scenario):
+    contents = load_bag(scenario['path'])
+    assert [run.name for run in contents.runs] == ['reference', 'self_calibrate']
+    assert contents.runs[0].captured and not contents.runs[1].captured
+    assert set(contents.runs[1].tables) == {'forward/points', 'forward/residuals',
+                                            'feedback/points', 'feedback/residuals'}
+    assert [name for _, name in contents.phases] == ['reference', 'drifted', 'estimation',
+                                                     'compensated']
+    assert len(contents.imu_time_ns) == sum(len(a) for a in scenario['static'].values())
+
+
+def test_scenario_bag_gives_static_output_figure(scenario, tmp_path):
+    written = report(scenario['path'], tmp_path)
+    assert [path.name for path in written] == ['forward_gain.png', 'feedback_gain.png',
+                                               'static_output.png']
+    for path in written:
+        assert_valid_png(path)
+    data = _figures([scenario['path']])['static_output'].data
+    phases = data['phases']
+    assert set(phases) == {'reference', 'drifted', 'compensated'}
+    baseline = scenario['static']['reference'][:, 2].mean()
+    assert data['baseline_m_s2'] == pytest.approx(baseline, rel=1e-12)
+    for name, accel in scenario['static'].items():
+        assert phases[name]['samples'] == len(accel)
+        assert phases[name]['mean_m_s2'] == pytest.approx(accel[:, 2].mean(), rel=1e-12)
+        assert phases[name]['error_ug'] == pytest.approx(
+            (accel[:, 2].mean() - baseline) / MICRO_G, abs=1e-6)
+    # 200 ppm of 1 g is 200 ug; the compensation removes most of it.
+    assert 150 < abs(phases['drifted']['error_ug']) < 250
+    assert abs(phases['compensated']['error_ug']) < 0.25 * abs(phases['drifted']['error_ug'])
+
+
+def test_temperature_bag_gives_fit_and_compensation_figures(temperature, tmp_path):
+    written = report([temperature['path']], tmp_path)
+    assert [path.name for path in written] == ['temperature_fit.png',
+                                               'temperature_compensation.png']
+    for path in written:
+        assert_valid_png(path)
+    figures = _figures([temperature['path']])
+    result = temperature['result']
+    order = np.argsort(result.points['v_temp'])
+    for axis_index, axis in enumerate(AXES):
+        fitted = figures['temperature_fit'].data[axis]
+        np.testing.assert_allclose(fitted['v_temp'], result.points['v_temp'][order])
+        np.testing.assert_allclose(fitted['bias_ug'],
+                                   result.points[f'bias_{axis}'][order] / MICRO_G)
+        fit = result.calibrations[axis_index].fit
+        np.testing.assert_allclose(fitted['fit_ug'], fit.evaluate(fitted['fit_v']) / MICRO_G,
+                                   rtol=1e-9, atol=1e-9)
+        compensated = figures['temperature_compensation'].data[axis]
+        np.testing.assert_allclose(compensated['after_ug'],
+                                   result.points[f'compensated_{axis}'][order] / MICRO_G)
+        calibration = result.calibrations[axis_index]
+        assert compensated['p2p_before_ug'] == pytest.approx(calibration.p2p_before / MICRO_G)
+        assert compensated['p2p_after_ug'] == pytest.approx(calibration.p2p_after / MICRO_G)
+
+
+# --- command line --------------------------------------------------------------------------
+
+def test_command_line_writes_the_pngs(traces, tmp_path, capsys):
+    out = tmp_path / 'cli'
+    assert main([str(path) for path in traces['paths']] + ['--out', str(out)]) == 0
+    printed = capsys.readouterr().out.split()
+    assert printed == [str(out / 'forward_gain.png'), str(out / 'feedback_gain.png')]
+
+
+def test_command_line_reports_missing_and_empty_inputs(tmp_path, capsys):
+    assert main([str(tmp_path / 'missing.mcap')]) == 1
+    assert 'no such file' in capsys.readouterr().err
+    empty = tmp_path / 'empty'
+    empty.mkdir()
+    assert main([str(empty), '--out', str(tmp_path / 'out')]) == 1
+    assert 'nothing to plot' in capsys.readouterr().err
