@@ -14,11 +14,15 @@ class DriftModel:
     r"""
     Relative drift ``delta`` of every loop component of every axis.
 
-    ``delta_c(t, T) = step_c + rate_c * accel * t + tc_c * (T - T_ref)`` where ``t`` is
-    sensor time [s], ``rate_c`` the aging rate [1/s] (set in ppm/year), ``accel`` the
-    time-acceleration factor (1 = real time; 3.15e7 makes a year pass in a second),
-    ``tc_c`` the temperature coefficient [1/degC] and ``T`` the sensor temperature
-    [degC] against the reference temperature ``T_ref`` (25 degC, the datasheet's).
+    ``delta_c(t, T) = step_c + aged_c + rate_c * accel * (t - t_a) + tc_c * (T - T_ref)``
+    where ``t`` is sensor time [s], ``rate_c`` the aging rate [1/s] (set in ppm/year),
+    ``accel`` the time-acceleration factor (1 = real time; 3.15e7 makes a year pass in
+    a second), ``tc_c`` the temperature coefficient [1/degC] and ``T`` the sensor
+    temperature [degC] against the reference temperature ``T_ref`` (25 degC, the
+    datasheet's). Aging is continuous: changing a rate or the acceleration at time
+    ``t_a`` (read from ``clock``) first accumulates the aging so far into ``aged_c``,
+    so the new rate acts from then on and the drift never jumps. Without a clock,
+    aging counts from sensor time 0.
 
     Parameters
     ----------
@@ -35,6 +39,10 @@ class DriftModel:
         self.reference_temperature = 25.0
         self.time_acceleration = 1.0
         self.version = 0
+        # Callable returning the present sensor time [s]; QfaTriad sets it.
+        self.clock = None
+        self.aged = np.zeros((n_axes, len(DRIFT_COMPONENTS)))
+        self.aged_at = 0.0
 
     def _index(self, axis, component):
         if component not in self.components:
@@ -53,7 +61,9 @@ class DriftModel:
     def set_aging(self, axis, component, ppm_per_year):
         """Set the linear aging rate of ``component`` on ``axis`` [ppm/year]."""
         _check_finite('ppm_per_year', ppm_per_year)
-        self.rate[self._index(axis, component)] = ppm_per_year * PPM / SECONDS_PER_YEAR
+        index = self._index(axis, component)
+        self._fold_aging()
+        self.rate[index] = ppm_per_year * PPM / SECONDS_PER_YEAR
         self.version += 1
 
     def set_temperature_coefficient(self, axis, component, ppm_per_degc):
@@ -67,8 +77,15 @@ class DriftModel:
         _check_finite('time_acceleration', factor)
         if factor < 0:
             raise ValueError(f'time_acceleration must be >= 0, got {factor!r}')
+        self._fold_aging()
         self.time_acceleration = float(factor)
         self.version += 1
+
+    def _fold_aging(self):
+        # Accumulate the aging up to now so that a new rate or acceleration starts here.
+        now = 0.0 if self.clock is None else float(self.clock())
+        self.aged = self.aged + self.rate * self.time_acceleration * (now - self.aged_at)
+        self.aged_at = now
 
     @property
     def aging(self):
@@ -77,7 +94,8 @@ class DriftModel:
 
     def at(self, axis, t, temperature=None):
         """Return ``{component: delta}`` of ``axis`` at time ``t`` [s] and ``temperature``."""
-        values = self.step[axis] + self.rate[axis] * self.time_acceleration * t
+        values = self.step[axis] + self.aged[axis] \
+            + self.rate[axis] * self.time_acceleration * (t - self.aged_at)
         if temperature is not None:
             values = values + self.temperature_coefficient[axis] \
                 * (temperature - self.reference_temperature)

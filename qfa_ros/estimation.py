@@ -5,8 +5,8 @@ import math
 
 import numpy as np
 
-from qfa_ros.model import AXES, concatenate, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED
-from qfa_ros.noise import MICRO_G
+from qfa_ros.model import AXES, concatenate, FLAG_ADC_CLIPPED
+from qfa_ros.noise import flicker_component_variance, gauss_markov_allan_variance, MICRO_G
 
 PPM = 1e-6
 FORWARD_ORDERS = ('ascending', 'bidirectional', 'interleaved')
@@ -78,7 +78,10 @@ class FeedbackSettings:
         ``single`` or ``chopped``.
     motion_limit : float
         Largest standard deviation of 10 ms means within a segment beyond the
-        expected noise before the input counts as moving [m/s^2].
+        expected noise before the input counts as moving [m/s^2]. With four or more
+        segments it also bounds how far a segment mean may depart from the on/off
+        model with a linear drift (beyond six standard deviations of the noise), which
+        catches a move between segments.
     reference_tc_ppm : float
         Temperature coefficient of I_ref [ppm/degC] known from the temperature
         calibration. Non-zero enables the co-regression on the temperature channel:
@@ -423,7 +426,8 @@ def feedback_schedule(triad, state, settings=FeedbackSettings(), apply=True, cap
             for axis in range(len(AXES)):
                 triad.set_reference_current(axis, on)
             out = yield from _segment(triad, settings.settle_s, settings.average_s)
-            if np.any(out.flags & (FLAG_DA2_CLIPPED | FLAG_ADC_CLIPPED)):
+            if np.any(out.saturated):
+                # Any flag: DA2 or ADC clipped, or beyond the rated range.
                 raise EstimationError('output saturated: the input must be in range')
             usable = len(out.accel) // block * block
             if usable >= 2 * block:
@@ -445,6 +449,8 @@ def feedback_schedule(triad, state, settings=FeedbackSettings(), apply=True, cap
     yield from _segment(triad, 0.0, settings.settle_s + triad.config.settle_time)
     means = np.asarray(means)
     on = np.asarray(sequence)
+    if len(on) >= 4:
+        _check_between_segments(triad, settings, on, np.asarray(times), means)
     # Least squares of the segment means on [switch state, 1]: the step is the on/off
     # difference, and for the ABBA order the linear drift cancels by symmetry.
     design = np.column_stack([on.astype(float), np.ones(len(on))])
@@ -456,8 +462,12 @@ def feedback_schedule(triad, state, settings=FeedbackSettings(), apply=True, cap
         step_se = np.sqrt((residuals ** 2).sum(axis=0) / dof
                           / ((on - on.mean()) ** 2).sum())
     else:
+        # The sample scatter measures the white noise of each segment mean; the bias
+        # instability, correlated over a segment, adds the Allan variance of the
+        # configured Gauss-Markov sum at tau = average_s, twice for the difference.
         per_segment = np.asarray(stds) / math.sqrt(_samples(triad, settings.average_s))
-        step_se = np.sqrt((per_segment ** 2).sum(axis=0))
+        flicker = 2.0 * _flicker_allan_variance(triad, settings.average_s) / triad.scale ** 2
+        step_se = np.sqrt((per_segment ** 2).sum(axis=0) + flicker)
     words_before = np.array([loop.n_vref for loop in triad.axes], dtype=float)
     points = {'time_ns': np.asarray(times, dtype=np.int64),
               'segment': np.arange(len(on), dtype=float), 'reference_on': on.astype(float)}
@@ -541,6 +551,41 @@ def _now_ns(triad):
 def _require_closed(triad):
     if any(loop.open_loop for loop in triad.axes):
         raise EstimationError('a loop is open: another schedule is running')
+
+
+def _flicker_allan_variance(triad, tau):
+    """Return the Allan variance of the configured bias instability at ``tau`` [(m/s^2)^2]."""
+    noise = triad.config.noise
+    variance = flicker_component_variance(noise)
+    if variance == 0:
+        return 0.0
+    return float(sum(gauss_markov_allan_variance(tau, variance, t)
+                     for t in noise.correlation_times))
+
+
+def _check_between_segments(triad, settings, on, times_ns, means):
+    """
+    Refuse a switching sequence whose segment means betray a move between segments.
+
+    Within a segment the 10 ms-mean scatter catches motion; a move during a settle
+    window (the sensor tilted between two segments) leaves each segment static but
+    shifts the level. With four or more segments the means must follow
+    ``step * on + offset + slope * t`` (a linear drift allowed); a residual beyond
+    ``motion_limit`` plus six standard deviations of a segment mean is refused.
+    """
+    t = (times_ns - times_ns[0]) * 1e-9
+    design = np.column_stack([on.astype(float), np.ones(len(on)), t])
+    coef, *_ = np.linalg.lstsq(design, means, rcond=None)
+    worst = np.max(np.abs(means - design @ coef), axis=0) * triad.scale
+    noise = triad.config.noise
+    segment_std = math.sqrt(noise.noise_density ** 2 / settings.average_s
+                            + _flicker_allan_variance(triad, settings.average_s))
+    limit = settings.motion_limit + 6.0 * segment_std
+    if np.any(worst > limit):
+        raise EstimationError(
+            f'input is moving between segments: a segment mean departs '
+            f'{float(np.max(worst)) / MICRO_G:.0f} ug from the on/off model (limit '
+            f'{limit / MICRO_G:.0f} ug); hold the sensor still')
 
 
 def _block_noise_std(triad, block):

@@ -2,6 +2,7 @@
 
 from dataclasses import asdict, dataclass, fields, replace
 import math
+import numbers
 
 STANDARD_GRAVITY = 9.80665
 """Standard gravity g0 [m/s^2]."""
@@ -109,7 +110,8 @@ class AxisHardware:
     def __post_init__(self):
         for field in fields(self):
             value = getattr(self, field.name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
+            if not isinstance(value, numbers.Real) or isinstance(value, bool) \
+                    or not math.isfinite(value):
                 raise ValueError(f'{field.name} must be a finite number, got {value!r}')
             if value <= 0:
                 raise ValueError(f'{field.name} must be positive, got {value!r}')

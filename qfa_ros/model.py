@@ -3,6 +3,7 @@
 from dataclasses import dataclass, field
 from fractions import Fraction
 import math
+import numbers
 
 import numpy as np
 
@@ -71,7 +72,7 @@ class TriadConfig:
     def __post_init__(self):
         for name in ('loop_rate_hz', 'sample_rate_hz', 'settle_time', 'crossover_hz'):
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            if not _is_real(value) or not math.isfinite(value) or value <= 0:
                 if name == 'settle_time' and value == 0:
                     continue
                 raise ValueError(f'{name} must be a positive finite number, got {value!r}')
@@ -254,6 +255,7 @@ class QfaTriad:
         self.sample_period = 1.0 / self.config.sample_rate_hz
         self.axes = [AxisLoop(self.config) for _ in AXES]
         self.drift = DriftModel(len(AXES))
+        self.drift.clock = lambda: self.time
         self.noise = NoiseSource(self.config.noise, len(AXES), self.config.loop_rate_hz,
                                  self.config.sample_rate_hz, rng)
         self.thermal = None
@@ -439,6 +441,11 @@ class QfaTriad:
             parts.append(self.run(n))
             total -= n
         return concatenate(parts)
+
+
+def _is_real(value):
+    """Return True for a real number (Python or numpy), not a bool."""
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
 def concatenate(outputs):

@@ -1,17 +1,32 @@
 """Acceptance tests of the digital closed-loop QFA model (issue: foundation)."""
 
 import math
+from pathlib import Path
+import re
 
+import numba
 import numpy as np
 from numpy.testing import assert_allclose
 import pytest
 
+from qfa_ros import kernel
 from qfa_ros.allan import allan_deviation
-from qfa_ros.design import LinearLoop
-from qfa_ros.hardware import AxisHardware, STANDARD_GRAVITY
-from qfa_ros.model import FLAG_OVER_RANGE, QfaTriad, TriadConfig
+from qfa_ros.design import LinearLoop, pendulum_matrices
+from qfa_ros.drift import SECONDS_PER_YEAR
+from qfa_ros.hardware import (
+    AxisHardware,
+    counts_to_accel,
+    DRIFT_COMPONENTS,
+    loop_gains,
+    nominal_gains,
+    STANDARD_GRAVITY,
+)
+from qfa_ros.model import concatenate, FLAG_DA2_CLIPPED, FLAG_OVER_RANGE, QfaTriad, TriadConfig
 from qfa_ros.noise import MICRO_G, NoiseConfig
-from qfa_ros.profiles import SineProfile, StaticProfile, StepProfile
+from qfa_ros.profiles import SineProfile, StaticProfile, StepProfile, tumble_profile
+from qfa_ros.sim import main as sim_main
+
+ROOT = Path(__file__).resolve().parents[1]
 
 G = STANDARD_GRAVITY
 QUIET = NoiseConfig.off()
@@ -38,8 +53,8 @@ def test_static_output_equals_input_plus_model_terms(roll, pitch, bias_ug, k2_ug
     mean = settled_mean(triad, 1.0)
     f = np.asarray(profile.specific_force)
     expected = np.asarray(config.bias) + f + np.asarray(config.k2) * f * f
-    # 1 ppm of the scale factor on the 1 g input, with a floor of 0.5 ug on a ~0 g axis.
-    assert_allclose(mean, expected, rtol=1e-6, atol=0.5 * MICRO_G)
+    # 1 ppm of the scale factor on a 1 g input, on every axis (the error is ~0.003 ppm).
+    assert_allclose(mean, expected, rtol=0.0, atol=1e-6 * G)
 
 
 @pytest.mark.parametrize('component', ['k_vi', 'v_da2_ref', 'b', 'l_coil'])
@@ -70,14 +85,17 @@ def lock_in(triad, frequency, amplitude, cycles=20, settle_cycles=5):
     return response / phasor
 
 
+@pytest.mark.parametrize('sample_rate', [10000.0, 1000.0])
 @pytest.mark.parametrize('frequency', [2.0, 20.0, 80.0, 150.0, 220.0, 300.0])
-def test_frequency_response_matches_linearized_model(frequency):
+def test_frequency_response_matches_linearized_model(frequency, sample_rate):
+    # At 1 kHz the published output passes the averaging decimator A(z) as well.
     amplitude = 2 * G
     profile = SineProfile(frequency, amplitude=(0.0, 0.0, amplitude))
-    triad = quiet_triad(profile, sample_rate_hz=10000.0)
+    triad = quiet_triad(profile, sample_rate_hz=sample_rate)
     measured = lock_in(triad, frequency, amplitude)
     model = LinearLoop(triad.config.hardware, triad.axes[2].controller,
-                       triad.config.loop_rate_hz).closed_loop(np.array([frequency]))[0]
+                       triad.config.loop_rate_hz).closed_loop(
+                           np.array([frequency]), decimation=triad.decimation)[0]
     assert abs(20 * np.log10(abs(measured) / abs(model))) < 0.5
     assert abs(np.degrees(np.angle(measured / model))) < 3.0
 
@@ -117,8 +135,8 @@ def test_forward_step_keeps_output_and_moves_bandwidth_as_predicted(ppm):
         sim.drift.set_step(2, 'k_amp', delta)
         responses.append(abs(lock_in(sim, corner, amplitude, cycles=60)))
     measured = responses[1] / responses[0] - 1.0
-    assert abs(predicted) > 2e-4  # the corner does move measurably
-    assert_allclose(measured, predicted, rtol=0.1)
+    assert abs(predicted) > 1e-3  # the corner does move measurably (2.7e-3 here)
+    assert_allclose(measured, predicted, rtol=0.02)
     bandwidth_shift = drifted.margins()[3] - corner
     assert np.sign(bandwidth_shift) == np.sign(ppm)
 
@@ -129,7 +147,7 @@ def test_open_loop_output_is_linear_in_n_fpga():
     for axis in range(3):
         triad.set_open_loop(axis, True)
     base = triad.config.hardware.n_fpga
-    words = base + 400 * np.arange(8)
+    words = base + 397 * np.arange(8)  # not a multiple of the code period: rounding varies
     levels = []
     for word in words:
         for axis in range(3):
@@ -138,18 +156,21 @@ def test_open_loop_output_is_linear_in_n_fpga():
         out = triad.run_for(0.05)
         assert not out.valid.any()
         levels.append(out.counts[:, 2].mean())
-    slope, intercept = np.polyfit(words, levels, 1)
-    residual = np.asarray(levels) - (slope * words + intercept)
     gain = triad.axes[2].controller.gain
-    assert np.max(np.abs(residual)) <= 0.5 * gain + 1.0  # one ADC code through k(D(z))
-    assert abs(intercept) <= 0.5 * gain * len(words)
     gains = triad.axes[2].gains
-    assert_allclose(slope, gain * gains.open_loop_counts_per_fpga, rtol=1e-4)
+    # N_out = k(D(z)) k_AD k_demo dV(N_FPGA), proportional to N_FPGA (eq. 16-17): every
+    # level lies on the line through the origin within the quantization, half an ADC
+    # code through k(D(z)) plus half an LSB of the Q8 readout.
+    ideal = gain * gains.open_loop_counts_per_fpga * words
+    quantization = 0.5 * gain + 0.5 / 256
+    assert np.max(np.abs(np.asarray(levels) - ideal)) <= quantization
+    slope, intercept = np.polyfit(words, levels, 1)
+    assert_allclose(slope, gain * gains.open_loop_counts_per_fpga, rtol=1e-6)
 
 
 def test_reference_current_shifts_output_by_eq_26():
     triad = quiet_triad()
-    off = triad.run_for(0.5)
+    triad.run_for(0.5)
     off = triad.run_for(1.0).counts[:, 2].mean()
     triad.set_reference_current(2, True)
     triad.run_for(0.2)
@@ -193,19 +214,58 @@ def test_allan_floor_matches_bias_instability():
         assert adev[window].max() <= floor * 1.5 * 1.5
 
 
-def test_over_range_input_is_flagged_and_recovers():
-    profile = StepProfile(times=(0.0, 0.3, 0.8), levels=((0, 0, G), (0, 0, 100 * G), (0, 0, G)))
+@pytest.mark.parametrize('sign', [1.0, -1.0])
+def test_over_range_input_is_flagged_and_recovers(sign):
+    level = (0.0, 0.0, G)
+    over = tuple(sign * 100 * G for _ in range(3))
+    profile = StepProfile(times=(0.0, 0.3, 0.8), levels=(level, over, level))
     triad = quiet_triad(profile)
-    out = triad.run_for(2.0)
-    assert np.all(np.isfinite(out.accel))
-    during = (out.stamps_ns > 0.32e9) & (out.stamps_ns < 0.8e9)
-    assert np.all(out.saturated[during, 2])
-    assert np.all(out.flags[during, 2] & FLAG_OVER_RANGE)
-    limit = triad.config.hardware.da2_full_scale
-    assert np.all(np.abs(out.counts[:, 2]) <= limit)
-    tail = out.stamps_ns > 1.3e9
+    hw = triad.config.hardware
+    limit = hw.da2_full_scale
+    integrator_limit = limit << 28
+    parts = []
+    for _ in range(20):  # 0.1 s chunks: the integer state is checked at every boundary
+        parts.append(triad.run(100))
+        for loop in triad.axes:
+            assert abs(int(loop.state_i[kernel.T_INTEGRATOR])) <= integrator_limit
+            assert abs(int(loop.state_i[kernel.T_APPLIED])) <= limit
+            assert np.all(np.isfinite(loop.state_f))
+    out = concatenate(parts)
+    assert np.all(np.isfinite(out.accel)) and np.all(np.isfinite(out.counts))
+    assert np.all(np.abs(out.counts) <= limit)
+    during = (out.stamps_ns > 0.32e9) & (out.stamps_ns <= 0.8e9)
+    assert np.all(out.saturated[during])
+    assert np.all(out.flags[during] & FLAG_OVER_RANGE)
+    # The pendulum hits its stop and the command slews (~2 g/ms) to the DA2 limit, 71.8 g.
+    clipped = (out.stamps_ns > 0.4e9) & (out.stamps_ns <= 0.8e9)
+    assert np.all(out.flags[clipped] & FLAG_DA2_CLIPPED)
+    assert_allclose(out.accel[clipped], sign * hw.da2_full_scale * triad.scale, rtol=1e-9)
+    # Full recovery within 0.1 s of the input returning in range.
+    tail = out.stamps_ns > 0.9e9
     assert not out.saturated[tail].any()
-    assert_allclose(out.accel[tail, 2].mean(), G, rtol=1e-6)
+    assert np.max(np.abs(out.accel[tail] - out.truth[tail])) < 5 * MICRO_G
+    assert_allclose(out.accel[tail].mean(axis=0), level, rtol=0.0, atol=1e-6 * G)
+
+
+@pytest.mark.parametrize('level_g, flagged', [(45.0, False), (-45.0, False), (55.0, True),
+                                              (-55.0, True)])
+def test_rated_range_is_50_g_and_flagged_beyond(level_g, flagged):
+    triad = quiet_triad(StaticProfile((0.0, 0.0, level_g * G)))
+    triad.run_for(0.1)
+    out = triad.run_for(0.2)
+    assert np.all((out.flags[:, 2] & FLAG_OVER_RANGE) != 0) == flagged
+    assert not np.any(out.flags[:, 2] & FLAG_DA2_CLIPPED)  # inside the DA2's 71.8 g
+    # Linear up to the DA2 limit: flagged or not, the output is still right.
+    assert_allclose(out.accel[:, 2].mean(), level_g * G, rtol=1e-6)
+    assert not np.any(out.flags[:, :2])
+
+
+def test_scale_factor_is_1_2_ma_per_g():
+    triad = quiet_triad()
+    counts = settled_mean(triad, 0.5)[2] / triad.scale
+    current = counts * triad.axes[2].gains.k_da2_vi  # torquer current at 1 g [A]
+    assert_allclose(current, 1.2e-3, rtol=1e-6)
+    assert_allclose(counts_to_accel(triad.config.hardware) * 2 ** 23 / G, 71.84, rtol=1e-3)
 
 
 def test_same_seed_same_output_and_chunking_is_invisible():
@@ -233,9 +293,18 @@ def test_stamps_are_evenly_spaced_integer_nanoseconds():
     ({'loop_rate_hz': 0.0}, 'loop_rate_hz'),
     ({'loop_rate_hz': -10000.0}, 'loop_rate_hz'),
     ({'sample_rate_hz': 0.0}, 'sample_rate_hz'),
+    ({'sample_rate_hz': -1000.0}, 'sample_rate_hz'),
     ({'sample_rate_hz': float('nan')}, 'sample_rate_hz'),
-    ({'sample_rate_hz': 3000.0}, 'integer multiple'),
+    ({'loop_rate_hz': float('inf')}, 'loop_rate_hz'),
+    ({'loop_rate_hz': float('nan')}, 'loop_rate_hz'),
+    ({'sample_rate_hz': 3000.0}, 'loop_rate_hz must be an integer multiple'),
+    ({'loop_rate_hz': 10500.0}, 'loop_rate_hz must be an integer multiple'),
+    ({'loop_rate_hz': 500.0}, 'loop_rate_hz must be an integer multiple'),
+    ({'settle_time': float('nan')}, 'settle_time'),
+    ({'loop_rate_hz': True}, 'loop_rate_hz'),
+    ({'sample_rate_hz': '1000'}, 'sample_rate_hz'),
     ({'bias': (0.0, float('nan'), 0.0)}, 'bias'),
+    ({'k2': (0.0, 0.0, float('inf'))}, 'k2'),
     ({'misalignment': ((0.0, 0.0), (0.0, 0.0))}, 'misalignment'),
 ])
 def test_invalid_triad_settings_raise_value_error(kwargs, name):
@@ -245,9 +314,14 @@ def test_invalid_triad_settings_raise_value_error(kwargs, name):
 
 @pytest.mark.parametrize('kwargs, name', [
     ({'n_ad_bits': 40}, 'n_ad_bits'),
+    ({'n_ad_bits': 3}, 'n_ad_bits'),
     ({'n_da2_bits': 7}, 'n_da2_bits'),
+    ({'n_da0_bits': 29}, 'n_da0_bits'),
     ({'n_da1_bits': 12.5}, 'n_da1_bits'),
     ({'damping': float('nan')}, 'damping'),
+    ({'i_ref': 0.0}, 'i_ref'),
+    ({'damping': True}, 'damping'),
+    ({'scale_factor': float('nan')}, 'scale_factor'),
     ({'sense_resistor': -58.0}, 'sense_resistor'),
     ({'damping_ratio': 0.5}, 'damping_ratio'),
 ])
@@ -256,8 +330,15 @@ def test_invalid_hardware_raises_value_error(kwargs, name):
         AxisHardware(**kwargs)
 
 
+def test_numpy_numbers_are_valid_settings():
+    config = TriadConfig(loop_rate_hz=np.int64(20000), sample_rate_hz=np.float64(500.0))
+    assert config.decimation == 40
+    assert AxisHardware(n_ad_bits=np.int64(20)).adc_full_scale == 2 ** 19 - 1
+
+
 @pytest.mark.parametrize('kwargs, name', [
     ({'noise_density': -1.0}, 'noise_density'),
+    ({'bias_instability': float('nan')}, 'bias_instability'),
     ({'adc_noise': float('inf')}, 'adc_noise'),
     ({'correlation_times': ()}, 'correlation_times'),
 ])
@@ -286,3 +367,229 @@ def test_misalignment_couples_axes_as_configured():
     mean = settled_mean(triad, 1.0)
     expected = (np.eye(3) + np.asarray(misalignment)) @ np.asarray(profile.specific_force)
     assert_allclose(mean, expected, rtol=1e-6, atol=0.5 * MICRO_G)
+
+
+def test_pendulum_zoh_matches_the_analytic_step_response():
+    # J th'' + C th' + D th = M, unit moment step from rest: with the (real) roots p1, p2
+    # of J s^2 + C s + D, th(t) = (1 + (p2 e^(p1 t) - p1 e^(p2 t)) / (p1 - p2)) / D.
+    hw = AxisHardware()
+    dt = 1e-4
+    ad, bd = pendulum_matrices(hw, dt)
+    p1, p2 = np.roots([hw.inertia, hw.damping, hw.stiffness])
+    t = dt * np.arange(1, 401)
+    theta = (1 + (p2 * np.exp(p1 * t) - p1 * np.exp(p2 * t)) / (p1 - p2)) / hw.stiffness
+    omega = p1 * p2 * (np.exp(p1 * t) - np.exp(p2 * t)) / (p1 - p2) / hw.stiffness
+    state = np.zeros(2)
+    simulated = []
+    for _ in t:
+        state = ad @ state + bd * 1.0
+        simulated.append(state.copy())
+    simulated = np.array(simulated)
+    assert_allclose(simulated[:, 0], theta, rtol=1e-9, atol=1e-12 * theta.max())
+    assert_allclose(simulated[:, 1], omega, rtol=1e-9, atol=1e-12 * np.abs(omega).max())
+
+
+def test_published_sample_is_the_mean_of_its_loop_steps():
+    # Same seed, white and ADC noise on: the 1 kHz output is exactly the block mean of
+    # the output published at the loop rate (anti-alias decimation by averaging).
+    noise = NoiseConfig(bias_instability=0.0)
+    slow = QfaTriad(TriadConfig(noise=noise, sample_rate_hz=1000.0), rng=4)
+    fast = QfaTriad(TriadConfig(noise=noise, sample_rate_hz=10000.0), rng=4)
+    decimated = slow.run(300)
+    full = fast.run(3000)
+    assert_allclose(decimated.counts, full.counts.reshape(300, 10, 3).mean(axis=1),
+                    rtol=1e-13)
+    assert_allclose(decimated.truth, full.truth.reshape(300, 10, 3).mean(axis=1), rtol=1e-13)
+    assert np.array_equal(decimated.stamps_ns, full.stamps_ns[9::10])
+
+
+def test_tumble_profile_reads_each_position():
+    dwell = 0.3
+    profile = tumble_profile(dwell_s=dwell)
+    triad = quiet_triad(profile)
+    out = triad.run_for(6 * dwell)
+    t = out.stamps_ns * 1e-9
+    for k, level in enumerate(profile.levels):
+        settled = (t > k * dwell + 0.15) & (t <= (k + 1) * dwell)
+        assert_allclose(out.accel[settled].mean(axis=0), level, rtol=0.0, atol=1e-6 * G)
+
+
+@pytest.mark.parametrize('per_step', [False, True])
+def test_array_input_drives_the_loop_like_a_profile(per_step):
+    levels = ((0.0, 0.0, G), (0.6 * G, -0.2 * G, 0.77 * G))
+    scripted = QfaTriad(TriadConfig(), rng=8,
+                        profile=StepProfile(times=(0.0, 0.25), levels=levels))
+    expected = scripted.run(500)
+    streamed = QfaTriad(TriadConfig(), rng=8)
+    force = np.repeat(np.asarray(levels), 250, axis=0)
+    if per_step:
+        force = np.repeat(force, streamed.decimation, axis=0)
+    out = streamed.run(500, specific_force=force)
+    assert np.array_equal(out.accel, expected.accel)
+    assert np.array_equal(out.truth, expected.truth)
+
+
+@pytest.mark.parametrize('axis', [0, 1, 2])
+def test_each_axis_drifts_on_its_own(axis):
+    profile = StaticProfile.orientation(0.5, -0.4)  # every axis sees gravity
+    triad = quiet_triad(profile)
+    before = settled_mean(triad, 0.5)
+    triad.drift.set_step(axis, 'k_vi', 500e-6)
+    after = settled_mean(triad, 0.5)
+    change_ppm = (after / before - 1.0) * 1e6
+    expected = np.zeros(3)
+    expected[axis] = -500.0 / (1.0 + 500e-6)
+    assert_allclose(change_ppm, expected, atol=0.05)
+
+
+def test_n_vref_word_sets_the_da2_reference_eq_30():
+    triad = quiet_triad()
+    before = settled_mean(triad, 0.5)[2]
+    word = triad.axes[2].n_vref
+    new_word = int(round(word * (1 + 300e-6)))
+    triad.set_n_vref(2, new_word)
+    after = settled_mean(triad, 0.5)[2]
+    ratio = new_word / word
+    assert_allclose(after / before, 1.0 / ratio, rtol=0.0, atol=1e-6)
+
+
+def test_nominal_gains_follow_the_paper_equations():
+    hw = AxisHardware()
+    gains = nominal_gains(hw)
+    k1 = 2 * 12e-12 * 7e-3 / 25e-6                    # 2 C0 l / d [F/rad]
+    v_in = 16384 * 2.5 / 2 ** 15 * 2.0                 # N_FPGA V_DA1_ref / 2^15 k_tz [V]
+    k_cv = v_in * 4.0 / (4 * 12e-12)                   # V_IN k_amp / (4 C0) [V/F]
+    k_ad = 2 ** 23 / 5.0                               # eq. 7 [count/V]
+    assert_allclose(gains.k_sense, k1 * k_cv * k_ad, rtol=1e-12)
+    assert_allclose(gains.open_loop_counts_per_fpga * hw.n_fpga, v_in * 4.0 * 0.28 * k_ad,
+                    rtol=1e-12)                        # eq. 16: no k1, bridge ratio r_ol
+    v_da2_ref = hw.n_vref * 6.0 / 2 ** 24              # eq. 30: N_VREF K_DA0
+    assert_allclose(v_da2_ref, 5.0, rtol=1e-7)
+    assert_allclose(gains.k_da2_vi, v_da2_ref / 2 ** 23 / 58.0, rtol=1e-12)
+    assert_allclose(gains.k_t, hw.pendulosity / hw.scale_factor, rtol=1e-12)
+    assert_allclose(gains.k_t, 0.4 * hw.coil_length * hw.pendulum_arm, rtol=1e-12)
+
+
+# Exponent of (1 + delta) of each component in (k_sense, open-loop level, k_DA2 k_VI, k_t,
+# I_ref), seed 1 eq. 4-13 and 16; 's' is the open-loop reference-capacitor sensitivity.
+GAIN_EXPONENTS = {
+    'k1': (1, 0, 0, 0, 0), 'c_ref': (1, 's', 0, 0, 0), 'v_da1_ref': (1, 1, 0, 0, 0),
+    'k_tz': (1, 1, 0, 0, 0), 'k_amp': (1, 1, 0, 0, 0), 'v_ad_ref': (-1, -1, 0, 0, 0),
+    'v_da2_ref': (0, 0, 1, 0, 0), 'k_vi': (0, 0, 1, 0, 0), 'l_coil': (0, 0, 0, 1, 0),
+    'b': (0, 0, 0, 1, 0), 'i_ref': (0, 0, 0, 0, 1),
+}
+
+
+@pytest.mark.parametrize('sensitivity', [1.0, 0.3])
+@pytest.mark.parametrize('component', DRIFT_COMPONENTS)
+def test_every_component_carries_its_own_drift_term(component, sensitivity):
+    assert set(GAIN_EXPONENTS) == set(DRIFT_COMPONENTS)
+    hw = AxisHardware()
+    delta = 1e-3
+    nominal = loop_gains(hw, {}, hw.n_fpga, hw.n_vref, sensitivity)
+    drifted = loop_gains(hw, {component: delta}, hw.n_fpga, hw.n_vref, sensitivity)
+    names = ('k_sense', 'open_loop_counts_per_fpga', 'k_da2_vi', 'k_t', 'i_ref')
+    for name, exponent in zip(names, GAIN_EXPONENTS[component]):
+        expected = 1 + sensitivity * delta if exponent == 's' else (1 + delta) ** exponent
+        assert_allclose(getattr(drifted, name) / getattr(nominal, name), expected, rtol=1e-12,
+                        err_msg=f'{component} -> {name}')
+
+
+def test_linear_aging_with_time_acceleration_is_continuous():
+    triad = quiet_triad()
+    before = settled_mean(triad, 0.5)[2]
+    start = triad.time
+    nominal = nominal_gains(triad.config.hardware).k_da2_vi
+    triad.drift.set_aging(2, 'k_vi', 200.0)              # ppm/year, from now on
+    triad.drift.set_time_acceleration(SECONDS_PER_YEAR)  # one year per sensor second
+    assert triad.drift.aging
+    for _ in range(10):
+        out = triad.run(100)
+        # The words follow the drift at the start of each chunk: 200 ppm per second.
+        assert_allclose(triad.axes[2].gains.k_da2_vi / nominal,
+                        1 + 200e-6 * (triad.time - 0.1 - start), rtol=1e-12)
+    assert_allclose(out.accel[50:, 2].mean() / before, 1 / (1 + 200e-6 * 0.9),
+                    rtol=0.0, atol=1e-6)
+    assert not triad.drift.rate[:2].any()
+    # Re-writing the same rate, or stopping time, keeps the drift reached: no jump.
+    triad.drift.set_aging(2, 'k_vi', 200.0)
+    triad.drift.set_time_acceleration(0.0)
+    aged = triad.drift.at(2, triad.time)['k_vi']
+    assert_allclose(aged, 200e-6 * (triad.time - start), rtol=1e-9)
+    triad.run(100)
+    assert_allclose(triad.drift.at(2, triad.time)['k_vi'], aged, rtol=1e-12)
+    assert_allclose(triad.axes[2].gains.k_da2_vi / nominal, 1 + aged, rtol=1e-12)
+
+
+def test_temperature_coefficient_drives_the_gain():
+    triad = quiet_triad()
+    before = settled_mean(triad, 0.5)[2]
+    triad.drift.set_temperature_coefficient(2, 'v_da2_ref', 50.0)  # ppm/degC
+    triad.set_temperature(triad.drift.reference_temperature + 2.0)
+    after = settled_mean(triad, 0.5)[2]
+    assert_allclose((after / before - 1) * 1e6, -100.0 / (1 + 100e-6), atol=1.0)
+    with pytest.raises(ValueError, match='temperature'):
+        triad.set_temperature(float('nan'))
+
+
+def test_kernel_is_compiled_and_cached():
+    assert isinstance(kernel.run_axis, numba.core.registry.CPUDispatcher)
+    assert kernel.run_axis.targetoptions['nopython']
+    assert type(kernel.run_axis._cache).__name__ == 'FunctionCache'  # cache=True
+
+
+def _summary(capsys, *argv):
+    assert sim_main(['static', *argv]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    rows = {line.split()[0]: line.split()[1:] for line in lines
+            if line.split() and line.split()[0] in ('x', 'y', 'z')}
+    return lines, {axis: [float(v) for v in values] for axis, values in rows.items()}
+
+
+def test_qfa_sim_static_prints_the_summary(capsys):
+    lines, rows = _summary(capsys, '--duration', '20', '--seed', '3')
+    header = next(line for line in lines if line.split()[:1] == ['axis'])
+    for column in ('mean m/s^2', 'error ug', 'std ug', 'ADEV(1s) ug', 'ADEV min ug',
+                   'saturated'):
+        assert column in header
+    assert set(rows) == {'x', 'y', 'z'}
+    noise = NoiseConfig()
+    white = noise.noise_density / MICRO_G
+    for axis, truth in zip('xyz', (0.0, 0.0, G)):
+        mean, error, std, adev_1s, adev_min, _tau, saturated = rows[axis]
+        assert_allclose(error, (mean - truth) / MICRO_G, atol=0.01 + 1e-8 / MICRO_G)
+        assert abs(error) < 20.0          # a few ug of bias instability over 20 s
+        # One sample averages 1 ms of white noise: std = N sqrt(1000 Hz).
+        assert_allclose(std, white * math.sqrt(1000.0), rtol=0.1)
+        assert white / 1.5 < adev_1s < 1.5 * math.hypot(white, noise.bias_instability / MICRO_G)
+        assert adev_min <= adev_1s
+        assert saturated == 0
+    assert any(re.search(r'phase margin \d+\.\d deg', line) for line in lines)
+    _, again = _summary(capsys, '--duration', '20', '--seed', '3')
+    assert again == rows
+    _, other = _summary(capsys, '--duration', '20', '--seed', '4')
+    assert other != rows
+
+
+def test_docs_state_the_designed_controller_and_defaults():
+    text = (ROOT / 'docs' / 'model.md').read_text()
+    triad = QfaTriad(TriadConfig(), rng=0)
+    controller = triad.axes[0].controller
+    hw = triad.config.hardware
+
+    def spaced(number):
+        return f'{number:,}'.replace(',', ' ').replace('- ', '-')
+
+    assert f'Q32 word {spaced(controller.gain_word)}' in text
+    assert f'{controller.gain:.6f}' in text
+    for word in (controller.lead_a1, controller.lead_b0, abs(controller.lead_b1),
+                 controller.integrator_gain):
+        assert spaced(word) in text
+    assert f'| ADC: bits, V_ref | {hw.n_ad_bits}, {hw.v_ad_ref:g} V |' in text
+    assert f'{triad.config.noise.adc_noise:g} counts rms' in text
+    assert f'{triad.config.noise.bias_instability / MICRO_G:g} µg Allan floor' in text
+    crossover, phase_margin, gain_margin, bandwidth = LinearLoop(
+        hw, controller, triad.config.loop_rate_hz).margins()
+    assert f'phase margin | {phase_margin:.1f}°' in text
+    assert f'gain margin | {gain_margin:.1f} dB' in text
+    assert f'bandwidth | {bandwidth:.0f} Hz' in text
