@@ -618,7 +618,6 @@ class McapBagWriter:
         msgtype = _canonical_type(msgtype)
         if not _TOPIC_RE.match(topic):
             raise ValueError(f'invalid topic name {topic!r}')
-        qos_yaml = offered_qos_yaml(qos)
         with self._lock:
             self._check_open('add a topic')
             known = self._topics.get(topic)
@@ -628,6 +627,9 @@ class McapBagWriter:
                         f'topic {topic} already carries {known.msgtype}, not {msgtype}'
                     )
                 return known.channel_id
+            # Only a new topic pays for the YAML: FlightRecorder.record() comes here for
+            # every message.
+            qos_yaml = offered_qos_yaml(qos)
             definition = _definition(msgtype)
             new_schema = msgtype not in self._schema_ids
             schema_id = self._schema_id(msgtype, definition)

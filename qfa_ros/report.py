@@ -454,7 +454,8 @@ def _double_exponential(run, axis):
 
 
 def _temperature_runs(runs):
-    found = [(run, run.table_with('v_temp')) for run in runs]
+    # The binned curve, not the raw 1 s blocks of the cycle (no bias_ columns).
+    found = [(run, run.table_with('v_temp', 'bias_x')) for run in runs]
     return [(run, table) for run, table in found if table is not None]
 
 

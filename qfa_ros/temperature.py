@@ -116,7 +116,12 @@ class TemperatureResult:
                 f'{self.duration_s:.0f} s')
 
     def to_mapping(self):
-        """Return the fit and comparison figures as a mapping (trace result)."""
+        """Return the fit, comparison figures and ROM words as a mapping (trace result).
+
+        ``rom.<axis>`` holds the integer words and formats the compensator was built
+        from (what ``state.temperature`` stores), so the trace alone reproduces the
+        fixed-point compensation bit for bit.
+        """
         mapping = {'applied': self.applied, 'duration_s': self.duration_s,
                    'start_ns': self.start_ns, 'end_ns': self.end_ns, 'summary': self.summary()}
         for axis, c in zip(AXES, self.calibrations):
@@ -129,6 +134,7 @@ class TemperatureResult:
             mapping[f'p2p_before_ug.{axis}'] = c.p2p_before / MICRO_G
             mapping[f'p2p_after_ug.{axis}'] = c.p2p_after / MICRO_G
             mapping[f'cancellation_bits.{axis}'] = c.cancellation_bits
+            mapping[f'rom.{axis}'] = {**c.compensator().rom(), 'v_range': list(c.v_range)}
         return mapping
 
 

@@ -359,6 +359,18 @@ class ThermalModel:
         return cfg.tsensor_v0 + cfg.tsensor_k_v_per_c * (
             np.asarray(temperature_c, dtype=float) - cfg.tsensor_t0_c)
 
+    def reading_c(self, v_temp):
+        """Return the temperature [degC] the on-board sensor reports for ``v_temp`` [V]."""
+        cfg = self.config
+        return cfg.tsensor_t0_c + (np.asarray(v_temp, dtype=float) - cfg.tsensor_v0) \
+            / cfg.tsensor_k_v_per_c
+
+    @property
+    def reading_variance_c2(self):
+        """Return the variance of :meth:`reading_c` [degC^2]: sensor noise and ADC LSB."""
+        cfg = self.config
+        return (cfg.tsensor_noise_v ** 2 + cfg.adc_lsb_v ** 2 / 12.0) / cfg.tsensor_k_v_per_c ** 2
+
     def zero_bias(self, sensor_c, hysteresis=0.0):
         """Return the zero bias (..., 3) [m/s^2] at body temperature(s) ``sensor_c``."""
         cfg = self.config

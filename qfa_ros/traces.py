@@ -19,7 +19,9 @@ def write_estimation_trace(path, kind, results, *, source='qfa_ros', context=Non
 
     Topics (all under ``/qfa/trace``): ``settings`` (the settings of every result plus
     ``context``), ``<result kind>/points`` (every raw point, logged at its sensor
-    time), ``<result kind>/residuals`` (fit residuals per axis), ``result`` (estimate,
+    time), ``<result kind>/residuals`` (fit residuals per axis), ``<result kind>/blocks``
+    (a temperature calibration's raw cycle: V_temp, temperature and zero output per
+    averaging block), ``result`` (estimate,
     standard error, measured and reference gain, words before and after, summary).
     The file appears under its final name only once complete (``.part`` until then);
     an ``OSError`` leaves no file under that name.
@@ -43,6 +45,15 @@ def write_results(trace, kind, results, context=None):
         residuals = np.asarray(r.residuals, dtype=float)
         trace.write_table(f'{r.kind}/residuals',
                           {axis: residuals[:, i] for i, axis in enumerate(AXES)}, times)
+        blocks = getattr(r, 'blocks', None)
+        if blocks:
+            # The raw cycle behind the binned points (temperature calibration), so that
+            # the fit can be redone from the trace alone.
+            zero = np.asarray(blocks['zero'], dtype=float)
+            trace.write_table(f'{r.kind}/blocks', {
+                'v_temp': blocks['v_temp'], 'temperature': blocks['temperature'],
+                **{f'zero_{axis}': zero[:, i] for i, axis in enumerate(AXES)}},
+                np.asarray(blocks['time_ns'], dtype=np.int64))
     summary = '; '.join(r.summary() for r in results)
     trace.write_result({r.kind: r.to_mapping() for r in results}, results[-1].end_ns,
                        summary=summary)

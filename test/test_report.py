@@ -1,7 +1,11 @@
 """Tests of ``qfa-report``: figures from real estimation traces and scenario bags."""
 
+import os
 from pathlib import Path
+import re
 import struct
+import subprocess
+import sys
 
 import matplotlib.image
 import matplotlib.pyplot as plt
@@ -28,6 +32,7 @@ FORWARD = ForwardSettings(points=5, average_s=0.1)
 FEEDBACK = FeedbackSettings(average_s=0.5)
 DRIFT_PPM = 200.0
 PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _drift(triad):
@@ -251,3 +256,28 @@ def test_command_line_reports_missing_and_empty_inputs(tmp_path, capsys):
     empty.mkdir()
     assert main([str(empty), '--out', str(tmp_path / 'out')]) == 1
     assert 'nothing to plot' in capsys.readouterr().err
+
+
+def test_command_line_is_headless_on_the_example_bag(tmp_path):
+    """``qfa-report`` draws without a display: no DISPLAY, no backend configured."""
+    env = {key: value for key, value in os.environ.items()
+           if key not in ('DISPLAY', 'WAYLAND_DISPLAY', 'MPLBACKEND')}
+    out = tmp_path / 'figures'
+    result = subprocess.run(
+        [sys.executable, '-m', 'qfa_ros.report', str(REPO / 'bags' / 'temperature_cycle.mcap'),
+         '--out', str(out)], env=env, cwd=tmp_path, capture_output=True, text=True,
+        timeout=120)
+    assert result.returncode == 0, result.stderr
+    names = ['temperature_fit.png', 'temperature_compensation.png']
+    assert result.stdout.split() == [str(out / name) for name in names]
+    for name in names:
+        assert_valid_png(out / name)
+
+
+def test_readme_figures_exist_and_are_the_reports_figures():
+    referenced = set(re.findall(r'docs/figures/([a-z_]+\.png)',
+                                (REPO / 'README.md').read_text()))
+    assert referenced == {'forward_gain.png', 'feedback_gain.png', 'static_output.png',
+                          'temperature_fit.png', 'temperature_compensation.png'}
+    for name in referenced:
+        assert_valid_png(REPO / 'docs' / 'figures' / name)

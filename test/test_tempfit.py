@@ -63,16 +63,73 @@ def test_noisy_data_recovers_curve_and_noise_level(coefficients, seed):
     npt.assert_allclose([fit.beta1, fit.beta2], truth_betas, rtol=0.05, atol=0.05)
 
 
+def _standard_errors(v, sigma, a1, b1, a2, b2):
+    """Return the asymptotic standard errors of (a1, b1, a2, b2): sigma^2 (J^T J)^-1."""
+    e1, e2 = np.exp(b1 * v), np.exp(b2 * v)
+    jacobian = np.column_stack([e1, a1 * v * e1, e2, a2 * v * e2])
+    return sigma * np.sqrt(np.diag(np.linalg.inv(jacobian.T @ jacobian)))
+
+
+@pytest.mark.parametrize('seed', [1, 2, 3, 4])
+@pytest.mark.parametrize('coefficients', COEFFICIENT_SETS)
+def test_noisy_data_recovers_coefficients_within_their_standard_errors(coefficients, seed):
+    noise_fraction = 1e-3
+    v, y = _synthetic(coefficients, seed, noise_fraction)
+    sigma = noise_fraction * np.ptp(_model(v, *coefficients))
+    fit = fit_double_exponential(v, y)
+    assert fit.converged
+    a1, b1, a2, b2 = coefficients
+    (b_low, a_low), (b_high, a_high) = sorted([(b1, a1), (b2, a2)])
+    truth = np.array([a_low, b_low, a_high, b_high])
+    found = np.array([fit.alpha1, fit.beta1, fit.alpha2, fit.beta2])
+    errors = _standard_errors(v, sigma, *truth)
+    assert np.all(np.abs(found - truth) <= 4 * errors), (found - truth) / errors
+
+
 @pytest.mark.parametrize('seed', [4, 5])
 @pytest.mark.parametrize('coefficients', COEFFICIENT_SETS)
 def test_alternating_iteration_matches_scipy_reference(coefficients, seed):
     v, y = _synthetic(coefficients, seed, 3e-3)
     fit = fit_double_exponential(v, y)
     reference = fit_double_exponential_reference(v, y)
+    assert fit.converged and reference.converged
     assert fit.rmse == pytest.approx(reference.rmse, rel=1e-8)
-    npt.assert_allclose([fit.beta1, fit.beta2], [reference.beta1, reference.beta2],
-                        rtol=1e-5, atol=1e-7)
+    assert fit.r_squared == pytest.approx(reference.r_squared, rel=1e-10)
+    # Same minimum: the parameters agree far inside their statistical uncertainty.
+    sigma = reference.rmse
+    errors = _standard_errors(v, sigma, reference.alpha1, reference.beta1, reference.alpha2,
+                              reference.beta2)
+    found = np.array([fit.alpha1, fit.beta1, fit.alpha2, fit.beta2])
+    expected = np.array([reference.alpha1, reference.beta1, reference.alpha2, reference.beta2])
+    assert np.all(np.abs(found - expected) <= 1e-4 * errors), (found - expected) / errors
+    npt.assert_allclose(found, expected, rtol=1e-5)
     npt.assert_allclose(fit.evaluate(v), reference.evaluate(v), atol=1e-6 * np.ptp(y))
+
+
+@pytest.mark.parametrize('beta0', [(0.5, -0.5), (4.0, -4.0), (-2.0, 1.0), (2.5, 1.0),
+                                   (1.0, 0.5), (-1.0, -2.0)])
+def test_start_values_do_not_change_the_result(beta0):
+    v, y = _synthetic(COEFFICIENT_SETS[0], 11, 1e-3)
+    automatic = fit_double_exponential(v, y)
+    started = fit_double_exponential(v, y, beta0=beta0)
+    assert started.converged
+    assert started.rmse == pytest.approx(automatic.rmse, rel=1e-8)
+    npt.assert_allclose([started.beta1, started.beta2], [automatic.beta1, automatic.beta2],
+                        rtol=1e-4)
+
+
+def test_bad_start_can_end_at_the_coalesced_stationary_point_like_scipy():
+    """Known limit of a given start: beta1 = beta2 is a stationary point of the SSE.
+
+    The automatic (grid) start avoids it; from (3, 2) both the alternating iteration
+    and scipy stop there, with opposite, cancelling alphas.
+    """
+    v, y = _synthetic(COEFFICIENT_SETS[0], 11, 1e-3)
+    stuck = fit_double_exponential(v, y, beta0=(3.0, 2.0))
+    reference = fit_double_exponential_reference(v, y, beta0=(3.0, 2.0))
+    assert stuck.rmse == pytest.approx(reference.rmse, rel=1e-8)
+    assert abs(stuck.beta2 - stuck.beta1) < 1e-4 and stuck.alpha1 * stuck.alpha2 < 0
+    assert stuck.rmse > 100 * fit_double_exponential(v, y).rmse
 
 
 def test_mse_history_decreases_and_start_value_accepted():

@@ -195,3 +195,27 @@ def test_run_and_constructor_validation():
     with pytest.raises(ValueError, match='rng'):
         ThermalModel(ThermalConfig(), 42)
     assert model.run(0, 1e-3).bias.shape == (0, 3)
+
+
+@pytest.mark.parametrize('tau_s, tau_p', [(2.0, 0.5), (1.0, 3.0)])
+def test_probe_lags_the_body_like_two_first_order_stages(tau_s, tau_p):
+    config = ThermalConfig(ambient_profile='constant', ambient_c=30.0, initial_sensor_c=-10.0,
+                           sensor_tau_s=tau_s, probe_tau_s=tau_p, tsensor_noise_v=0.0)
+    model = ThermalModel(config, np.random.default_rng(0))
+    chunk = model.run(10000, 1e-3)
+    t = chunk.time
+    body = 30.0 - 40.0 * np.exp(-t / tau_s)
+    probe = 30.0 - 40.0 * (tau_s * np.exp(-t / tau_s) - tau_p * np.exp(-t / tau_p)) / (
+        tau_s - tau_p)
+    npt.assert_allclose(chunk.sensor_c, body, rtol=0, atol=1e-10)
+    # First-order hold of a curved input: O(dt^2), 5e-7 degC here.
+    npt.assert_allclose(chunk.v_temp_true, 0.75 + 0.01 * (probe - 25.0), rtol=0, atol=1e-7)
+    npt.assert_array_equal(chunk.v_temp, np.rint(chunk.v_temp_true / config.adc_lsb_v)
+                           * config.adc_lsb_v)
+    # The zero bias follows the body (proof mass), not the lagging probe.
+    npt.assert_allclose(chunk.bias, model.zero_bias(chunk.sensor_c), rtol=1e-13, atol=0)
+    alpha, beta = np.array(config.bias_alpha), np.array(config.bias_beta)
+    v_body = 0.75 + 0.01 * (body - 25.0)
+    npt.assert_allclose(chunk.bias[:, 2], alpha[2, 0] * np.exp(beta[2, 0] * v_body)
+                        + alpha[2, 1] * np.exp(beta[2, 1] * v_body), rtol=1e-9)
+    npt.assert_allclose(chunk.scale_factor_error[:, 0], 80e-6 * (body - 25.0), atol=1e-13)
