@@ -1,9 +1,10 @@
 """Measure MCAP write throughput of the recorder for sensor_msgs/msg/Imu.
 
-Two paths: mappings serialized by the recorder (``McapBagWriter.write``) and CDR
-bytes serialized beforehand (``write_serialized``, what the node passes from
-``rclpy.serialization.serialize_message``). The messages carry seeded noise like
-a real 1 kHz stream, so compression ratios are realistic. Writes the table to
+Three paths: mappings serialized by the recorder (``McapBagWriter.write``), CDR bytes
+serialized beforehand (``write_serialized``), and the node's flight recorder
+(``FlightRecorder.record`` with the node's default split limits, 1 GiB / 600 s, on the
+bytes of ``qfa_ros.imu_cdr.ImuEncoder``). The messages carry seeded noise like a real
+1 kHz stream, so compression ratios are realistic. Writes the table to
 ``bench/results/mcap_throughput.md``.
 
 Usage: ``python bench/mcap_throughput.py [--messages N] [--repeat R]``
@@ -21,10 +22,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from qfa_ros.imu_cdr import ImuEncoder  # noqa: E402
 from qfa_ros.recorder import (  # noqa: E402
     _encoder,
     _normalized,
     DEFAULT_CHUNK_SIZE,
+    FlightRecorder,
     McapBagWriter,
     QOS_SENSOR_DATA,
     stamp,
@@ -68,6 +71,20 @@ def run(path, messages, serialized, compression):
     return time.perf_counter() - started, path.stat().st_size
 
 
+def record(directory, serialized):
+    """Record all messages through a FlightRecorder; return elapsed seconds and bytes."""
+    for old in Path(directory).glob('flight_*'):
+        old.unlink()
+    started = time.perf_counter()
+    with FlightRecorder(directory, prefix='flight', max_bytes=1 << 30,
+                        max_duration_ns=600 * 1_000_000_000,
+                        qos={TOPIC: QOS_SENSOR_DATA}) as recorder:
+        for i, data in enumerate(serialized):
+            recorder.record(TOPIC, MSGTYPE, data, START_NS + i * PERIOD_NS)
+    elapsed = time.perf_counter() - started
+    return elapsed, sum(f.stat().st_size for f in recorder.files)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--messages', type=int, default=20000)
@@ -94,6 +111,13 @@ def main():
                              size / len(messages)))
                 print(f'{label:15s} {compression or "none":5s} '
                       f'{rows[-1][2]:10.0f} msg/s {rows[-1][3]:7.1f} B/msg', flush=True)
+        accel = np.array([[m['linear_acceleration'][k] for k in 'xyz'] for m in messages])
+        node_bytes = ImuEncoder('imu_link', messages[0]['linear_acceleration_covariance']) \
+            .encode(START_NS + np.arange(len(messages)) * PERIOD_NS, accel)
+        seconds, size = min(record(directory, node_bytes) for _ in range(args.repeat))
+        rows.append(('flight recorder (node)', 'zstd', len(messages) / seconds,
+                     size / len(messages)))
+        print(f'flight recorder zstd {rows[-1][2]:10.0f} msg/s {rows[-1][3]:7.1f} B/msg')
 
     lines = [
         '# MCAP write throughput (sensor_msgs/msg/Imu)',

@@ -3,8 +3,8 @@
 from dataclasses import dataclass
 import math
 
+import numba
 import numpy as np
-from scipy.signal import lfilter
 
 MICRO_G = 9.80665e-6
 """One micro-g [m/s^2]."""
@@ -119,17 +119,31 @@ class NoiseSource:
         if self.config.bias_instability > 0:
             # Drive draws are interleaved per sample (n_samples x components) so that
             # they too are independent of the chunk length.
-            drive = np.stack([stream.standard_normal((n_samples, len(self.phi))).T
-                              for stream in self.bias_streams]) * self.innovation_std[:, None]
+            drive = np.stack([stream.standard_normal((n_samples, len(self.phi)))
+                              for stream in self.bias_streams]) * self.innovation_std
             bias = np.zeros((self.n_axes, n_samples))
-            for j, phi in enumerate(self.phi):
-                series, final = lfilter([1.0], [1.0, -phi], drive[:, j], axis=1,
-                                        zi=(phi * self.bias_state[:, j])[:, None])
-                # lfilter's final memory is phi * b[last]; keep b[last] itself.
-                self.bias_state[:, j] = final[:, 0] / phi
-                bias += series
+            _gauss_markov_sum(drive, self.phi, self.bias_state, bias)
             accel += np.repeat(bias, self.decimation, axis=1)
         return accel, adc
+
+
+@numba.njit(cache=True)
+def _gauss_markov_sum(drive, phi, state, out):
+    """
+    Advance first-order Gauss-Markov processes and add them up per axis.
+
+    ``b_j[k] = phi_j b_j[k-1] + drive[axis, k, j]`` for every axis and component ``j``,
+    starting from ``state[axis, j]`` (updated to the last value); ``out[axis, k]`` gets
+    the sum over the components.
+    """
+    n_axes, n_samples, n_components = drive.shape
+    for axis in range(n_axes):
+        for j in range(n_components):
+            value = state[axis, j]
+            for k in range(n_samples):
+                value = phi[j] * value + drive[axis, k, j]
+                out[axis, k] += value
+            state[axis, j] = value
 
 
 def acceleration_variance(config, sample_rate_hz):

@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from qfa_ros.imu_cdr import ImuEncoder
 from qfa_ros.noise import acceleration_variance
 from qfa_ros.recorder import McapBagWriter, QOS_LATCHED, QOS_SENSOR_DATA, stamp
 from qfa_ros.trace import TraceWriter
@@ -27,7 +28,8 @@ class ScenarioBag:
         self.bag = McapBagWriter(path, compression='zstd')
         self.frame_id = frame_id
         variance = acceleration_variance(noise, sample_rate_hz)
-        self._covariance = [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0, variance]
+        self._imu = ImuEncoder(frame_id, [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0,
+                                          variance])
         self.bag.add_topic(IMU_TOPIC, 'sensor_msgs/msg/Imu', QOS_SENSOR_DATA)
         self.bag.add_topic(TEMPERATURE_TOPIC, 'sensor_msgs/msg/Temperature', QOS_SENSOR_DATA)
         self.bag.add_topic(PHASE_TOPIC, 'std_msgs/msg/String', QOS_LATCHED)
@@ -45,16 +47,10 @@ class ScenarioBag:
     def write_imu(self, output):
         """Write the valid samples of a ``TriadOutput`` to ``/imu/data_raw``."""
         valid = output.valid.all(axis=1)
-        unknown = [-1.0] + [0.0] * 8
-        for time_ns, accel in zip(output.stamps_ns[valid].tolist(),
-                                  output.accel[valid].tolist()):
-            self.bag.write(IMU_TOPIC, {
-                'header': {'stamp': stamp(time_ns), 'frame_id': self.frame_id},
-                'orientation_covariance': unknown,
-                'angular_velocity_covariance': unknown,
-                'linear_acceleration': {'x': accel[0], 'y': accel[1], 'z': accel[2]},
-                'linear_acceleration_covariance': self._covariance,
-            }, time_ns)
+        stamps = output.stamps_ns[valid]
+        for time_ns, data in zip(stamps.tolist(),
+                                 self._imu.encode(stamps, output.accel[valid])):
+            self.bag.write_serialized(IMU_TOPIC, data, time_ns)
 
     def write_temperature(self, stamps_ns, celsius, variance=0.0):
         """Write sensor temperatures [degC] at ``stamps_ns``."""

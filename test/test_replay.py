@@ -33,6 +33,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_typestore, Stores
 from rosgraph_msgs.msg import Clock
 
+from qfa_ros.fastdds import shipped_fastdds_profile, use_shipped_fastdds_profile
 from qfa_ros.recorder import (
     McapBagWriter,
     QOS_LATCHED,
@@ -46,8 +47,6 @@ from qfa_ros.replay import (
     import_message_type,
     qos_from_offers,
     ReplaySummary,
-    shipped_fastdds_profile,
-    use_shipped_fastdds_profile,
 )
 
 REPO = Path(__file__).resolve().parents[1]

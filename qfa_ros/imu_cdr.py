@@ -1,0 +1,86 @@
+"""Batch CDR encoding of REP-145 accelerometer samples as ``sensor_msgs/msg/Imu`` (no ROS)."""
+
+import struct
+
+import numpy as np
+
+NS_PER_S = 1_000_000_000
+ENCAPSULATION = b'\x00\x01\x00\x00'
+"""CDR encapsulation header: plain CDR, little endian (what rmw and rosbag2 write)."""
+
+_DOUBLES_BEFORE_ACCEL = 4 + 9 + 3 + 9
+"""orientation, orientation_covariance, angular_velocity, angular_velocity_covariance."""
+
+UNKNOWN_COVARIANCE = (-1.0,) + (0.0,) * 8
+"""REP-145: element 0 = -1 marks a quantity the sensor does not measure."""
+
+
+class ImuEncoder:
+    """
+    Encode accelerometer samples as serialized ``sensor_msgs/msg/Imu`` (CDR) messages.
+
+    The messages of one stream differ only in ``header.stamp`` and
+    ``linear_acceleration``, so the encoder serializes one template message and writes
+    those two fields of every sample into copies of it with numpy; the bytes equal
+    ``rclpy.serialization.serialize_message`` of the same message. The orientation and
+    angular velocity are marked unknown (REP-145: covariance element 0 = -1), the
+    orientation quaternion is the identity.
+
+    Parameters
+    ----------
+    frame_id : str
+        ``header.frame_id``.
+    acceleration_covariance : sequence of 9 float
+        ``linear_acceleration_covariance``, row major [(m/s^2)^2].
+    """
+
+    def __init__(self, frame_id, acceleration_covariance):
+        covariance = [float(v) for v in acceleration_covariance]
+        if len(covariance) != 9:
+            raise ValueError('acceleration_covariance must have 9 elements, '
+                             f'got {len(covariance)}')
+        name = frame_id.encode('utf-8')
+        # Offsets count from the end of the encapsulation header (CDR alignment origin).
+        string_end = 12 + len(name) + 1
+        orientation = (string_end + 7) // 8 * 8
+        self.accel_offset = len(ENCAPSULATION) + orientation + 8 * _DOUBLES_BEFORE_ACCEL
+        body = bytearray(ENCAPSULATION)
+        body += struct.pack('<iII', 0, 0, len(name) + 1) + name + b'\x00'
+        body += bytes(orientation - string_end)
+        body += struct.pack('<4d', 0.0, 0.0, 0.0, 1.0)
+        body += struct.pack('<9d', *UNKNOWN_COVARIANCE)
+        body += struct.pack('<3d', 0.0, 0.0, 0.0)
+        body += struct.pack('<9d', *UNKNOWN_COVARIANCE)
+        body += struct.pack('<3d', 0.0, 0.0, 0.0)
+        body += struct.pack('<9d', *covariance)
+        self.template = np.frombuffer(bytes(body), dtype=np.uint8)
+        self.size = len(body)
+
+    def encode(self, stamps_ns, accel):
+        """
+        Return one serialized message (``bytes``) per sample.
+
+        Parameters
+        ----------
+        stamps_ns : int array_like, shape (n,)
+            ``header.stamp`` of each sample [ns since the epoch], >= 0.
+        accel : float array_like, shape (n, 3)
+            Specific force per sample [m/s^2].
+        """
+        stamps = np.asarray(stamps_ns, dtype=np.int64)
+        accel = np.asarray(accel, dtype='<f8')
+        count = len(stamps)
+        if accel.shape != (count, 3):
+            raise ValueError(f'accel must have shape ({count}, 3), got {accel.shape}')
+        if count and stamps.min() < 0:
+            raise ValueError('stamps_ns must not be negative')
+        buffer = np.tile(self.template, (count, 1))
+        stamp = np.empty((count, 2), dtype='<u4')
+        stamp[:, 0], stamp[:, 1] = np.divmod(stamps, NS_PER_S)
+        start = len(ENCAPSULATION)
+        buffer[:, start:start + 8] = stamp.view(np.uint8).reshape(count, 8)
+        buffer[:, self.accel_offset:self.accel_offset + 24] = \
+            np.ascontiguousarray(accel).view(np.uint8).reshape(count, 24)
+        data = buffer.tobytes()
+        size = self.size
+        return [data[i * size:(i + 1) * size] for i in range(count)]
