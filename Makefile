@@ -27,10 +27,13 @@ $(STAMP): requirements/ros.txt requirements/base.txt requirements/test.txt setup
 	for script in $(VENV)/lib/qfa_ros/*; do [ -e "$$script" ] && ln -sf "../lib/qfa_ros/$${script##*/}" $(VENV)/bin/; done; \
 	touch $@
 
+# The emulated sensor on DDS until Ctrl-C (the node finds config/fastdds_discovery.xml).
 run: $(STAMP)
-	$(VENV)/bin/qfa-sim static --duration $(DURATION)
+	$(VENV)/bin/qfa-node --ros-args --params-file config/qfa.yaml
 
-sim: run
+# The offline simulator, no DDS: a static run summarized with its Allan deviation.
+sim: $(STAMP)
+	$(VENV)/bin/qfa-sim static --duration $(DURATION)
 
 test: $(STAMP)
 	$(PY) -m pytest

@@ -24,6 +24,8 @@ setup(
     entry_points={
         'console_scripts': [
             'qfa-sim = qfa_ros.sim:main',
+            'qfa-node = qfa_ros.node:main',
+            'qfa_node = qfa_ros.node:main',
             'qfa-replay = qfa_ros.replay:main',
             'qfa-report = qfa_ros.report:main',
         ],

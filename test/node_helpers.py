@@ -1,0 +1,221 @@
+"""Run the QFA node as a subprocess and talk to it through real rclpy clients."""
+
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+from rcl_interfaces.srv import GetParameters, SetParameters
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from qfa_ros.thermal import ThermalConfig, ThermalModel
+
+ROOT = Path(__file__).resolve().parents[1]
+PROFILES_FILE = ROOT / 'config' / 'fastdds_discovery.xml'
+NODE = 'qfa_node'
+
+# The test process is a long-running participant too: the discovery profile and the
+# localhost-only discovery apply to it as to the node.
+os.environ.setdefault('FASTDDS_DEFAULT_PROFILES_FILE', str(PROFILES_FILE))
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+
+def thermal_zero_bias(temperature_c=25.0):
+    """Return the default sensor's thermal zero bias (x, y, z) at a steady temperature."""
+    model = ThermalModel(ThermalConfig(ambient_profile='constant'), np.random.default_rng(0))
+    return model.zero_bias(temperature_c)
+
+
+def domain_id(tag):
+    """Return a ROS domain id in 1..100 distinct per ``tag`` within this test run."""
+    return 1 + (os.getpid() * 7 + sum(ord(c) * (i + 1) for i, c in enumerate(tag))) % 100
+
+
+def node_environment(domain):
+    """Return the environment of a node process isolated on ``domain``."""
+    env = dict(os.environ)
+    env['ROS_DOMAIN_ID'] = str(domain)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['FASTDDS_DEFAULT_PROFILES_FILE'] = str(PROFILES_FILE)
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
+class NodeProcess:
+    """
+    The node in its own process, its parameters given by a parameters file.
+
+    :param domain: ROS domain id.
+    :param directory: Where the parameters file and the log go.
+    :param parameters: Parameter overrides.
+    """
+
+    def __init__(self, domain, directory, parameters=None, name=NODE):
+        self.domain = domain
+        self.name = name
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        self.params_file = directory / f'{name}_{time.monotonic_ns()}.yaml'
+        # JSON is YAML: no YAML writer needed, and doubles stay doubles.
+        self.params_file.write_text(json.dumps(
+            {name: {'ros__parameters': dict(parameters or {})}}))
+        self.log_path = self.params_file.with_suffix('.log')
+        self._log = open(self.log_path, 'w')
+        self.process = subprocess.Popen(
+            [sys.executable, '-m', 'qfa_ros.node', '--ros-args', '-r', f'__node:={name}',
+             '--params-file', str(self.params_file)],
+            env=node_environment(domain), stdout=self._log, stderr=subprocess.STDOUT,
+            cwd=ROOT)
+
+    @property
+    def pid(self):
+        return self.process.pid
+
+    def log(self):
+        """Return what the node printed so far."""
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text()
+
+    def wait(self, timeout=20.0):
+        """Wait for the process to end by itself; return its exit status."""
+        try:
+            return self.process.wait(timeout)
+        finally:
+            self._log.close()
+
+    def stop(self, signum=signal.SIGTERM, timeout=20.0):
+        """Send ``signum`` and return the exit status."""
+        if self.process.poll() is None:
+            self.process.send_signal(signum)
+        try:
+            return self.process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+            raise
+        finally:
+            self._log.close()
+
+
+class Client:
+    """
+    A test-side rclpy node in its own context on ``domain``.
+
+    :param domain: ROS domain id.
+    :param target: Name of the node under test.
+    """
+
+    def __init__(self, domain, target=NODE):
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = Node('qfa_test_client', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.target = target
+        self.clients = {}
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+    def spin_until(self, predicate, timeout, what='condition'):
+        """Spin until ``predicate()`` is true; fail after ``timeout`` seconds."""
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def spin_for(self, seconds):
+        """Spin for ``seconds`` (a measurement window, not a wait for a match)."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
+
+    def subscribe(self, msg_type, topic, callback, depth=1000, latched=False):
+        qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+        if latched:
+            qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        return self.node.create_subscription(msg_type, topic, callback, qos)
+
+    def client(self, srv_type, name):
+        if name not in self.clients:
+            self.clients[name] = self.node.create_client(srv_type, name)
+        return self.clients[name]
+
+    def call_async(self, srv_type, name, request, timeout=30.0):
+        """Send a request once the service is there; return the future."""
+        client = self.client(srv_type, name)
+        self.spin_until(client.service_is_ready, timeout, f'service {name}')
+        return client.call_async(request)
+
+    def call(self, srv_type, name, request, timeout=60.0):
+        """Call a service and return the response."""
+        future = self.call_async(srv_type, name, request, timeout)
+        self.spin_until(future.done, timeout, f'response of {name}')
+        return future.result()
+
+    def set_parameters(self, values, timeout=30.0):
+        """Set parameters of the node under test; return the results (one per parameter)."""
+        request = SetParameters.Request()
+        request.parameters = [Parameter(name, value=value).to_parameter_msg()
+                              for name, value in values.items()]
+        return self.call(SetParameters, f'/{self.target}/set_parameters', request,
+                         timeout).results
+
+    def get_parameters(self, names, timeout=30.0):
+        request = GetParameters.Request(names=list(names))
+        response = self.call(GetParameters, f'/{self.target}/get_parameters', request,
+                             timeout)
+        return [parameter_value_to_python(value) for value in response.values]
+
+
+class ImuCollector:
+    """Collect ``imu/data_raw`` samples as (stamp ns, ax, ay, az) and whole messages."""
+
+    def __init__(self, client, topic='imu/data_raw', depth=1000):
+        from sensor_msgs.msg import Imu
+        self.samples = []
+        self.after_ns = 0
+        self.last_message = None
+        self.subscription = client.subscribe(Imu, topic, self.callback, depth)
+
+    def callback(self, message):
+        stamp = message.header.stamp
+        stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        if stamp_ns < self.after_ns:
+            return
+        vector = message.linear_acceleration
+        self.samples.append((stamp_ns, vector.x, vector.y, vector.z))
+        self.last_message = message
+
+    def clear(self, after_ns=0):
+        """Forget the samples so far; from now on keep those stamped at ``after_ns`` or later."""
+        self.samples = []
+        self.after_ns = after_ns
+
+
+def mean_accel(client, collector, count, timeout=30.0, settle_s=0.0):
+    """
+    Return the mean specific force (x, y, z) of ``count`` fresh samples.
+
+    Fresh: stamped ``settle_s`` or more after this call (the node stamps with the same
+    system clock), so neither samples still queued from before a change nor the loops'
+    step response count, however late this process reads them.
+    """
+    collector.clear(time.time_ns() + int(settle_s * 1e9))
+    client.spin_until(lambda: len(collector.samples) >= count, timeout, f'{count} samples')
+    samples = collector.samples[:count]
+    return tuple(sum(s[k] for s in samples) / count for k in (1, 2, 3))

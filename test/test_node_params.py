@@ -1,0 +1,123 @@
+"""Parameter table, validation and the state store of the node (no DDS)."""
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import yaml
+
+from qfa_ros.estimation import AxisReference, CalibrationState
+from qfa_ros.node_params import (
+    check_all,
+    check_value,
+    config_yaml,
+    descriptor,
+    parameter_table,
+    PARAMETERS,
+    SPECS,
+)
+from qfa_ros.state_store import StateFileError, StateStore
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def defaults():
+    return {spec.name: spec.default for spec in PARAMETERS}
+
+
+def test_config_file_holds_every_parameter_with_its_default():
+    text = (ROOT / 'config' / 'qfa.yaml').read_text()
+    assert text == config_yaml(), 'regenerate: python -m qfa_ros.node_params yaml'
+    values = yaml.safe_load(text)['qfa_node']['ros__parameters']
+    assert set(values) == set(SPECS)
+    for name, value in values.items():
+        assert value == pytest.approx(SPECS[name].default), name
+        assert type(value) is type(SPECS[name].default), name
+
+
+def test_docs_list_every_parameter():
+    assert parameter_table() in (ROOT / 'docs' / 'node.md').read_text(), \
+        'regenerate the table: python -m qfa_ros.node_params markdown'
+
+
+def test_every_parameter_has_a_description_and_fixed_names_exist():
+    for spec in PARAMETERS:
+        assert descriptor(spec).description, spec.name
+    for name in ('sample_rate_hz', 'loop_rate_hz', 'frame_id', 'seed', 'drift.forward_ppm',
+                 'drift.feedback_ppm', 'estimation.realtime', 'trace_dir', 'state_file'):
+        assert name in SPECS
+    assert descriptor(SPECS['sample_rate_hz']).read_only
+    assert descriptor(SPECS['drift.time_acceleration']).floating_point_range
+
+
+def test_defaults_are_consistent():
+    assert check_all(defaults()) is None
+
+
+@pytest.mark.parametrize('name, value, words', [
+    ('drift.forward_ppm', [math.nan, 0.0, 0.0], 'finite'),
+    ('drift.feedback_ppm', [1.0, 2.0], 'exactly 3'),
+    ('sample_rate_hz', -1000.0, 'in [1'),
+    ('input.mode', 'flying', 'one of static, profile, topic'),
+    ('estimation.forward.order', 'random', 'one of'),
+    ('frame_id', '', 'must not be empty'),
+    ('drift.time_acceleration', math.inf, 'finite'),
+])
+def test_bad_values_are_rejected_with_a_reason(name, value, words):
+    assert words in check_value(name, value)
+
+
+def test_loop_rate_must_be_a_multiple_of_the_sample_rate():
+    values = defaults()
+    values['loop_rate_hz'] = 2500.0
+    assert 'integer multiple' in check_all(values)
+
+
+def test_inconsistent_step_profile_is_rejected():
+    values = defaults()
+    values['input.mode'] = 'profile'
+    values['input.profile'] = 'steps'
+    values['input.steps.levels'] = [0.0, 0.0, 9.8]
+    assert 'input.steps' in check_all(values)
+
+
+def calibrated_state():
+    state = CalibrationState(references=[AxisReference(73.4, -71739.0, 25.0)
+                                         for _ in range(3)])
+    state.controller_gain = [0.25, 0.25, 0.25]
+    state.n_vref = [13981013, 13981013, 13981013]
+    return state
+
+
+def test_state_store_round_trip_and_atomic_write(tmp_path):
+    store = StateStore(tmp_path / 'sub' / 'state.json')
+    assert store.load() == (None, True)
+    store.save(calibrated_state(), False)
+    state, compensation = store.load()
+    assert state.has_reference and compensation is False
+    assert [p.name for p in store.path.parent.iterdir()] == ['state.json']
+
+
+def test_corrupt_state_file_is_set_aside(tmp_path):
+    path = tmp_path / 'state.json'
+    path.write_text('{"format": "qfa_ros.calibration/1", "references": [')
+    with pytest.raises(StateFileError) as error:
+        StateStore(path).load()
+    assert 'corrupt' in str(error.value)
+    assert not path.exists()
+    assert error.value.kept_as.name.startswith('state.json.corrupt-')
+    assert error.value.kept_as.read_text().startswith('{"format"')
+
+
+def test_state_file_with_wrong_format_is_set_aside(tmp_path):
+    path = tmp_path / 'state.json'
+    path.write_text(json.dumps({'format': 'something else'}))
+    with pytest.raises(StateFileError, match='unknown or missing format'):
+        StateStore(path).load()
+
+
+def test_state_store_without_path_keeps_nothing():
+    store = StateStore('')
+    assert store.save(calibrated_state(), True) is None
+    assert store.load() == (None, True)
