@@ -151,6 +151,8 @@ def test_realtime_schedule_pauses_the_stream_and_answers_busy(setup):
     diagnostics = []
     client.subscribe(DiagnosticArray, '/diagnostics', diagnostics.append, depth=10)
     imu.clear()
+    # A sample from before the schedule, so that the pause shows as a gap in the stamps.
+    client.spin_until(lambda: imu.samples, 10, 'a sample before the schedule')
     started = time.monotonic()
     future = client.call_async(Trigger, f'{NODE}/self_calibrate', Trigger.Request())
     client.spin_until(lambda: running_schedule(diagnostics) == 'self_calibrate', 10,
