@@ -16,6 +16,7 @@ from qfa_ros.profiles import StaticProfile
 from qfa_ros.thermal import ThermalModel
 
 AXES = ('x', 'y', 'z')
+NS_PER_S = 1_000_000_000
 FLAG_DA2_CLIPPED, FLAG_ADC_CLIPPED, FLAG_OVER_RANGE = 1, 2, 4
 MAX_CONTROLLER_GAIN = 4.0
 
@@ -101,6 +102,42 @@ class TriadConfig:
         bias = tuple(b * MICRO_G for b in bias_ug)
         k2 = tuple(k * MICRO_G / STANDARD_GRAVITY ** 2 for k in k2_ug_per_g2)
         return cls(bias=bias, k2=k2, **kwargs)
+
+
+class SampleGrid:
+    """
+    Instants of a stream of samples, exact in integer nanoseconds.
+
+    Sample ``j`` is stamped ``start_ns + (j + 1) / rate_hz``: the end of its averaging
+    block. A rate that is not an integer number of nanoseconds uses an exact fraction.
+
+    Parameters
+    ----------
+    rate_hz : float
+        Sample rate [Hz].
+    start_ns : int or None
+        Instant the stream starts [ns]; None until :meth:`anchor` is called.
+    """
+
+    def __init__(self, rate_hz, start_ns=None):
+        rate = Fraction(rate_hz).limit_denominator(1_000_000)
+        self._numerator = rate.numerator
+        self._scale = NS_PER_S * rate.denominator
+        self.start_ns = start_ns
+        self.next_index = 0
+
+    def anchor(self, start_ns):
+        """Start the stream at ``start_ns``: sample 0 ends one period later."""
+        self.start_ns = int(start_ns)
+        self.next_index = 0
+
+    def stamp_ns(self, index):
+        """Return the instant of sample(s) ``index`` [ns] (int, or int64 array)."""
+        return self.start_ns + (index + 1) * self._scale // self._numerator
+
+    def due(self, now_ns):
+        """Return how many samples have their instant at or before ``now_ns``."""
+        return max(0, (int(now_ns) - self.start_ns) * self._numerator // self._scale)
 
 
 @dataclass
@@ -253,6 +290,7 @@ class QfaTriad:
         self.decimation = self.config.decimation
         self.dt = 1.0 / self.config.loop_rate_hz
         self.sample_period = 1.0 / self.config.sample_rate_hz
+        self._grid = SampleGrid(self.config.sample_rate_hz, start_ns=0)
         self.axes = [AxisLoop(self.config) for _ in AXES]
         self.drift = DriftModel(len(AXES))
         self.drift.clock = lambda: self.time
@@ -284,9 +322,7 @@ class QfaTriad:
 
     def stamp_ns(self, sample_index):
         """Return the data-ready instant (end of the averaging block) of samples [ns]."""
-        rate = Fraction(self.config.sample_rate_hz).limit_denominator(1_000_000)
-        index = np.asarray(sample_index, dtype=np.int64) + 1
-        return index * (1_000_000_000 * rate.denominator) // rate.numerator
+        return self._grid.stamp_ns(np.asarray(sample_index, dtype=np.int64))
 
     # Loop words --------------------------------------------------------------------------
     def _refresh(self, force=False):

@@ -6,7 +6,6 @@ Run it with ``qfa-node`` (``ros2 run qfa_ros qfa_node``) or
 described in ``docs/node.md``.
 """
 
-from fractions import Fraction
 import math
 import os
 from pathlib import Path
@@ -42,7 +41,7 @@ from qfa_ros.estimation import (
 )
 from qfa_ros.fastdds import use_shipped_fastdds_profile
 from qfa_ros.imu_cdr import ImuEncoder
-from qfa_ros.model import AXES, concatenate, QfaTriad
+from qfa_ros.model import AXES, concatenate, NS_PER_S, QfaTriad, SampleGrid
 from qfa_ros.node_params import (
     ambient_settings,
     check_all,
@@ -65,7 +64,6 @@ from qfa_ros.temperature import temperature_schedule
 from qfa_ros.traces import trace_path, write_estimation_trace
 
 PPM = 1e-6
-NS_PER_S = 1_000_000_000
 FAST_CHUNK_SAMPLES = 1000
 FAST_SLICE_S = 0.02
 """CPU time a fast schedule may hold the model before the executor gets a turn [s]."""
@@ -91,42 +89,6 @@ _SCHEDULE_PAUSE = {
     'self_calibrate': 'self-calibration running (open loop, then I_ref steps)',
     'temperature': 'temperature calibration running: accelerated chamber cycle',
 }
-
-
-class SampleGrid:
-    """
-    Instants of the published samples on the node clock.
-
-    Sample ``j`` of the stream is stamped ``start + (j + 1) / rate`` exactly in integer
-    nanoseconds: the end of its averaging block, never the publish time.
-
-    :param rate_hz: Sample rate [Hz].
-    """
-
-    def __init__(self, rate_hz):
-        rate = Fraction(rate_hz).limit_denominator(1_000_000)
-        self._numerator = rate.numerator
-        self._scale = NS_PER_S * rate.denominator
-        self.start_ns = None
-        self.next_index = 0
-
-    def anchor(self, start_ns):
-        """Start the stream at ``start_ns``: sample 0 ends one period later."""
-        self.start_ns = int(start_ns)
-        self.next_index = 0
-
-    def stamp(self, index):
-        """Return the instant of sample ``index`` [ns]."""
-        return self.start_ns + (index + 1) * self._scale // self._numerator
-
-    def stamps(self, first, count):
-        """Return the instants of ``count`` samples from ``first`` [ns] as int64."""
-        index = np.arange(first + 1, first + count + 1, dtype=np.int64)
-        return self.start_ns + index * self._scale // self._numerator
-
-    def due(self, now_ns):
-        """Return how many samples have their instant at or before ``now_ns``."""
-        return max(0, (int(now_ns) - self.start_ns) * self._numerator // self._scale)
 
 
 class ScheduleRun:
@@ -212,8 +174,7 @@ class QfaNode(Node):
         values = self._values
         config = triad_config(values)
         self._triad = QfaTriad(config, rng=values['seed'], profile=input_profile(values))
-        if self._triad.thermal is None:
-            self._triad.set_temperature(values['temperature_c'])
+        self._apply_ambient()
         self._nominal_gains = [loop.controller.gain for loop in self._triad.axes]
         self._nominal_n_vref = [loop.n_vref for loop in self._triad.axes]
         self._apply_drift()
@@ -353,10 +314,7 @@ class QfaNode(Node):
                 if 'frame_id' in names:
                     self._set_frame_id(self._values['frame_id'])
                 if names & THERMAL_RUNTIME_PARAMETERS:
-                    if self._triad.thermal is None:
-                        self._triad.set_temperature(self._values['temperature_c'])
-                    else:
-                        self._triad.thermal.set_ambient(**ambient_settings(self._values))
+                    self._apply_ambient()
                 if names & RECORDER_PARAMETERS:
                     self._restart_recorder()
             except (ValueError, OSError) as error:
@@ -374,6 +332,12 @@ class QfaNode(Node):
             drift.set_aging(axis, FEEDBACK_COMPONENT,
                             values['drift.aging_feedback_ppm_per_year'][axis])
         drift.set_time_acceleration(values['drift.time_acceleration'])
+
+    def _apply_ambient(self):
+        if self._triad.thermal is None:
+            self._triad.set_temperature(self._values['temperature_c'])
+        else:
+            self._triad.thermal.set_ambient(**ambient_settings(self._values))
 
     def _set_frame_id(self, frame_id):
         self._imu_encoder = ImuEncoder(frame_id, self._acceleration_covariance)
@@ -480,9 +444,9 @@ class QfaNode(Node):
         if grid.start_ns is None:
             grid.anchor(now)
             return
-        if grid.next_index and now < grid.stamp(grid.next_index - 1):
+        if grid.next_index and now < grid.stamp_ns(grid.next_index - 1):
             # The clock went back (a bag or simulation restarted): restart the stream.
-            jump = (grid.stamp(grid.next_index - 1) - now) / 1e9
+            jump = (grid.stamp_ns(grid.next_index - 1) - now) / 1e9
             self._clock_note = f'clock jumped back by {jump:.3f} s; stream re-anchored'
             grid.anchor(now)
             return
@@ -502,7 +466,7 @@ class QfaNode(Node):
         while count > 0:
             run = self._schedule
             chunk = count if run is None else min(count, run.remaining)
-            stamps = grid.stamps(grid.next_index, chunk)
+            stamps = grid.stamp_ns(np.arange(grid.next_index, grid.next_index + chunk))
             force, stale = self._input_force(stamps)
             output = self._triad.run(chunk, force)
             self._publish_samples(grid.next_index, stamps, output, stale)
@@ -551,38 +515,43 @@ class QfaNode(Node):
         else:
             reason = None
         self._pause_reason = reason if not valid[-1] else None
-        recorder = self._recorder
+        # The log time of everything this batch records: one clock read, not one per message.
+        now_ns = self.get_clock().now().nanoseconds if self._recorder is not None else None
         if valid.any():
             messages = self._imu_encoder.encode(stamps[valid], output.accel[valid])
             topic = self._imu_publisher.topic_name
             for data in messages:
                 self._imu_publisher.publish(data)
-                if recorder is not None:
-                    self._record(topic, IMU_TYPE, data)
+                if self._recorder is not None:
+                    self._record(topic, IMU_TYPE, data, now_ns)
             self._published += len(messages)
         self._withheld += int(len(valid) - np.count_nonzero(valid))
+        due = np.arange((-(first + 1)) % self._temperature_every, len(stamps),
+                        self._temperature_every)
+        if not len(due):
+            return
         thermal = self._triad.thermal
-        readings = output.temperature if thermal is None else thermal.reading_c(output.v_temp)
+        readings = output.temperature[due] if thermal is None \
+            else thermal.reading_c(output.v_temp[due])
         self._last_temperature = float(readings[-1])
-        every = self._temperature_every
-        for i in range((-(first + 1)) % every, len(stamps), every):
-            message = self._temperature
-            message.header.stamp.sec, message.header.stamp.nanosec = \
-                divmod(int(stamps[i]), NS_PER_S)
-            message.temperature = float(readings[i])
-            self._publish(self._temperature_publisher, message, TEMPERATURE_TYPE)
+        message = self._temperature
+        for stamp, reading in zip(stamps[due].tolist(), readings.tolist()):
+            message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, NS_PER_S)
+            message.temperature = reading
+            self._publish(self._temperature_publisher, message, TEMPERATURE_TYPE, now_ns)
 
-    def _publish(self, publisher, message, msgtype):
+    def _publish(self, publisher, message, msgtype, now_ns=None):
         if self._recorder is None:
             publisher.publish(message)
             return
         data = serialize_message(message)
         publisher.publish(data)
-        self._record(publisher.topic_name, msgtype, data)
+        self._record(publisher.topic_name, msgtype, data,
+                     self.get_clock().now().nanoseconds if now_ns is None else now_ns)
 
-    def _record(self, topic, msgtype, data):
+    def _record(self, topic, msgtype, data, now_ns):
         try:
-            self._recorder.record(topic, msgtype, data, self.get_clock().now().nanoseconds)
+            self._recorder.record(topic, msgtype, data, now_ns)
         except (OSError, ValueError) as error:
             self._recorder_problem = f'recording stopped: {error}'
             self.get_logger().error(self._recorder_problem)

@@ -1,5 +1,6 @@
 """Parameters of the QFA node: declarations, validation and mapping onto the model."""
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 import math
 import sys
@@ -273,8 +274,13 @@ def check_value(name, value):
     return None
 
 
-def _model_error(prefix, error):
-    return f'{prefix}: {error}'
+@contextmanager
+def _named(prefix):
+    """Prefix a model settings ``ValueError`` with the parameters it comes from."""
+    try:
+        yield
+    except ValueError as error:
+        raise ValueError(f'{prefix}: {error}') from None
 
 
 def ambient_settings(values):
@@ -292,60 +298,50 @@ def thermal_config(values):
     """Return the :class:`ThermalConfig` of ``thermal.*``, or None when it is disabled."""
     if not values['thermal.enabled']:
         return None
-    try:
+    with _named('thermal'):
         return ThermalConfig(**ambient_settings(values),
                              sensor_tau_s=values['thermal.sensor_tau_s'],
                              bias_model=values['thermal.bias_model'])
-    except ValueError as error:
-        raise ValueError(_model_error('thermal', error)) from None
 
 
 def temperature_settings(values):
     """Return the :class:`TemperatureSettings` of ``temperature_calibration.*``."""
-    try:
+    with _named('temperature_calibration'):
         return TemperatureSettings(low_c=values['temperature_calibration.low_c'],
                                    high_c=values['temperature_calibration.high_c'],
                                    period_s=values['temperature_calibration.period_s'],
                                    cycles=values['temperature_calibration.cycles'],
                                    m_bits=values['temperature_calibration.m_bits'])
-    except ValueError as error:
-        raise ValueError(_model_error('temperature_calibration', error)) from None
 
 
 def triad_config(values):
     """Return the :class:`TriadConfig` of the parameter ``values`` (ValueError names them)."""
     thermal = thermal_config(values)
-    try:
+    with _named('noise'):
         noise = NoiseConfig(noise_density=values['noise.density_ug_per_rthz'] * MICRO_G,
                             bias_instability=values['noise.bias_instability_ug'] * MICRO_G,
                             adc_noise=values['noise.adc_counts'])
-    except ValueError as error:
-        raise ValueError(_model_error('noise', error)) from None
-    try:
+    with _named('sample_rate_hz / loop_rate_hz / model'):
         return TriadConfig.from_datasheet(
             bias_ug=tuple(values['model.bias_ug']),
             k2_ug_per_g2=tuple(values['model.k2_ug_per_g2']),
             loop_rate_hz=values['loop_rate_hz'], sample_rate_hz=values['sample_rate_hz'],
             noise=noise, thermal=thermal)
-    except ValueError as error:
-        raise ValueError(_model_error('sample_rate_hz / loop_rate_hz / model', error)) from None
 
 
 def forward_settings(values):
     """Return the :class:`ForwardSettings` of ``estimation.forward.*``."""
-    try:
+    with _named('estimation.forward'):
         return ForwardSettings(points=values['estimation.forward.points'],
                                step=values['estimation.forward.step'],
                                settle_s=values['estimation.forward.settle_s'],
                                average_s=values['estimation.forward.average_s'],
                                order=values['estimation.forward.order'])
-    except ValueError as error:
-        raise ValueError(_model_error('estimation.forward', error)) from None
 
 
 def feedback_settings(values):
     """Return the :class:`FeedbackSettings` of ``estimation.feedback.*``."""
-    try:
+    with _named('estimation.feedback'):
         return FeedbackSettings(
             cycles=values['estimation.feedback.cycles'],
             settle_s=values['estimation.feedback.settle_s'],
@@ -353,8 +349,6 @@ def feedback_settings(values):
             order=values['estimation.feedback.order'],
             motion_limit=values['estimation.feedback.motion_limit_ug'] * MICRO_G,
             reference_tc_ppm=values['estimation.feedback.reference_tc_ppm'])
-    except ValueError as error:
-        raise ValueError(_model_error('estimation.feedback', error)) from None
 
 
 def static_profile(values):
@@ -367,7 +361,7 @@ def input_profile(values):
     if values['input.mode'] != 'profile':
         return static_profile(values)
     kind = values['input.profile']
-    try:
+    with _named(f'input.{kind}'):
         if kind == 'sine':
             return SineProfile(frequency_hz=values['input.sine.frequency_hz'],
                                amplitude=tuple(values['input.sine.amplitude']),
@@ -381,8 +375,6 @@ def input_profile(values):
                              f'{len(levels)} values')
         return StepProfile(times=times, levels=tuple(tuple(levels[3 * k:3 * k + 3])
                                                      for k in range(len(times))))
-    except ValueError as error:
-        raise ValueError(_model_error(f'input.{kind}', error)) from None
 
 
 def check_all(values):

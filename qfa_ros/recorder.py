@@ -420,7 +420,8 @@ def _with_context(error, what, path):
     return type(error)(error.errno, f'{what}: {error.strerror}', str(path))
 
 
-def _fsync_directory(directory):
+def fsync_directory(directory):
+    """Make a rename in ``directory`` durable: fsync the directory entry itself."""
     fd = os.open(directory, os.O_RDONLY | getattr(os, 'O_DIRECTORY', 0))
     try:
         os.fsync(fd)
@@ -809,7 +810,7 @@ class McapBagWriter:
                 self._writer.finish()
                 self._file.sync_and_close()
                 _publish(self.part_path, self.path, self._overwrite)
-                _fsync_directory(self.path.parent)
+                fsync_directory(self.path.parent)
             except OSError as error:
                 self._fail()
                 if isinstance(error, RecorderError):

@@ -1,5 +1,6 @@
 """Persist the calibration state atomically; set a corrupt file aside instead of losing it."""
 
+from contextlib import suppress
 import datetime
 import json
 import os
@@ -7,6 +8,7 @@ from pathlib import Path
 import tempfile
 
 from qfa_ros.estimation import CalibrationState
+from qfa_ros.recorder import fsync_directory
 
 COMPENSATION_KEY = 'compensation_enabled'
 """Extra key of the state file: whether the stored corrections are applied (node-level)."""
@@ -68,7 +70,9 @@ class StateStore:
             os.rename(self.path, target)
         except OSError:
             return None
-        _fsync_directory(self.path.parent)
+        # Best effort: the file is in place either way.
+        with suppress(OSError):
+            fsync_directory(self.path.parent)
         return target
 
     def save(self, state, compensation_enabled):
@@ -97,19 +101,7 @@ class StateStore:
             except OSError:
                 pass
             raise
-        _fsync_directory(self.path.parent)
+        # Best effort: the file is in place either way.
+        with suppress(OSError):
+            fsync_directory(self.path.parent)
         return self.path
-
-
-def _fsync_directory(directory):
-    # The rename is durable only once the directory entry itself reaches the disk.
-    try:
-        descriptor = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(descriptor)
-    except OSError:
-        pass
-    finally:
-        os.close(descriptor)
