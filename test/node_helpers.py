@@ -36,8 +36,15 @@ def thermal_zero_bias(temperature_c=25.0):
 
 
 def domain_id(tag):
-    """Return a ROS domain id in 1..100 distinct per ``tag`` within this test run."""
-    return 1 + (os.getpid() * 7 + sum(ord(c) * (i + 1) for i, c in enumerate(tag))) % 100
+    """
+    Return a ROS domain id distinct per ``tag`` within this test run.
+
+    ``QFA_TEST_DOMAINS=LOW-HIGH`` confines the ids (default 1-100), so that two test runs
+    on one machine (two work trees) never share a domain.
+    """
+    low, high = (int(part) for part in os.environ.get('QFA_TEST_DOMAINS', '1-100').split('-'))
+    span = high - low + 1
+    return low + (os.getpid() * 7 + sum(ord(c) * (i + 1) for i, c in enumerate(tag))) % span
 
 
 def node_environment(domain):

@@ -14,6 +14,7 @@ import sys
 import time
 
 from mcap.reader import make_reader
+from node_helpers import domain_id as helper_domain_id
 import numpy as np
 import pytest
 import rclpy
@@ -154,7 +155,7 @@ RELIABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1000)
 @pytest.fixture
 def ros_domain(monkeypatch):
     """Yield ``(context, env)`` for one isolated domain shared with the replay subprocess."""
-    domain_id = 101 + (os.getpid() * 7 + next(_domain_offsets)) % 120
+    domain_id = helper_domain_id(f'replay-{next(_domain_offsets)}')
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id))
     monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
