@@ -23,11 +23,11 @@ setup(
     extras_require={'test': ['pytest']},
     entry_points={
         'console_scripts': [
-            'qfa-sim = qfa_ros.sim:main',
-            'qfa-node = qfa_ros.node:main',
-            'qfa_node = qfa_ros.node:main',
-            'qfa-replay = qfa_ros.replay:main',
-            'qfa-report = qfa_ros.report:main',
+            'qfa-sim = qfa_ros.cli.sim:main',
+            'qfa-node = qfa_ros.cli.node:main',
+            'qfa_node = qfa_ros.cli.node:main',
+            'qfa-replay = qfa_ros.cli.replay:main',
+            'qfa-report = qfa_ros.cli.report:main',
         ],
     },
 )

@@ -4,13 +4,13 @@ Run: ``.venv/bin/python bench/estimation_accuracy.py [--draws 200] [--seed 0]``.
 Each draw: a fresh sensor, references captured, then forward and feedback drifts
 uniform in [-1000, +1000] ppm on all three axes at once, the room moved within
 +-1.5 degC (the paper's error profile acts), optionally an unobservable k_t drift.
-Prints a Markdown table (see ``qfa_ros.experiments.monte_carlo``).
+Prints a Markdown table (see ``qfa_ros.calibration.experiments.monte_carlo``).
 """
 
 import argparse
 import time
 
-from qfa_ros.experiments import IMPROVED_SCHEDULE, monte_carlo, PAPER_SCHEDULE
+from qfa_ros.calibration.experiments import IMPROVED_SCHEDULE, monte_carlo, PAPER_SCHEDULE
 
 COLUMNS = ('schedule', 'k_t drift', 'forward mean error ppm', 'forward p95 error ppm',
            'forward estimated %', 'feedback mean error ppm', 'feedback p95 error ppm',

@@ -17,7 +17,7 @@ import numpy as np
 COMPILE_SNIPPET = """
 import time
 t = time.perf_counter()
-from qfa_ros.model import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad, TriadConfig
 QfaTriad(TriadConfig(), rng=0).run(1)
 print(time.perf_counter() - t)
 """
@@ -39,9 +39,9 @@ def main():
     parser.add_argument('--repeat', type=int, default=5)
     args = parser.parse_args()
 
-    from qfa_ros import kernel
-    from qfa_ros.model import QfaTriad, TriadConfig
-    from qfa_ros.noise import NoiseConfig
+    from qfa_ros.model import kernel
+    from qfa_ros.model.noise import NoiseConfig
+    from qfa_ros.model.triad import QfaTriad, TriadConfig
 
     with tempfile.TemporaryDirectory() as cache:
         cold = compile_time(cache)

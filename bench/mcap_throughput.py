@@ -3,7 +3,7 @@
 Three paths: mappings serialized by the recorder (``McapBagWriter.write``), CDR bytes
 serialized beforehand (``write_serialized``), and the node's flight recorder
 (``FlightRecorder.record`` with the node's default split limits, 1 GiB / 600 s, on the
-bytes of ``qfa_ros.imu_cdr.ImuEncoder``). The messages carry seeded noise like a real
+bytes of ``qfa_ros.bag.imu_cdr.ImuEncoder``). The messages carry seeded noise like a real
 1 kHz stream, so compression ratios are realistic. Writes the table to
 ``bench/results/mcap_throughput.md``.
 
@@ -22,16 +22,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from qfa_ros.imu_cdr import ImuEncoder  # noqa: E402
-from qfa_ros.recorder import (  # noqa: E402
-    _encoder,
-    _normalized,
-    DEFAULT_CHUNK_SIZE,
-    FlightRecorder,
-    McapBagWriter,
-    QOS_SENSOR_DATA,
-    stamp,
-)
+from qfa_ros.bag.flight_recorder import FlightRecorder
+from qfa_ros.bag.imu_cdr import ImuEncoder  # noqa: E402
+from qfa_ros.bag.qos import QOS_SENSOR_DATA
+from qfa_ros.bag.types import stamp
+from qfa_ros.bag.writer import _encoder, _normalized, DEFAULT_CHUNK_SIZE, McapBagWriter
 
 TOPIC = '/imu/data_raw'
 MSGTYPE = 'sensor_msgs/msg/Imu'

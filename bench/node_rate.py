@@ -28,7 +28,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 
-from qfa_ros.node_params import SPECS
+from qfa_ros.ros.params import SPECS
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES_FILE = ROOT / 'config' / 'fastdds_discovery.xml'
@@ -93,7 +93,7 @@ def start_node(domain, directory, rate, tick_rate, recorder, depth):
     params_file.write_text(json.dumps({'qfa_node': {'ros__parameters': parameters}}))
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                FASTDDS_DEFAULT_PROFILES_FILE=str(PROFILES_FILE))
-    return subprocess.Popen([sys.executable, '-m', 'qfa_ros.node', '--ros-args',
+    return subprocess.Popen([sys.executable, '-m', 'qfa_ros.cli.node', '--ros-args',
                              '--params-file', str(params_file)], env=env, cwd=ROOT)
 
 

@@ -20,14 +20,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from qfa_ros.cordic import CordicExp  # noqa: E402
-from qfa_ros.tempfit import (  # noqa: E402
+from qfa_ros.calibration.cordic import CordicExp  # noqa: E402
+from qfa_ros.calibration.tempfit import (  # noqa: E402
     bin_by_temperature,
     calibrate_zero_bias,
     fit_double_exponential,
     fit_double_exponential_reference,
 )
-from qfa_ros.thermal import STANDARD_GRAVITY, ThermalConfig, ThermalModel  # noqa: E402
+from qfa_ros.model.thermal import STANDARD_GRAVITY, ThermalConfig, ThermalModel  # noqa: E402
 
 MICRO_G = 1e-6 * STANDARD_GRAVITY
 SEED = 20240611

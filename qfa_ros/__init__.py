@@ -1,3 +1,19 @@
-"""Emulated self-calibrating IMU of digital closed-loop quartz flexible accelerometers."""
+"""
+Emulated self-calibrating IMU of digital closed-loop quartz flexible accelerometers.
+
+The package is layered; each layer may import only the layers below it (checked by
+import-linter in the test suite, see ``.importlinter``):
+
+=================  =========================================================  ===========
+layer              what                                                       may import
+=================  =========================================================  ===========
+``cli``            thin command-line entry points (qfa-node, qfa-sim, ...)    everything
+``ros``            the node and its parts, replay publisher; the only rclpy   bag and below
+``report``         figures drawn from bags (matplotlib)                       bag and below
+``bag``            MCAP / rosbag2 writing and reading, CDR, traces            calibration, model
+``calibration``    self-estimation schedules, calibration state, seed 2 fit   model
+``model``          the sensor physics: loops, noise, drift, thermal, triad    numpy/scipy/numba
+=================  =========================================================  ===========
+"""
 
 __version__ = '0.1.0'

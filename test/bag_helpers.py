@@ -8,7 +8,7 @@ import numpy as np
 from numpy.testing import assert_allclose
 from rosbags.highlevel import AnyReader
 
-from qfa_ros.trace import key_values_to_dict
+from qfa_ros.bag.trace import key_values_to_dict
 
 REPO = Path(__file__).resolve().parents[1]
 BAGS = REPO / 'bags'

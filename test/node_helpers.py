@@ -17,7 +17,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from qfa_ros.thermal import ThermalConfig, ThermalModel
+from qfa_ros.model.thermal import ThermalConfig, ThermalModel
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES_FILE = ROOT / 'config' / 'fastdds_discovery.xml'
@@ -78,7 +78,7 @@ class NodeProcess:
         self.log_path = self.params_file.with_suffix('.log')
         self._log = open(self.log_path, 'w')
         self.process = subprocess.Popen(
-            [sys.executable, '-m', 'qfa_ros.node', '--ros-args', '-r', f'__node:={name}',
+            [sys.executable, '-m', 'qfa_ros.cli.node', '--ros-args', '-r', f'__node:={name}',
              '--params-file', str(self.params_file)],
             env=node_environment(domain), stdout=self._log, stderr=subprocess.STDOUT,
             cwd=ROOT)

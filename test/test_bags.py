@@ -8,8 +8,8 @@ import pytest
 from rosbags.highlevel import AnyReader
 import yaml
 
-from qfa_ros.sim import main as sim_main
-from qfa_ros.trace import key_values_to_dict
+from qfa_ros.bag.trace import key_values_to_dict
+from qfa_ros.cli.sim import main as sim_main
 
 
 def read_all(path):
@@ -100,7 +100,8 @@ def test_paper_bag_is_reproduced_by_its_command(tmp_path):
 
 def test_bag_comparison_detects_a_changed_message(tmp_path):
     """The reproduction check fails on a sensor sample or a fit result that differs."""
-    from qfa_ros.recorder import McapBagWriter, stamp
+    from qfa_ros.bag.types import stamp
+    from qfa_ros.bag.writer import McapBagWriter
 
     def write(path, z, estimate):
         with McapBagWriter(path) as bag:

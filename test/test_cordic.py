@@ -6,7 +6,12 @@ import numpy as np
 import numpy.testing as npt
 import pytest
 
-from qfa_ros.cordic import CordicExp, hyperbolic_gain, K_HYPERBOLIC, repeated_iterations
+from qfa_ros.calibration.cordic import (
+    CordicExp,
+    hyperbolic_gain,
+    K_HYPERBOLIC,
+    repeated_iterations,
+)
 
 
 def _relative_error(cordic, z_q):

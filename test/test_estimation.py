@@ -7,18 +7,15 @@ import numpy as np
 from numpy.testing import assert_allclose
 import pytest
 
-from qfa_ros.estimation import (
-    CalibrationState,
+from qfa_ros.calibration.estimation import (
     capture_reference,
-    EstimationError,
     feedback_schedule,
     FeedbackSettings,
     forward_schedule,
     ForwardSettings,
-    run_schedule,
     self_calibrate,
 )
-from qfa_ros.experiments import (
+from qfa_ros.calibration.experiments import (
     ErrorProfile,
     IMPROVED_SCHEDULE,
     monte_carlo,
@@ -26,10 +23,12 @@ from qfa_ros.experiments import (
     PAPER_SCHEDULE,
     schedule_sensor_time,
 )
-from qfa_ros.hardware import STANDARD_GRAVITY
-from qfa_ros.model import QfaTriad, TriadConfig
-from qfa_ros.noise import MICRO_G, NoiseConfig
-from qfa_ros.profiles import SineProfile, StaticProfile, StepProfile
+from qfa_ros.calibration.schedule import EstimationError, run_schedule
+from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.model.hardware import STANDARD_GRAVITY
+from qfa_ros.model.noise import MICRO_G, NoiseConfig
+from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile
+from qfa_ros.model.triad import QfaTriad, TriadConfig
 
 PPM = 1e-6
 # Sensor noise off. The converter's own thermal noise (4 counts at the ADC) stays: it is

@@ -9,11 +9,12 @@ import numpy as np
 from numpy.testing import assert_allclose
 import pytest
 
-from qfa_ros import kernel
-from qfa_ros.allan import allan_deviation
-from qfa_ros.design import LinearLoop, pendulum_matrices
-from qfa_ros.drift import SECONDS_PER_YEAR
-from qfa_ros.hardware import (
+from qfa_ros.cli.sim import main as sim_main
+from qfa_ros.model import kernel
+from qfa_ros.model.allan import allan_deviation
+from qfa_ros.model.design import LinearLoop, pendulum_matrices
+from qfa_ros.model.drift import SECONDS_PER_YEAR
+from qfa_ros.model.hardware import (
     AxisHardware,
     counts_to_accel,
     DRIFT_COMPONENTS,
@@ -21,10 +22,15 @@ from qfa_ros.hardware import (
     nominal_gains,
     STANDARD_GRAVITY,
 )
-from qfa_ros.model import concatenate, FLAG_DA2_CLIPPED, FLAG_OVER_RANGE, QfaTriad, TriadConfig
-from qfa_ros.noise import MICRO_G, NoiseConfig
-from qfa_ros.profiles import SineProfile, StaticProfile, StepProfile, tumble_profile
-from qfa_ros.sim import main as sim_main
+from qfa_ros.model.noise import MICRO_G, NoiseConfig
+from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile, tumble_profile
+from qfa_ros.model.triad import (
+    concatenate,
+    FLAG_DA2_CLIPPED,
+    FLAG_OVER_RANGE,
+    QfaTriad,
+    TriadConfig,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from qfa_ros.estimation import AxisReference, CalibrationState
-from qfa_ros.node_params import (
+from qfa_ros.calibration.state import AxisReference, CalibrationState
+from qfa_ros.ros.params import (
     check_all,
     check_value,
     config_yaml,
@@ -17,7 +17,7 @@ from qfa_ros.node_params import (
     PARAMETERS,
     SPECS,
 )
-from qfa_ros.state_store import StateFileError, StateStore
+from qfa_ros.ros.state_store import StateFileError, StateStore
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,7 +28,7 @@ def defaults():
 
 def test_config_file_holds_every_parameter_with_its_default():
     text = (ROOT / 'config' / 'qfa.yaml').read_text()
-    assert text == config_yaml(), 'regenerate: python -m qfa_ros.node_params yaml'
+    assert text == config_yaml(), 'regenerate: python -m qfa_ros.ros.params yaml'
     values = yaml.safe_load(text)['qfa_node']['ros__parameters']
     assert set(values) == set(SPECS)
     for name, value in values.items():
@@ -38,7 +38,7 @@ def test_config_file_holds_every_parameter_with_its_default():
 
 def test_docs_list_every_parameter():
     assert parameter_table() in (ROOT / 'docs' / 'node.md').read_text(), \
-        'regenerate the table: python -m qfa_ros.node_params markdown'
+        'regenerate the table: python -m qfa_ros.ros.params markdown'
 
 
 def test_every_parameter_has_a_description_and_fixed_names_exist():

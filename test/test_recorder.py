@@ -21,34 +21,28 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosDurability, QosReliability
 import yaml
 
-from qfa_ros import recorder
-from qfa_ros.estimation import (
-    CalibrationState,
+from qfa_ros.bag.files import iter_part_messages, RecorderError
+from qfa_ros.bag.flight_recorder import FlightRecorder
+from qfa_ros.bag.msgdefs import MESSAGE_DEFINITIONS, TYPE_HASHES
+from qfa_ros.bag.qos import offered_qos_yaml, QOS_LATCHED, QOS_SENSOR_DATA, QosProfile
+from qfa_ros.bag.trace import key_values_to_dict, TraceWriter
+from qfa_ros.bag.traces import trace_path, write_estimation_trace
+from qfa_ros.bag.types import stamp
+from qfa_ros.bag.writer import McapBagWriter
+from qfa_ros.calibration.estimation import (
     capture_reference,
     feedback_schedule,
     FeedbackSettings,
     forward_schedule,
     ForwardSettings,
-    run_schedule,
     self_calibrate,
 )
-from qfa_ros.model import AXES, QfaTriad, TriadConfig
-from qfa_ros.msgdefs import MESSAGE_DEFINITIONS, TYPE_HASHES
-from qfa_ros.recorder import (
-    FlightRecorder,
-    iter_part_messages,
-    McapBagWriter,
-    QOS_LATCHED,
-    QOS_SENSOR_DATA,
-    QosProfile,
-    RecorderError,
-    stamp,
-)
-from qfa_ros.temperature import temperature_schedule, TemperatureSettings
-from qfa_ros.tempfit import DoubleExpCompensator, DoubleExpFit
-from qfa_ros.thermal import ThermalConfig
-from qfa_ros.trace import key_values_to_dict, TraceWriter
-from qfa_ros.traces import trace_path, write_estimation_trace
+from qfa_ros.calibration.schedule import run_schedule
+from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
+from qfa_ros.calibration.tempfit import DoubleExpCompensator, DoubleExpFit
+from qfa_ros.model.thermal import ThermalConfig
+from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 
 REPO = Path(__file__).resolve().parents[1]
 T0 = 1_700_000_000_123_456_789
@@ -276,7 +270,7 @@ def test_embedded_definitions_match_installed_interfaces():
 
 CRASH_SCRIPT = textwrap.dedent("""
     import os, sys
-    from qfa_ros.recorder import McapBagWriter
+    from qfa_ros.bag.writer import McapBagWriter
     path, count = sys.argv[1], int(sys.argv[2])
     bag = McapBagWriter(path, chunk_size=1024, compression='zstd')
     bag.add_topic('/count', 'std_msgs/msg/String')
@@ -326,7 +320,7 @@ def test_crash_leaves_part_readable_up_to_last_chunk(tmp_path, cut_bytes):
 
 KILL_SCRIPT = textwrap.dedent("""
     import hashlib, os, sys, time
-    from qfa_ros.trace import TraceWriter
+    from qfa_ros.bag.trace import TraceWriter
     directory = sys.argv[1]
     with TraceWriter(os.path.join(directory, 'earlier.mcap'), chunk_size=512) as earlier:
         earlier.write_settings({'run': 'earlier'}, 1)
@@ -417,7 +411,7 @@ def _plain_messages(path):
 
 FULL_DISK_SCRIPT = textwrap.dedent("""
     import resource, signal, sys
-    from qfa_ros.recorder import McapBagWriter
+    from qfa_ros.bag.writer import McapBagWriter
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write then fails with EFBIG
     resource.setrlimit(resource.RLIMIT_FSIZE, (16384, 16384))
     bag = McapBagWriter(sys.argv[1], compression=None, chunk_size=1000)
@@ -706,7 +700,7 @@ def test_trace_writer_is_self_describing(tmp_path):
 
 def test_qos_profile_yaml_round_trip():
     profile = QosProfile(history='keep_all', depth=0, deadline_ns=1_500_000_000)
-    parsed = yaml.safe_load(recorder.offered_qos_yaml([profile, QOS_SENSOR_DATA]))
+    parsed = yaml.safe_load(offered_qos_yaml([profile, QOS_SENSOR_DATA]))
     assert parsed[0]['deadline'] == {'sec': 1, 'nsec': 500_000_000}
     assert parsed[0]['lifespan'] == {'sec': 9223372036, 'nsec': 854775807}
     assert parsed[1]['reliability'] == 'best_effort' and parsed[1]['depth'] == 5

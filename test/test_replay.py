@@ -34,21 +34,12 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_typestore, Stores
 from rosgraph_msgs.msg import Clock
 
-from qfa_ros.fastdds import shipped_fastdds_profile, use_shipped_fastdds_profile
-from qfa_ros.recorder import (
-    McapBagWriter,
-    QOS_LATCHED,
-    QOS_SENSOR_DATA,
-    register_message_definition,
-    stamp,
-)
-from qfa_ros.replay import (
-    BagError,
-    BagSource,
-    import_message_type,
-    qos_from_offers,
-    ReplaySummary,
-)
+from qfa_ros.bag.qos import QOS_LATCHED, QOS_SENSOR_DATA
+from qfa_ros.bag.reader import BagError, BagSource
+from qfa_ros.bag.types import register_message_definition, stamp
+from qfa_ros.bag.writer import McapBagWriter
+from qfa_ros.ros.fastdds import shipped_fastdds_profile, use_shipped_fastdds_profile
+from qfa_ros.ros.replay import import_message_type, qos_from_offers, ReplaySummary
 
 REPO = Path(__file__).resolve().parents[1]
 T0 = 1_700_000_000_000_000_000
@@ -180,7 +171,7 @@ def replay(context, env, bag, subscriptions, extra_args=(), subscribers=None):
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(listener)
     count = len(subscriptions) if subscribers is None else subscribers
-    command = [sys.executable, '-m', 'qfa_ros.replay', str(bag),
+    command = [sys.executable, '-m', 'qfa_ros.cli.replay', str(bag),
                '--wait-for-subscribers', str(count), '--domain-ready-timeout', '20',
                *extra_args]
     process = subprocess.Popen(command, env=env, stdout=subprocess.PIPE,
@@ -375,7 +366,7 @@ def test_sigint_stops_a_looping_replay_cleanly(ros_domain, tmp_path):
     _, env = ros_domain
     bag = tmp_path / 'loop.mcap'
     write_project_bag(bag, f'/replay_{os.getpid()}_loop', seconds=0.2, seed=4)
-    process = subprocess.Popen([sys.executable, '-m', 'qfa_ros.replay', str(bag), '--loop'],
+    process = subprocess.Popen([sys.executable, '-m', 'qfa_ros.cli.replay', str(bag), '--loop'],
                                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True)
     # This line is printed just before playback starts.

@@ -12,21 +12,22 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from qfa_ros.estimation import (
-    CalibrationState,
+from qfa_ros.bag.scenario_bag import ScenarioBag
+from qfa_ros.bag.traces import trace_path, write_estimation_trace
+from qfa_ros.calibration.estimation import (
     capture_reference,
     FeedbackSettings,
     ForwardSettings,
-    run_schedule,
     self_calibrate,
 )
-from qfa_ros.model import AXES, QfaTriad, TriadConfig
-from qfa_ros.noise import MICRO_G
-from qfa_ros.report import build_figures, load_bag, main, report
-from qfa_ros.scenario_bag import ScenarioBag
-from qfa_ros.temperature import temperature_schedule, TemperatureSettings
-from qfa_ros.thermal import ThermalConfig
-from qfa_ros.traces import trace_path, write_estimation_trace
+from qfa_ros.calibration.schedule import run_schedule
+from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
+from qfa_ros.cli.report import main
+from qfa_ros.model.noise import MICRO_G
+from qfa_ros.model.thermal import ThermalConfig
+from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.report.figures import build_figures, load_bag, report
 
 FORWARD = ForwardSettings(points=5, average_s=0.1)
 FEEDBACK = FeedbackSettings(average_s=0.5)
@@ -264,7 +265,7 @@ def test_command_line_is_headless_on_the_example_bag(tmp_path):
            if key not in ('DISPLAY', 'WAYLAND_DISPLAY', 'MPLBACKEND')}
     out = tmp_path / 'figures'
     result = subprocess.run(
-        [sys.executable, '-m', 'qfa_ros.report', str(REPO / 'bags' / 'temperature_cycle.mcap'),
+        [sys.executable, '-m', 'qfa_ros.cli.report', str(REPO / 'bags' / 'temperature_cycle.mcap'),
          '--out', str(out)], env=env, cwd=tmp_path, capture_output=True, text=True,
         timeout=120)
     assert result.returncode == 0, result.stderr

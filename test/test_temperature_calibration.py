@@ -9,13 +9,14 @@ import numpy as np
 from numpy.testing import assert_allclose
 import pytest
 
-from qfa_ros.estimation import CalibrationState, EstimationError, run_schedule
-from qfa_ros.model import QfaTriad, TriadConfig
-from qfa_ros.noise import NoiseConfig
-from qfa_ros.profiles import SineProfile
-from qfa_ros.sim import main as sim_main
-from qfa_ros.temperature import temperature_schedule, TemperatureSettings
-from qfa_ros.thermal import ThermalConfig
+from qfa_ros.calibration.schedule import EstimationError, run_schedule
+from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
+from qfa_ros.cli.sim import main as sim_main
+from qfa_ros.model.noise import NoiseConfig
+from qfa_ros.model.profiles import SineProfile
+from qfa_ros.model.thermal import ThermalConfig
+from qfa_ros.model.triad import QfaTriad, TriadConfig
 
 SHORT = TemperatureSettings(period_s=600.0)
 CHAMBER = ThermalConfig(ambient_profile='constant', sensor_tau_s=30.0)
@@ -106,7 +107,7 @@ def test_invalid_temperature_settings_raise_value_error(kwargs, name):
 
 def test_sim_paper_scenario_prints_the_papers_tables(tmp_path):
     out = io.StringIO()
-    from qfa_ros.sim import build_parser, run_paper_2019
+    from qfa_ros.cli.sim import build_parser, run_paper_2019
     args = build_parser().parse_args(['paper-2019', '--trials', '2',
                                       '--out', str(tmp_path / 'paper.mcap')])
     assert run_paper_2019(args, out=out) == 0

@@ -7,7 +7,7 @@ import numpy as np
 import numpy.testing as npt
 import pytest
 
-from qfa_ros.tempfit import (
+from qfa_ros.calibration.tempfit import (
     calibrate_zero_bias,
     DoubleExpCompensator,
     DoubleExpFit,

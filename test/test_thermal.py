@@ -6,7 +6,7 @@ import numpy as np
 import numpy.testing as npt
 import pytest
 
-from qfa_ros.thermal import (
+from qfa_ros.model.thermal import (
     AMBIENT_PROFILES,
     STANDARD_GRAVITY,
     ThermalChunk,

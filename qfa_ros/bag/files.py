@@ -1,0 +1,137 @@
+"""
+Durable MCAP files: written under ``NAME.mcap.part``, published atomically.
+
+A :class:`PartFile` is the unbuffered stream the mcap ``Writer`` writes into, so the
+operating system holds every complete chunk; :func:`publish_part` gives a finished file
+its final name without replacing anything; :func:`fsync_directory` makes that rename
+durable; :func:`iter_part_messages` salvages what a crash left in a ``.part`` file.
+"""
+
+import errno
+import os
+
+PART_SUFFIX = '.part'
+
+
+class RecorderError(OSError):
+    """Writing or finishing an MCAP file failed; the ``.part`` file is left in place."""
+
+
+class PartFile:
+    """Unbuffered write-only file that the mcap ``Writer`` treats as its stream."""
+
+    def __init__(self, path):
+        self.path = path
+        self.position = 0
+        self._fd = None
+        try:
+            self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
+        except OSError as error:
+            raise os_error_with_context(error, 'cannot create MCAP file', path) from None
+
+    def write(self, data):
+        view = memoryview(data)
+        while view.nbytes:
+            try:
+                written = os.write(self._fd, view)
+            except OSError as error:
+                raise RecorderError(
+                    error.errno, f'writing MCAP file failed: {error.strerror}', str(self.path)
+                ) from error
+            view = view[written:]
+            self.position += written
+        return len(data)
+
+    def tell(self):
+        return self.position
+
+    def flush(self):
+        """Do nothing: every write already went to the operating system."""
+
+    def sync_and_close(self):
+        try:
+            os.fsync(self._fd)
+        finally:
+            self.close()
+
+    def close(self):
+        if self._fd is not None:
+            fd, self._fd = self._fd, None
+            os.close(fd)
+
+    def __del__(self):
+        # An abandoned writer must not leak its descriptor; the .part file stays as is.
+        self.close()
+
+
+def os_error_with_context(error, what, path):
+    """Re-raise an ``OSError`` as its own subclass with a message that says what failed."""
+    return type(error)(error.errno, f'{what}: {error.strerror}', str(path))
+
+
+def fsync_directory(directory):
+    """Make a rename in ``directory`` durable: fsync the directory entry itself."""
+    fd = os.open(directory, os.O_RDONLY | getattr(os, 'O_DIRECTORY', 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def publish_part(part_path, final_path, overwrite):
+    """Give a finished ``.part`` file its final name atomically."""
+    if overwrite:
+        os.replace(part_path, final_path)
+        return
+    try:
+        # link() refuses to replace an existing file, unlike rename().
+        os.link(part_path, final_path)
+    except OSError as error:
+        if error.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK):
+            raise
+        if final_path.exists():
+            raise FileExistsError(errno.EEXIST, 'file exists', str(final_path)) from None
+        os.replace(part_path, final_path)  # filesystem without hard links
+        return
+    os.unlink(part_path)
+
+
+def iter_part_messages(path):
+    """Yield ``(channel, message)`` from the complete chunks of an unfinished MCAP file.
+
+    Reads sequentially, checking chunk CRCs, and stops quietly at the first
+    record it cannot read, so it recovers what a crashed recording left in its
+    ``.part`` file. Use it for salvage only: it cannot tell truncation from
+    corruption.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An MCAP file, finished or not.
+
+    Yields
+    ------
+    tuple
+        ``(mcap.records.Channel, mcap.records.Message)``.
+    """
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+
+    channels = {}
+    with open(path, 'rb') as stream:
+        records = StreamReader(stream, validate_crcs=True).records
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                return
+            except OSError:
+                raise
+            except Exception:
+                # A truncated record fails in the MCAP parser, struct, zstd, lz4 or the
+                # CRC check depending on where the cut is; each marks the end of the data.
+                return
+            if isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message):
+                yield channels[record.channel_id], record

@@ -1,0 +1,187 @@
+"""Record serialized messages continuously into MCAP files split by size or duration."""
+
+import datetime
+import errno
+import os
+from pathlib import Path
+import re
+import threading
+import time
+
+from qfa_ros.bag.files import os_error_with_context, RecorderError
+from qfa_ros.bag.types import as_time_ns, canonical_type, definition_of
+from qfa_ros.bag.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE, McapBagWriter
+
+
+class FlightRecorder:
+    """Record serialized messages continuously into MCAP files split by size or duration.
+
+    Files are named ``PREFIX_YYYYmmddTHHMMSS_NNNN.mcap`` with the session start
+    (UTC wall clock) and a running index, so that a session's files sort in
+    recording order. Each file is a complete, standalone rosbag2 MCAP file,
+    written and published like ``McapBagWriter`` writes them. A file is opened
+    on the first message after the previous one closed, so no empty files.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        Existing, writable directory.
+    prefix : str
+        File name prefix.
+    max_bytes : int, optional
+        Start a new file before a message would take the finished file past
+        this size (estimated from the bytes on disk, the chunk in progress
+        uncompressed and the summary to come, so files stay below it; a single
+        message larger than the limit still gets a file of its own). A topic
+        first seen in a file adds its definition and QoS to it, so leave room.
+    max_duration_ns : int, optional
+        Start a new file once a message's time is ``max_duration_ns`` or more
+        after the first message of the current file.
+    compression : {'zstd', 'lz4', None}
+        Chunk compression.
+    chunk_size : int, optional
+        Chunk size; default ``DEFAULT_CHUNK_SIZE``, capped at a quarter of
+        ``max_bytes``.
+    qos : mapping of str to QosProfile, optional
+        Offered QoS per topic (default ``QOS_DEFAULT``).
+    storage_metadata : mapping of str to str, optional
+        rosbag2 ``custom_data`` written into every file.
+    session_time_ns : int, optional
+        Wall-clock time used in the file names; default now.
+
+    Raises
+    ------
+    OSError
+        The directory does not exist or is not writable.
+    """
+
+    def __init__(self, directory, prefix='qfa', *, max_bytes=None, max_duration_ns=None,
+                 compression='zstd', chunk_size=None, qos=None, storage_metadata=None,
+                 session_time_ns=None):
+        self.directory = Path(directory)
+        if max_bytes is not None and int(max_bytes) < 1024:
+            raise ValueError(f'max_bytes must be at least 1024, got {max_bytes!r}')
+        if max_duration_ns is not None and as_time_ns(max_duration_ns, 'max_duration_ns') <= 0:
+            raise ValueError('max_duration_ns must be positive')
+        if not re.match(r'^[A-Za-z0-9_.-]+$', prefix):
+            raise ValueError(f'prefix must be a plain file name part, got {prefix!r}')
+        if compression not in COMPRESSIONS:
+            raise ValueError(f'compression must be zstd, lz4 or None, got {compression!r}')
+        self._max_bytes = None if max_bytes is None else int(max_bytes)
+        self._max_duration_ns = max_duration_ns
+        self._compression = compression
+        if chunk_size is None:
+            chunk_size = DEFAULT_CHUNK_SIZE
+            if self._max_bytes is not None:
+                chunk_size = max(256, min(chunk_size, self._max_bytes // 4))
+        self._chunk_size = int(chunk_size)
+        self._qos = dict(qos or {})
+        self._storage_metadata = dict(storage_metadata or {})
+        session_ns = time.time_ns() if session_time_ns is None else session_time_ns
+        session = datetime.datetime.fromtimestamp(
+            as_time_ns(session_ns, 'session_time_ns') / 1e9, tz=datetime.timezone.utc
+        )
+        self._base_name = f'{prefix}_{session:%Y%m%dT%H%M%S}'
+        self._check_directory()
+        self._index = 0
+        self._writer = None
+        self._file_start_ns = None
+        self._lock = threading.Lock()
+        self._closed = False
+        self.files = []
+
+    def _check_directory(self):
+        if not self.directory.is_dir():
+            if self.directory.exists():
+                raise NotADirectoryError(
+                    errno.ENOTDIR, 'recording directory is not a directory', str(self.directory)
+                )
+            raise FileNotFoundError(
+                errno.ENOENT, 'recording directory does not exist', str(self.directory)
+            )
+        probe = self.directory / f'.{self._base_name}.probe{os.getpid()}'
+        try:
+            os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+            os.unlink(probe)
+        except OSError as error:
+            raise os_error_with_context(error, 'recording directory is not writable',
+                                self.directory) from None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, traceback):
+        # Unlike a single trace, a continuous recording is valid up to any point: keep it.
+        self.close()
+        return False
+
+    @property
+    def current_path(self):
+        """Final path of the file being written, or None between files."""
+        return None if self._writer is None else self._writer.path
+
+    def record(self, topic, msgtype, data, time_ns):
+        """Record one serialized message, starting a new file first if a limit is reached.
+
+        Parameters
+        ----------
+        topic : str
+            Topic name.
+        msgtype : str
+            Message type, e.g. ``'sensor_msgs/msg/Imu'``; fixed per topic.
+        data : bytes-like
+            CDR bytes (``rclpy.serialization.serialize_message`` output).
+        time_ns : int
+            Receive time in nanoseconds.
+        """
+        time_ns = as_time_ns(time_ns, 'time_ns')
+        with self._lock:
+            if self._closed:
+                raise RecorderError(errno.EBADF, 'flight recorder is closed', str(self.directory))
+            if self._writer is not None and self._limit_reached(
+                    topic, msgtype, len(data), time_ns):
+                self._finish_current()
+            if self._writer is None:
+                self._open_next(time_ns)
+            self._writer.add_topic(topic, msgtype, self._qos.get(topic))
+            self._writer.write_serialized(topic, data, time_ns)
+
+    def _limit_reached(self, topic, msgtype, size, time_ns):
+        if (self._max_duration_ns is not None
+                and time_ns - self._file_start_ns >= self._max_duration_ns):
+            return True
+        if self._max_bytes is not None and self._writer.message_count:
+            estimate = self._writer.size_estimate(size)
+            if topic not in self._writer.topics:
+                # Its schema, channel and metadata entry: definition twice, QoS thrice.
+                estimate += 2 * len(definition_of(canonical_type(msgtype))) + 1500
+            return estimate > self._max_bytes
+        return False
+
+    def _open_next(self, time_ns):
+        path = self.directory / f'{self._base_name}_{self._index:04d}.mcap'
+        self._writer = McapBagWriter(
+            path, compression=self._compression, chunk_size=self._chunk_size,
+            storage_metadata=self._storage_metadata,
+        )
+        self._index += 1
+        self._file_start_ns = time_ns
+
+    def _finish_current(self):
+        writer, self._writer = self._writer, None
+        self.files.append(writer.finish())
+
+    def close(self):
+        """Finish the current file; idempotent.
+
+        Returns
+        -------
+        list of pathlib.Path
+            Every file this recorder published, in order.
+        """
+        with self._lock:
+            if not self._closed:
+                self._closed = True
+                if self._writer is not None:
+                    self._finish_current()
+            return list(self.files)

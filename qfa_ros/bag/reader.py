@@ -1,0 +1,191 @@
+"""
+Read a rosbag2 MCAP bag (a bag directory or a bare ``.mcap`` file) for playback.
+
+:class:`BagSource` merges the messages of a bag's files in log-time order and keeps
+each topic's type and the QoS its publishers offered (``offered_qos_profiles``). No
+ROS: the replay publisher in :mod:`qfa_ros.ros.replay` puts the bytes on the wire.
+"""
+
+import dataclasses
+import heapq
+from pathlib import Path
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+import yaml
+
+
+class BagError(RuntimeError):
+    """The bag cannot be read: missing, not MCAP, or malformed."""
+
+
+@dataclasses.dataclass
+class BagTopic:
+    """
+    One recorded topic.
+
+    Attributes
+    ----------
+    name : str
+        Topic name as recorded.
+    msgtype : str
+        Type name like ``'sensor_msgs/msg/Imu'``.
+    encoding : str
+        MCAP message encoding; only ``'cdr'`` can be published.
+    offered_qos : list of dict
+        The recorded publishers' QoS profiles as rosbag2 stores them (may be empty).
+    """
+
+    name: str
+    msgtype: str
+    encoding: str = 'cdr'
+    offered_qos: list = dataclasses.field(default_factory=list)
+
+
+def _parse_offers(value):
+    """Return rosbag2 ``offered_qos_profiles`` (YAML text or already a list) as a list."""
+    if value is None or value == '':
+        return []
+    if isinstance(value, str):
+        try:
+            value = yaml.safe_load(value)
+        except yaml.YAMLError:
+            return []
+    if isinstance(value, dict):
+        value = [value]
+    return [offer for offer in value or [] if isinstance(offer, dict)]
+
+
+def normalized_type(name):
+    """Return ``pkg/msg/Name`` for ``pkg/Name`` (lenient: a bag may spell it either way)."""
+    parts = [part for part in name.split('/') if part]
+    if len(parts) == 2:
+        parts.insert(1, 'msg')
+    return '/'.join(parts)
+
+
+class BagSource:
+    """
+    The messages of a rosbag2 MCAP bag, merged across its files in log-time order.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A bag directory (rosbag2 ``metadata.yaml`` naming its ``.mcap`` files, or
+        just ``.mcap`` files) or a single ``.mcap`` file.
+
+    Attributes
+    ----------
+    files : list of pathlib.Path
+        The MCAP files in playback order.
+    topics : dict of str to BagTopic
+        Every recorded topic by name.
+    warnings : list of str
+        What could not be used (conflicting channel types, ...).
+    """
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.warnings = []
+        metadata_topics = {}
+        if self.path.is_dir():
+            self.files, metadata_topics = self._directory_files(self.path)
+        elif self.path.is_file():
+            self.files = [self.path]
+        else:
+            raise BagError(f'no bag at {self.path}')
+        self.topics = {}
+        for file in self.files:
+            for channel, schema_name in self._channels(file):
+                self._add_channel(channel, schema_name, metadata_topics.get(channel.topic))
+
+    @staticmethod
+    def _directory_files(directory):
+        metadata_file = directory / 'metadata.yaml'
+        if not metadata_file.exists():
+            files = sorted(directory.glob('*.mcap'))
+            if not files:
+                raise BagError(f'{directory} has neither metadata.yaml nor .mcap files')
+            return files, {}
+        try:
+            info = yaml.safe_load(metadata_file.read_text())['rosbag2_bagfile_information']
+        except (OSError, yaml.YAMLError, KeyError, TypeError) as error:
+            raise BagError(f'{metadata_file}: not rosbag2 metadata ({error})') from error
+        storage = info.get('storage_identifier', 'mcap')
+        if storage != 'mcap':
+            raise BagError(f'{directory}: storage {storage!r} is not supported, only mcap '
+                           '(convert with `ros2 bag convert` or rosbags-convert)')
+        files = [directory / name for name in info.get('relative_file_paths') or []]
+        missing = [str(file) for file in files if not file.exists()]
+        if missing or not files:
+            raise BagError(f'{directory}: bag files missing: {", ".join(missing) or "none"}')
+        topics = {}
+        for entry in info.get('topics_with_message_count') or []:
+            meta = entry.get('topic_metadata') or {}
+            if 'name' in meta:
+                topics[meta['name']] = meta
+        return files, topics
+
+    def _channels(self, file):
+        """Yield ``(channel, schema name)`` of every channel in ``file``."""
+        try:
+            with open(file, 'rb') as stream:
+                reader = make_reader(stream)
+                summary = reader.get_summary()
+                if summary is not None:
+                    for channel in summary.channels.values():
+                        schema = summary.schemas.get(channel.schema_id)
+                        yield channel, schema.name if schema else ''
+                    return
+                # No summary (an interrupted recording): learn the channels by reading it.
+                seen = set()
+                for schema, channel, _ in reader.iter_messages(log_time_order=False):
+                    if channel.id not in seen:
+                        seen.add(channel.id)
+                        yield channel, schema.name if schema else ''
+        except (OSError, McapError, ValueError) as error:
+            raise BagError(f'{file}: cannot read MCAP ({error})') from error
+
+    def _add_channel(self, channel, schema_name, metadata):
+        msgtype = normalized_type(schema_name or (metadata or {}).get('type', ''))
+        offers = _parse_offers(channel.metadata.get('offered_qos_profiles'))
+        if not offers and metadata:
+            offers = _parse_offers(metadata.get('offered_qos_profiles'))
+        known = self.topics.get(channel.topic)
+        if known is None:
+            self.topics[channel.topic] = BagTopic(channel.topic, msgtype,
+                                                  channel.message_encoding, offers)
+        elif known.msgtype != msgtype:
+            self.warnings.append(f'{channel.topic}: recorded as both {known.msgtype} and '
+                                 f'{msgtype}; playing {known.msgtype} only')
+        else:
+            known.offered_qos.extend(offer for offer in offers
+                                     if offer not in known.offered_qos)
+
+    def messages(self, topics=None, start_ns=None):
+        """
+        Yield ``(topic, log_time_ns, cdr_bytes)`` in log-time order.
+
+        Parameters
+        ----------
+        topics : collection of str, optional
+            Only these topics (default all).
+        start_ns : int, optional
+            Skip messages logged before this time.
+        """
+        topics = None if topics is None else set(topics)
+        streams = [self._file_messages(file, topics, start_ns) for file in self.files]
+        # Split bags are usually sequential, but a merge keeps overlapping files in order.
+        yield from heapq.merge(*streams, key=lambda item: item[1])
+
+    def _file_messages(self, file, topics, start_ns):
+        with open(file, 'rb') as stream:
+            reader = make_reader(stream)
+            try:
+                for _, channel, message in reader.iter_messages(
+                        topics=topics, starting_at=start_ns, log_time_order=True):
+                    if channel.topic in self.topics:
+                        yield channel.topic, message.log_time, bytes(message.data)
+            except McapError as error:
+                # A truncated file still plays up to its last complete chunk.
+                self.warnings.append(f'{file}: stopped reading: {error}')

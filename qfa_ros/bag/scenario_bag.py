@@ -1,0 +1,73 @@
+"""Record a simulated scenario as a rosbag2-compatible MCAP (no ROS needed)."""
+
+import numpy as np
+
+from qfa_ros.bag.imu_cdr import ImuEncoder
+from qfa_ros.bag.qos import QOS_LATCHED, QOS_SENSOR_DATA
+from qfa_ros.bag.trace import TraceWriter
+from qfa_ros.bag.traces import write_results
+from qfa_ros.bag.types import stamp
+from qfa_ros.bag.writer import McapBagWriter
+from qfa_ros.model.noise import acceleration_variance
+
+IMU_TOPIC = '/imu/data_raw'
+TEMPERATURE_TOPIC = '/imu/temperature'
+PHASE_TOPIC = '/qfa/scenario/phase'
+
+
+class ScenarioBag:
+    """
+    The output of a ``qfa-sim`` scenario: IMU stream, temperature, phases and traces.
+
+    Topics: ``/imu/data_raw`` (sensor_msgs/Imu, REP-145, log time = header stamp =
+    sensor time [ns]), ``/imu/temperature`` (sensor_msgs/Temperature [degC]),
+    ``/qfa/scenario/phase`` (std_msgs/String naming the phase that starts at its log
+    time) and estimation traces under ``/qfa/trace/<run>/...`` (see
+    :mod:`qfa_ros.bag.traces`). A context manager with an idempotent ``finish()``.
+    """
+
+    def __init__(self, path, noise, sample_rate_hz, frame_id='imu_link'):
+        self.bag = McapBagWriter(path, compression='zstd')
+        self.frame_id = frame_id
+        variance = acceleration_variance(noise, sample_rate_hz)
+        self._imu = ImuEncoder(frame_id, [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0,
+                                          variance])
+        self.bag.add_topic(IMU_TOPIC, 'sensor_msgs/msg/Imu', QOS_SENSOR_DATA)
+        self.bag.add_topic(TEMPERATURE_TOPIC, 'sensor_msgs/msg/Temperature', QOS_SENSOR_DATA)
+        self.bag.add_topic(PHASE_TOPIC, 'std_msgs/msg/String', QOS_LATCHED)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, traceback):
+        return self.bag.__exit__(exc_type, exc, traceback)
+
+    def finish(self):
+        """Complete the bag under its final name; idempotent."""
+        return self.bag.finish()
+
+    def write_imu(self, output):
+        """Write the valid samples of a ``TriadOutput`` to ``/imu/data_raw``."""
+        valid = output.valid.all(axis=1)
+        stamps = output.stamps_ns[valid]
+        for time_ns, data in zip(stamps.tolist(),
+                                 self._imu.encode(stamps, output.accel[valid])):
+            self.bag.write_serialized(IMU_TOPIC, data, time_ns)
+
+    def write_temperature(self, stamps_ns, celsius, variance=0.0):
+        """Write sensor temperatures [degC] at ``stamps_ns``."""
+        for time_ns, value in zip(np.asarray(stamps_ns).tolist(),
+                                  np.asarray(celsius, dtype=float).tolist()):
+            self.bag.write(TEMPERATURE_TOPIC, {
+                'header': {'stamp': stamp(time_ns), 'frame_id': self.frame_id},
+                'temperature': value, 'variance': variance}, time_ns)
+
+    def write_phase(self, name, time_ns):
+        """Mark the start of phase ``name`` at ``time_ns``."""
+        self.bag.write(PHASE_TOPIC, {'data': name}, int(time_ns))
+
+    def write_trace(self, run, kind, results, context=None):
+        """Write ``results`` under ``/qfa/trace/<run>`` (``run`` None: ``/qfa/trace``)."""
+        namespace = '/qfa/trace' if run is None else f'/qfa/trace/{run}'
+        trace = TraceWriter.in_bag(self.bag, namespace)
+        write_results(trace, kind, results, context)

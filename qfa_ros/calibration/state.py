@@ -1,0 +1,117 @@
+"""Persistable calibration state: references, applied words and the temperature ROM."""
+
+from dataclasses import asdict, dataclass, field
+import math
+
+from qfa_ros.calibration.tempfit import TemperatureCalibration
+from qfa_ros.model.triad import AXES
+
+
+@dataclass
+class AxisReference:
+    """
+    Reference gains of one axis (seed 1 §IV-A step 1).
+
+    Attributes
+    ----------
+    forward_slope : float or None
+        Eq-forward-gain k_pre-eq0: dN_out/dN_FPGA in open loop, including k(D(z)).
+    feedback_step : float or None
+        N_out-on - N_out-off [count] (eq. 27), i.e. -I_ref / (k_VI0 k_DA0).
+    temperature : float or None
+        Sensor temperature when the feedback reference was captured [degC].
+    """
+
+    forward_slope: float = None
+    feedback_step: float = None
+    temperature: float = None
+
+
+@dataclass
+class CalibrationState:
+    """
+    Persistable calibration state: references and the words currently applied.
+
+    Attributes
+    ----------
+    references : list of AxisReference
+        One per axis.
+    controller_gain : list of float
+        k(D(z)) per axis as last applied.
+    n_vref : list of int
+        N_VREF per axis as last applied.
+    last_estimates : dict
+        Last estimate per schedule kind: ``{'forward': [ppm x, y, z], ...}``.
+    captured_at_ns, updated_at_ns : int
+        Sensor times [ns].
+    temperature : dict
+        Temperature-compensation coefficients (filled by the temperature schedule).
+    """
+
+    references: list = field(default_factory=lambda: [AxisReference() for _ in AXES])
+    controller_gain: list = field(default_factory=list)
+    n_vref: list = field(default_factory=list)
+    last_estimates: dict = field(default_factory=dict)
+    captured_at_ns: int = 0
+    updated_at_ns: int = 0
+    temperature: dict = field(default_factory=dict)
+
+    @property
+    def has_reference(self):
+        """Return True when both references exist on every axis."""
+        return all(r.forward_slope is not None and r.feedback_step is not None
+                   for r in self.references)
+
+    def to_dict(self):
+        """Return a JSON-serializable dict."""
+        data = asdict(self)
+        data['format'] = 'qfa_ros.calibration/1'
+        return data
+
+    @classmethod
+    def from_dict(cls, data):
+        """Build a state from :meth:`to_dict` output, validating it."""
+        if not isinstance(data, dict) or data.get('format') != 'qfa_ros.calibration/1':
+            raise ValueError('calibration state: unknown or missing format tag')
+        try:
+            refs = [AxisReference(**r) for r in data['references']]
+            state = cls(references=refs,
+                        controller_gain=[float(g) for g in data['controller_gain']],
+                        n_vref=[int(n) for n in data['n_vref']],
+                        last_estimates=dict(data.get('last_estimates', {})),
+                        captured_at_ns=int(data.get('captured_at_ns', 0)),
+                        updated_at_ns=int(data.get('updated_at_ns', 0)),
+                        temperature=dict(data.get('temperature', {})))
+        except (KeyError, TypeError, ValueError) as error:
+            raise ValueError(f'calibration state: malformed ({error})') from error
+        if len(refs) != len(AXES) or len(state.controller_gain) not in (0, len(AXES)) \
+                or len(state.n_vref) not in (0, len(AXES)):
+            raise ValueError('calibration state: expected three axes')
+        for value in [v for r in refs for v in (r.forward_slope, r.feedback_step)
+                      if v is not None] + state.controller_gain:
+            if not math.isfinite(value) or value == 0:
+                raise ValueError('calibration state: non-finite or zero gain')
+        return state
+
+    def apply_to(self, triad):
+        """Write the stored words and temperature ROM into ``triad``."""
+        for axis in range(len(AXES)):
+            if self.controller_gain:
+                triad.set_controller_gain(axis, self.controller_gain[axis])
+            if self.n_vref:
+                triad.set_n_vref(axis, self.n_vref[axis])
+        if self.temperature:
+            install_compensation(triad, self.temperature)
+
+    def record_words(self, triad):
+        """Store the words currently in ``triad``."""
+        self.controller_gain = [loop.controller.gain for loop in triad.axes]
+        self.n_vref = [loop.n_vref for loop in triad.axes]
+
+
+def install_compensation(triad, temperature_state):
+    """Load the per-axis ROMs of a calibration state into ``triad`` and switch them on."""
+    calibrations = [TemperatureCalibration.from_dict(temperature_state[axis]) for axis in AXES]
+    triad.temperature_compensators = [c.compensator() for c in calibrations]
+    triad.temperature_compensation = True
+    return calibrations

@@ -1,0 +1,691 @@
+r"""
+Zero-bias temperature model fitting and its fixed-point compensator (seed 2).
+
+The zero bias is modelled as ``y = alpha1 e^(beta1 V) + alpha2 e^(beta2 V)`` (seed eq. 1)
+with ``V`` the on-board temperature-sensor voltage [V] and ``y`` the zero output (any
+unit: V, m/s^2, counts; the alphas carry it, the betas are in 1/V).  It is fitted by
+the seed's alternating iteration and compared with 3rd/4th-order polynomials (seed
+Tables 1-2); the compensator evaluates it on the fixed-point CORDIC path. The fits,
+their comparison and the compensator built from them are one cohesive thing: the
+compensator's ROM is the fit's coefficients in fixed point, so they live together.
+"""
+
+from dataclasses import dataclass, field
+import math
+import time
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from qfa_ros.calibration.cordic import CordicExp
+
+_START_GRID = np.linspace(-6.0, 6.0, 25)
+"""Scaled exponents ``beta * half_range`` tried for the automatic start values."""
+
+_LM_MAX_TRIALS = 12
+
+
+# -- shared helpers ---------------------------------------------------------------------
+
+
+def _as_data(v, y, min_points):
+    v = np.asarray(v, dtype=float).ravel()
+    y = np.asarray(y, dtype=float).ravel()
+    if v.shape != y.shape:
+        raise ValueError(f'v_temp and v_out must have the same length, got {v.size}, {y.size}')
+    if v.size < min_points:
+        raise ValueError(f'at least {min_points} points are needed, got {v.size}')
+    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(y))):
+        raise ValueError('v_temp and v_out must be finite')
+    if np.ptp(v) <= 0:
+        raise ValueError('v_temp must not be constant')
+    return v, y
+
+
+def _goodness(y, prediction):
+    residual = y - prediction
+    sse = float(residual @ residual)
+    sst = float(((y - y.mean()) ** 2).sum())
+    r_squared = 1.0 - sse / sst if sst > 0 else (1.0 if sse == 0 else 0.0)
+    return math.sqrt(sse / y.size), r_squared
+
+
+class _Scaling:
+    """Map ``V`` to ``u = (V - center) / half_range`` in [-1, 1] and ``y`` to unit rms."""
+
+    def __init__(self, v, y):
+        self.center = 0.5 * (v.max() + v.min())
+        self.half_range = 0.5 * (v.max() - v.min())
+        self.y_scale = float(np.sqrt(np.mean(y ** 2))) or 1.0
+        self.u = (v - self.center) / self.half_range
+        self.y = y / self.y_scale
+
+    def to_physical(self, alpha_scaled, s):
+        """Return (alpha, beta) of the unscaled model from scaled ones (exact)."""
+        beta = np.asarray(s) / self.half_range
+        alpha = np.asarray(alpha_scaled) * self.y_scale * np.exp(-beta * self.center)
+        return alpha, beta
+
+    def to_scaled(self, beta):
+        return np.asarray(beta, dtype=float) * self.half_range
+
+
+def _basis(u, s):
+    return np.exp(np.outer(u, s))
+
+
+def _solve_alpha(u, y, s):
+    basis = _basis(u, s)
+    alpha = np.linalg.lstsq(basis, y, rcond=None)[0]
+    residual = y - basis @ alpha
+    return alpha, residual, basis
+
+
+def _grid_start(u, y):
+    """Return the scaled exponent pair of a small grid with the lowest projected SSE."""
+    exps = np.exp(np.outer(_START_GRID, u))
+    gram = exps @ exps.T
+    rhs = exps @ y
+    i, j = np.triu_indices(_START_GRID.size, k=1)
+    g11, g22, g12 = gram[i, i], gram[j, j], gram[i, j]
+    det = g11 * g22 - g12 ** 2
+    usable = det > 1e-10 * g11 * g22
+    # SSE = y.y - b^T G^-1 b for the 2x2 normal equations of every pair
+    explained = (g22 * rhs[i] ** 2 - 2 * g12 * rhs[i] * rhs[j] + g11 * rhs[j] ** 2)
+    explained = np.where(usable, explained / np.where(usable, det, 1.0), -np.inf)
+    best = int(np.argmax(explained))
+    return np.array([_START_GRID[i[best]], _START_GRID[j[best]]])
+
+
+def _sorted_fit(alpha, beta):
+    order = np.argsort(beta)
+    return alpha[order], beta[order]
+
+
+# -- double exponential ---------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DoubleExpFit:
+    r"""
+    Fitted double-exponential zero-bias model ``y = a1 e^(b1 V) + a2 e^(b2 V)``.
+
+    Attributes
+    ----------
+    alpha1, alpha2 : float
+        Linear coefficients, in the unit of the fitted output.
+    beta1, beta2 : float
+        Exponents [1/V], ``beta1 <= beta2``.
+    rmse : float
+        Root-mean-square residual, in the unit of the output.
+    r_squared : float
+        Coefficient of determination ``1 - SSE/SST``.
+    iterations : int
+        Alternations (or function evaluations for the reference fit).
+    converged : bool
+        Whether the stopping rule was met before ``max_iter``.
+    mse_history : tuple of float
+        Mean-square error after every alternation, in the output unit squared (not
+        persisted by :meth:`TemperatureCalibration.to_dict`, not compared by ``==``).
+    """
+
+    alpha1: float
+    alpha2: float
+    beta1: float
+    beta2: float
+    rmse: float
+    r_squared: float
+    iterations: int
+    converged: bool
+    mse_history: tuple = field(default=(), repr=False, compare=False)
+
+    @property
+    def alpha(self):
+        """Return ``(alpha1, alpha2)``."""
+        return self.alpha1, self.alpha2
+
+    @property
+    def beta(self):
+        """Return ``(beta1, beta2)``."""
+        return self.beta1, self.beta2
+
+    def evaluate(self, v):
+        """Return the model at the temperature-sensor voltage(s) ``v`` [V] (float)."""
+        v = np.asarray(v, dtype=float)
+        return self.alpha1 * np.exp(self.beta1 * v) + self.alpha2 * np.exp(self.beta2 * v)
+
+
+def _make_fit(v, y, alpha, beta, iterations, converged, history):
+    alpha, beta = _sorted_fit(np.asarray(alpha, float), np.asarray(beta, float))
+    fit = DoubleExpFit(float(alpha[0]), float(alpha[1]), float(beta[0]), float(beta[1]),
+                       0.0, 0.0, int(iterations), bool(converged), tuple(history))
+    rmse, r_squared = _goodness(y, fit.evaluate(v))
+    return DoubleExpFit(fit.alpha1, fit.alpha2, fit.beta1, fit.beta2, rmse, r_squared,
+                        fit.iterations, fit.converged, fit.mse_history)
+
+
+def _start_exponents(scaling, beta0):
+    if beta0 is None:
+        return _grid_start(scaling.u, scaling.y)
+    beta0 = np.asarray(beta0, dtype=float)
+    if beta0.shape != (2,) or not np.all(np.isfinite(beta0)):
+        raise ValueError(f'beta0 must be two finite exponents [1/V], got {beta0!r}')
+    return scaling.to_scaled(beta0)
+
+
+def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200):
+    r"""
+    Fit ``v_out = a1 e^(b1 v_temp) + a2 e^(b2 v_temp)`` by alternating iteration.
+
+    Seed 2 steps: (1) start exponents; (2) with the betas fixed, the alphas by linear
+    least squares; (3) a nonlinear update of the betas only; (4) the mean-square error;
+    (5) repeat until its relative change is at most ``tol``.  Step 3 is a
+    Levenberg-Marquardt step on the betas with the alphas projected out (Kaufman's
+    variable-projection Jacobian ``(I - P) dPhi/dbeta alpha``), accepted only if the
+    MSE after re-solving the alphas decreases.  The problem is solved on
+    ``u = (V - center)/half_range`` and unit-rms ``y`` and mapped back exactly.
+
+    Parameters
+    ----------
+    v_temp, v_out : array_like
+        Temperature-sensor voltage [V] and zero output (any unit), same length >= 5.
+    beta0 : pair of float, optional
+        Start exponents [1/V]; default from a 25 x 25 grid of the projected SSE.
+    tol : float
+        Bound on the relative MSE change between alternations.
+    max_iter : int
+        Maximum number of alternations.
+
+    Returns
+    -------
+    DoubleExpFit
+    """
+    if not (math.isfinite(tol) and tol > 0):
+        raise ValueError(f'tol must be finite and > 0, got {tol!r}')
+    if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
+        raise ValueError(f'max_iter must be an integer >= 1, got {max_iter!r}')
+    v, y = _as_data(v_temp, v_out, 5)
+    scaling = _Scaling(v, y)
+    u, ys = scaling.u, scaling.y
+    s = _start_exponents(scaling, beta0)
+    alpha, residual, basis = _solve_alpha(u, ys, s)
+    mse = float(residual @ residual) / u.size
+    history = [mse * scaling.y_scale ** 2]
+    damping = 1e-3
+    converged = False
+    iterations = 0
+    for iterations in range(1, max_iter + 1):
+        derivative = basis * u[:, None] * alpha[None, :]
+        # Kaufman: project the derivative onto the complement of span(basis)
+        coefficients = np.linalg.lstsq(basis, derivative, rcond=None)[0]
+        jacobian = derivative - basis @ coefficients
+        normal = jacobian.T @ jacobian
+        gradient = jacobian.T @ residual
+        accepted = False
+        for _ in range(_LM_MAX_TRIALS):
+            damped = normal + damping * np.diag(np.diag(normal) + 1e-300)
+            try:
+                step = np.linalg.solve(damped, gradient)
+            except np.linalg.LinAlgError:
+                damping *= 10.0
+                continue
+            s_new = s + step
+            alpha_new, residual_new, basis_new = _solve_alpha(u, ys, s_new)
+            mse_new = float(residual_new @ residual_new) / u.size
+            if np.all(np.isfinite(s_new)) and mse_new <= mse:
+                accepted = True
+                break
+            damping *= 10.0
+        if not accepted:
+            # no descent direction left: the MSE is stationary at this bound
+            converged = True
+            break
+        change = mse - mse_new
+        s, alpha, residual, basis, mse = s_new, alpha_new, residual_new, basis_new, mse_new
+        history.append(mse * scaling.y_scale ** 2)
+        damping = max(damping / 10.0, 1e-12)
+        if change <= tol * mse + 1e-300:
+            converged = True
+            break
+    alpha_phys, beta_phys = scaling.to_physical(alpha, s)
+    return _make_fit(v, y, alpha_phys, beta_phys, iterations, converged, history)
+
+
+def fit_double_exponential_reference(v_temp, v_out, beta0=None):
+    """Fit the double exponential with ``scipy.optimize.least_squares`` on all 4 parameters."""
+    v, y = _as_data(v_temp, v_out, 5)
+    scaling = _Scaling(v, y)
+    u, ys = scaling.u, scaling.y
+    s0 = _start_exponents(scaling, beta0)
+    alpha0 = _solve_alpha(u, ys, s0)[0]
+
+    def residual(params):
+        return params[0] * np.exp(params[2] * u) + params[1] * np.exp(params[3] * u) - ys
+
+    def jacobian(params):
+        e1, e2 = np.exp(params[2] * u), np.exp(params[3] * u)
+        return np.column_stack([e1, e2, params[0] * u * e1, params[1] * u * e2])
+
+    result = least_squares(residual, np.concatenate([alpha0, s0]), jac=jacobian,
+                           method='lm', xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=20000)
+    alpha_phys, beta_phys = scaling.to_physical(result.x[:2], result.x[2:])
+    mse = float(np.mean(result.fun ** 2)) * scaling.y_scale ** 2
+    return _make_fit(v, y, alpha_phys, beta_phys, result.nfev, result.status > 0, [mse])
+
+
+# -- polynomial -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PolynomialFit:
+    """
+    Least-squares polynomial ``y = sum c_k v^k`` (seed Tables 1-2 comparison).
+
+    Attributes
+    ----------
+    coefficients : tuple of float
+        Coefficients in ``v`` [V], highest power first (``numpy.polyval`` order).
+    rmse, r_squared : float
+        Root-mean-square residual (output unit) and coefficient of determination.
+    order : int
+        Polynomial order.
+    center, half_range : float
+        Scaling ``u = (v - center) / half_range`` used for a well-conditioned solve.
+    scaled_coefficients : tuple of float
+        Coefficients in ``u``, highest power first (what :meth:`evaluate` uses).
+    """
+
+    coefficients: tuple
+    rmse: float
+    r_squared: float
+    order: int
+    center: float
+    half_range: float
+    scaled_coefficients: tuple
+
+    def evaluate(self, v):
+        """Return the polynomial at ``v`` [V]."""
+        u = (np.asarray(v, dtype=float) - self.center) / self.half_range
+        return np.polyval(self.scaled_coefficients, u)
+
+
+def fit_polynomial(v, y, order):
+    """Fit a polynomial of ``order`` by least squares on scaled ``v``; return PolynomialFit."""
+    if isinstance(order, bool) or not isinstance(order, int) or not 0 <= order <= 10:
+        raise ValueError(f'order must be an integer in [0, 10], got {order!r}')
+    v, y = _as_data(v, y, order + 1)
+    center = 0.5 * (v.max() + v.min())
+    half_range = 0.5 * (v.max() - v.min())
+    u = (v - center) / half_range
+    scaled = np.linalg.lstsq(np.vander(u, order + 1), y, rcond=None)[0]
+    # expand p(u) with u = (v - c)/h into powers of v
+    raw = np.poly1d(0.0)
+    for power, coefficient in enumerate(scaled[::-1]):
+        raw = raw + coefficient * np.poly1d([1.0 / half_range, -center / half_range]) ** power
+    raw_coefficients = np.concatenate([np.zeros(order + 1 - raw.coeffs.size), raw.coeffs])
+    prediction = np.polyval(scaled, u)
+    rmse, r_squared = _goodness(y, prediction)
+    return PolynomialFit(tuple(float(c) for c in raw_coefficients), rmse, r_squared, order,
+                         float(center), float(half_range), tuple(float(c) for c in scaled))
+
+
+# -- fixed-point compensator ------------------------------------------------------------
+
+
+def _float_word(value, m_bits):
+    """Return ``(mantissa, exponent)``: ``value ~= mantissa * 2^exponent``, M+1-bit mantissa."""
+    if value == 0:
+        return 0, 0
+    exponent = math.frexp(value)[1] - 1 - m_bits
+    mantissa = round(value / 2.0 ** exponent)
+    if abs(mantissa) >= 1 << (m_bits + 1):
+        mantissa //= 2
+        exponent += 1
+    return int(mantissa), int(exponent)
+
+
+def _shift(value, shift):
+    return value << shift if shift >= 0 else value >> -shift
+
+
+class DoubleExpCompensator:
+    r"""
+    Fixed-point evaluation of ``a1 e^(b1 V) + a2 e^(b2 V)`` for the compensation ROM.
+
+    Integer datapath per term ``k`` (``M`` = ``m_bits``, ``W = M + guard_bits``):
+
+    * ``V_q = round(V * 2^M)`` (the temperature word, ``M`` fraction bits);
+    * ``beta_q = round(beta * 2^M)``; ``z_q = (beta_q * V_q) >> M`` (truncated product);
+    * ``(mantissa, Q) = CordicExp(M, N).exp_parts(z_q)``, ``e^z ~= mantissa 2^(Q - W)``;
+    * ``alpha ~= alpha_mantissa * 2^alpha_exponent`` with an ``M + 1``-bit signed
+      mantissa (a block-floating ROM word, so small alphas keep ``M`` significant bits);
+    * ``term = (alpha_mantissa * mantissa)`` shifted by
+      ``alpha_exponent + Q - W + F`` (arithmetic, truncating) into the output word with
+      ``F`` = ``output_frac_bits`` fraction bits; the two terms are added.
+
+    The output is in the unit of the fitted zero output (e.g. m/s^2); its LSB is
+    ``2^-F``.
+
+    Parameters
+    ----------
+    fit : DoubleExpFit
+        The model to evaluate.
+    m_bits : int
+        ``M``, fraction bits of the temperature, exponent and CORDIC words.
+    n_bits : int or None
+        ``N``, CORDIC input range ``[-2^N, 2^N)``; default: the smallest that holds
+        ``beta * V`` over ``v_range``.
+    guard_bits : int
+        Guard bits of the CORDIC (see :class:`qfa_ros.calibration.cordic.CordicExp`).
+    v_range : pair of float
+        Accepted temperature-sensor voltages [V] (default: the ADC span 0..2.5 V of
+        the default thermal model).
+    output_frac_bits : int or None
+        ``F``; default ``M + guard_bits`` minus the bit length of the larger term's
+        peak over ``v_range``, i.e. ``W`` significant bits for the largest value.
+    """
+
+    def __init__(self, fit, m_bits=16, n_bits=None, guard_bits=4, v_range=(0.0, 2.5),
+                 output_frac_bits=None):
+        if not isinstance(fit, DoubleExpFit):
+            raise ValueError(f'fit must be a DoubleExpFit, got {type(fit).__name__}')
+        for name in ('alpha1', 'alpha2', 'beta1', 'beta2'):
+            if not math.isfinite(getattr(fit, name)):
+                raise ValueError(f'fit.{name} must be finite')
+        self.fit = fit
+        v_low, v_high = (float(x) for x in v_range)
+        if not (math.isfinite(v_low) and math.isfinite(v_high) and v_low < v_high):
+            raise ValueError(f'v_range must be finite with low < high, got {v_range!r}')
+        self.v_range = (v_low, v_high)
+        # CordicExp validates m_bits/guard_bits; probe with n_bits=0 first
+        probe = CordicExp(m_bits=m_bits, n_bits=0, guard_bits=guard_bits)
+        self.m_bits, self.guard_bits = probe.m_bits, probe.guard_bits
+        if 2 * self.m_bits + self.guard_bits + 4 > 63:
+            raise ValueError(f'm_bits={m_bits} with guard_bits={guard_bits} overflows the '
+                             '64-bit coefficient multiplier')
+        scale = 1 << self.m_bits
+        self.v_q_range = (int(np.rint(v_low * scale)), int(np.rint(v_high * scale)))
+        self.beta_q = tuple(round(b * scale) for b in fit.beta)
+        self.alpha_words = tuple(_float_word(a, self.m_bits) for a in fit.alpha)
+        z_extremes = [(b * v) >> self.m_bits for b in self.beta_q for v in self.v_q_range]
+        needed = 0
+        while not all(-(1 << (needed + self.m_bits)) <= z < (1 << (needed + self.m_bits))
+                      for z in z_extremes):
+            needed += 1
+        if n_bits is None:
+            n_bits = needed
+        elif isinstance(n_bits, int) and not isinstance(n_bits, bool) and n_bits < needed:
+            raise ValueError(f'n_bits={n_bits} is too small: beta*V over v_range needs '
+                             f'n_bits >= {needed}')
+        self.cordic = CordicExp(m_bits=self.m_bits, n_bits=n_bits, guard_bits=guard_bits)
+        self.n_bits = self.cordic.n_bits
+        peak = max(abs(a) * math.exp(b * v) for a, b in zip(fit.alpha, fit.beta)
+                   for v in self.v_range)
+        if output_frac_bits is None:
+            output_frac_bits = (self.m_bits + self.guard_bits
+                                - (math.frexp(peak)[1] if peak > 0 else 0))
+        if (isinstance(output_frac_bits, bool) or not isinstance(output_frac_bits, int)
+                or not -64 <= output_frac_bits <= 64):
+            raise ValueError(f'output_frac_bits must be an integer in [-64, 64], '
+                             f'got {output_frac_bits!r}')
+        self.output_frac_bits = output_frac_bits
+        if peak * 2.0 ** output_frac_bits >= 2.0 ** 61:
+            raise ValueError(f'output_frac_bits={output_frac_bits} overflows the output word')
+
+    @property
+    def output_lsb(self):
+        """Return the output LSB ``2^-F`` in the unit of the fitted output."""
+        return 2.0 ** -self.output_frac_bits
+
+    def rom(self):
+        """Return the integer ROM words (what a hardware implementation stores)."""
+        return {'m_bits': self.m_bits, 'n_bits': self.n_bits, 'guard_bits': self.guard_bits,
+                'output_frac_bits': self.output_frac_bits, 'beta_q': list(self.beta_q),
+                'alpha_mantissa': [w[0] for w in self.alpha_words],
+                'alpha_exponent': [w[1] for w in self.alpha_words]}
+
+    def quantize_v(self, v_temp, clip=False):
+        """Return ``round(V * 2^M)`` as int64; out-of-range V raises unless ``clip``."""
+        v = np.asarray(v_temp, dtype=float)
+        if not np.all(np.isfinite(v)):
+            raise ValueError('v_temp must be finite')
+        v_q = np.rint(v * (1 << self.m_bits)).astype(np.int64)
+        low, high = self.v_q_range
+        if clip:
+            return np.clip(v_q, low, high)
+        if v_q.size and (v_q.min() < low or v_q.max() > high):
+            raise ValueError(f'v_temp outside v_range {self.v_range} of the compensator')
+        return v_q
+
+    def evaluate_fixed_q(self, v_q):
+        """Return the compensation word (int64, LSB ``2^-F``) for temperature words ``v_q``."""
+        v_q = np.asarray(v_q, dtype=np.int64)
+        low, high = self.v_q_range
+        if v_q.size and (v_q.min() < low or v_q.max() > high):
+            raise ValueError('v_q outside the compensator range')
+        total = np.zeros(v_q.shape, dtype=np.int64)
+        work = self.cordic.work_bits
+        for beta_q, (alpha_mantissa, alpha_exponent) in zip(self.beta_q, self.alpha_words):
+            z_q = (np.int64(beta_q) * v_q) >> np.int64(self.m_bits)
+            mantissa, q = self.cordic.exp_parts_array(z_q)
+            product = np.int64(alpha_mantissa) * mantissa
+            shift = q + np.int64(alpha_exponent - work + self.output_frac_bits)
+            left = np.clip(shift, 0, 62)
+            right = np.clip(-shift, 0, 63)
+            total += np.where(shift >= 0, product << left, product >> right)
+        return total
+
+    def evaluate_fixed_scalar(self, v_q):
+        """Return the compensation word for one temperature word (Python-int reference)."""
+        v_q = int(v_q)
+        if not self.v_q_range[0] <= v_q <= self.v_q_range[1]:
+            raise ValueError('v_q outside the compensator range')
+        total = 0
+        for beta_q, (alpha_mantissa, alpha_exponent) in zip(self.beta_q, self.alpha_words):
+            mantissa, q = self.cordic.exp_parts((beta_q * v_q) >> self.m_bits)
+            total += _shift(alpha_mantissa * mantissa,
+                            q + alpha_exponent - self.cordic.work_bits + self.output_frac_bits)
+        return total
+
+    def evaluate_fixed(self, v_temp, clip=False):
+        """Return the compensation value(s) at ``v_temp`` [V] from the fixed-point path."""
+        words = self.evaluate_fixed_q(self.quantize_v(v_temp, clip=clip))
+        return words.astype(float) * self.output_lsb
+
+    def evaluate_reference(self, v_temp):
+        """Return the floating-point model at ``v_temp`` [V], the fixed path's yardstick."""
+        return self.fit.evaluate(v_temp)
+
+
+# -- calibration pipeline ---------------------------------------------------------------
+
+
+def bin_by_temperature(v_temp, values, n_bins=100, min_count=1):
+    """Return ``(v_mean, value_mean, count)`` of equal-width V_temp bins with data."""
+    v, y = _as_data(v_temp, values, 2)
+    if isinstance(n_bins, bool) or not isinstance(n_bins, int) or n_bins < 1:
+        raise ValueError(f'n_bins must be an integer >= 1, got {n_bins!r}')
+    edges = np.linspace(v.min(), v.max(), n_bins + 1)
+    index = np.clip(np.searchsorted(edges, v, side='right') - 1, 0, n_bins - 1)
+    count = np.bincount(index, minlength=n_bins)
+    v_sum = np.bincount(index, weights=v, minlength=n_bins)
+    y_sum = np.bincount(index, weights=y, minlength=n_bins)
+    keep = count >= max(1, min_count)
+    return v_sum[keep] / count[keep], y_sum[keep] / count[keep], count[keep]
+
+
+def _poly_to_dict(poly):
+    return {'order': poly.order, 'coefficients': list(poly.coefficients), 'rmse': poly.rmse,
+            'r_squared': poly.r_squared, 'center': poly.center,
+            'half_range': poly.half_range,
+            'scaled_coefficients': list(poly.scaled_coefficients)}
+
+
+def _poly_from_dict(data):
+    return PolynomialFit(tuple(data['coefficients']), float(data['rmse']),
+                         float(data['r_squared']), int(data['order']), float(data['center']),
+                         float(data['half_range']), tuple(data['scaled_coefficients']))
+
+
+@dataclass(frozen=True)
+class TemperatureCalibration:
+    """
+    Result of a zero-bias temperature calibration of one axis (the ROM contents).
+
+    Attributes
+    ----------
+    fit : DoubleExpFit
+        Double-exponential model of the binned zero output vs V_temp.
+    poly3, poly4 : PolynomialFit
+        3rd/4th-order comparison fits on the same bins (seed Tables 1-2).
+    m_bits, n_bits, guard_bits, output_frac_bits : int
+        Fixed-point format of the compensator.
+    v_range : tuple of float
+        Temperature-sensor voltages the compensator accepts [V].
+    n_points : int
+        Number of V_temp bins the fits used.
+    p2p_before, p2p_after : float
+        Peak-to-peak of the binned zero output before and after the fixed-point
+        compensation (output unit).
+    p2p_after_poly4 : float
+        Same after subtracting the 4th-order polynomial (float), for comparison.
+    max_fixed_error : float
+        Largest ``|fixed - float|`` of the compensator on the bins (output unit).
+    fit_seconds : float
+        Wall time of the double-exponential fit.
+    cancellation_bits : float
+        ``log2(max |larger term| / max |sum|)`` over the bins: bits the two terms lose by
+        cancelling.  Near ``m_bits`` the fixed-point output is meaningless; large values
+        flag a degenerate fit (``beta1 ~ beta2``, huge opposite alphas), i.e. data a
+        double exponential does not describe (e.g. an S-shaped curve).
+    """
+
+    fit: DoubleExpFit
+    poly3: PolynomialFit
+    poly4: PolynomialFit
+    m_bits: int
+    n_bits: int
+    guard_bits: int
+    output_frac_bits: int
+    v_range: tuple
+    n_points: int
+    p2p_before: float
+    p2p_after: float
+    p2p_after_poly4: float
+    max_fixed_error: float
+    fit_seconds: float = 0.0
+    cancellation_bits: float = 0.0
+
+    @property
+    def reduction(self):
+        """Return ``p2p_before / p2p_after`` (inf if the residual is flat)."""
+        return self.p2p_before / self.p2p_after if self.p2p_after > 0 else math.inf
+
+    def compensator(self):
+        """Return the fixed-point compensator described by this calibration."""
+        return DoubleExpCompensator(self.fit, m_bits=self.m_bits, n_bits=self.n_bits,
+                                    guard_bits=self.guard_bits, v_range=self.v_range,
+                                    output_frac_bits=self.output_frac_bits)
+
+    def to_dict(self):
+        """Return a JSON-serializable dict (floats round-trip exactly through json)."""
+        fit = self.fit
+        return {
+            'model': 'double_exponential',
+            'alpha': [fit.alpha1, fit.alpha2], 'beta': [fit.beta1, fit.beta2],
+            'fit': {'rmse': fit.rmse, 'r_squared': fit.r_squared,
+                    'iterations': fit.iterations, 'converged': fit.converged},
+            'm_bits': self.m_bits, 'n_bits': self.n_bits, 'guard_bits': self.guard_bits,
+            'output_frac_bits': self.output_frac_bits, 'v_range': list(self.v_range),
+            'rom': self.compensator().rom(),
+            'poly3': _poly_to_dict(self.poly3), 'poly4': _poly_to_dict(self.poly4),
+            'n_points': self.n_points, 'p2p_before': self.p2p_before,
+            'p2p_after': self.p2p_after, 'p2p_after_poly4': self.p2p_after_poly4,
+            'max_fixed_error': self.max_fixed_error, 'fit_seconds': self.fit_seconds,
+            'cancellation_bits': self.cancellation_bits,
+        }
+
+    @classmethod
+    def from_dict(cls, data):
+        """Rebuild from :meth:`to_dict` output; ValueError if the ROM words disagree."""
+        try:
+            fit_info = data['fit']
+            fit = DoubleExpFit(float(data['alpha'][0]), float(data['alpha'][1]),
+                               float(data['beta'][0]), float(data['beta'][1]),
+                               float(fit_info['rmse']), float(fit_info['r_squared']),
+                               int(fit_info['iterations']), bool(fit_info['converged']))
+            calibration = cls(fit, _poly_from_dict(data['poly3']),
+                              _poly_from_dict(data['poly4']), int(data['m_bits']),
+                              int(data['n_bits']), int(data['guard_bits']),
+                              int(data['output_frac_bits']), tuple(data['v_range']),
+                              int(data['n_points']), float(data['p2p_before']),
+                              float(data['p2p_after']), float(data['p2p_after_poly4']),
+                              float(data['max_fixed_error']),
+                              float(data.get('fit_seconds', 0.0)),
+                              float(data.get('cancellation_bits', 0.0)))
+        except (KeyError, IndexError, TypeError) as error:
+            raise ValueError(f'invalid temperature calibration record: {error!r}') from error
+        if 'rom' in data and data['rom'] != calibration.compensator().rom():
+            raise ValueError('rom words do not match the stored coefficients')
+        return calibration
+
+
+def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
+                        v_range=None, guard_bits=4):
+    """
+    Calibrate the zero-bias temperature model of one axis from a temperature cycle.
+
+    The samples are averaged in ``n_bins`` equal-width V_temp bins (this removes the
+    white noise and the time order), the double exponential is fitted by
+    :func:`fit_double_exponential` on the bin means, the 3rd/4th-order polynomials on
+    the same points, and the fixed-point compensator is built and applied to the bins.
+
+    Parameters
+    ----------
+    v_temp : array_like
+        Measured temperature-sensor voltage [V] per sample.
+    zero_output : array_like
+        Zero output of the axis per sample (any unit, e.g. m/s^2).
+    m_bits : int
+        Fixed-point fraction bits of the compensator.
+    n_bins, min_count : int
+        Number of V_temp bins and the least samples a bin needs to be used.
+    v_range : pair of float, optional
+        Voltages the compensator accepts; default the data span widened by 25 % of
+        itself on each side (not below 0 V if the data are all >= 0).
+    guard_bits : int
+        CORDIC guard bits.
+
+    Returns
+    -------
+    TemperatureCalibration
+    """
+    v_bins, y_bins, _ = bin_by_temperature(v_temp, zero_output, n_bins, min_count)
+    if v_bins.size < 5:
+        raise ValueError(f'only {v_bins.size} V_temp bins hold data; at least 5 are needed')
+    started = time.perf_counter()
+    fit = fit_double_exponential(v_bins, y_bins)
+    fit_seconds = time.perf_counter() - started
+    poly3 = fit_polynomial(v_bins, y_bins, 3)
+    poly4 = fit_polynomial(v_bins, y_bins, 4)
+    if v_range is None:
+        span = float(v_bins.max() - v_bins.min())
+        low = float(v_bins.min()) - 0.25 * span
+        # a unipolar temperature ADC never reads below 0 V
+        v_range = (max(low, 0.0) if v_bins.min() >= 0 else low,
+                   float(v_bins.max()) + 0.25 * span)
+    compensator = DoubleExpCompensator(fit, m_bits=m_bits, guard_bits=guard_bits,
+                                       v_range=v_range)
+    fixed = compensator.evaluate_fixed(v_bins)
+    term_peak = max(np.abs(a * np.exp(b * v_bins)).max() for a, b in zip(fit.alpha, fit.beta))
+    sum_peak = np.abs(fit.evaluate(v_bins)).max()
+    cancellation = math.log2(term_peak / sum_peak) if sum_peak > 0 else math.inf
+    return TemperatureCalibration(
+        fit=fit, poly3=poly3, poly4=poly4, m_bits=compensator.m_bits,
+        n_bits=compensator.n_bits, guard_bits=compensator.guard_bits,
+        output_frac_bits=compensator.output_frac_bits, v_range=compensator.v_range,
+        n_points=int(v_bins.size), p2p_before=float(np.ptp(y_bins)),
+        p2p_after=float(np.ptp(y_bins - fixed)),
+        p2p_after_poly4=float(np.ptp(y_bins - poly4.evaluate(v_bins))),
+        max_fixed_error=float(np.max(np.abs(fixed - fit.evaluate(v_bins)))),
+        fit_seconds=fit_seconds, cancellation_bits=float(max(cancellation, 0.0)))

@@ -1,0 +1,42 @@
+"""``qfa-report BAG... [--out DIR]``: draw PNG figures from traces and scenario bags."""
+
+import argparse
+from pathlib import Path
+import sys
+
+from qfa_ros.report.figures import report
+
+
+def main(argv=None):
+    """Run the report command line; return the exit status."""
+    parser = argparse.ArgumentParser(
+        prog='qfa-report',
+        description='Plot qfa_ros estimation traces and qfa-sim scenario bags as PNG figures '
+                    '(forward/feedback gain, static output, temperature compensation).')
+    parser.add_argument('bags', nargs='+', metavar='BAG',
+                        help='trace .mcap files, scenario bags, or directories of them; '
+                             'files given together are combined')
+    parser.add_argument('--out', metavar='DIR',
+                        help='output directory (default: <first BAG name>_report)')
+    args = parser.parse_args(argv)
+    missing = [bag for bag in args.bags if not Path(bag).exists()]
+    if missing:
+        print(f'qfa-report: no such file: {", ".join(missing)}', file=sys.stderr)
+        return 1
+    out_dir = Path(args.out or f'{Path(args.bags[0]).stem}_report')
+    try:
+        written = report(args.bags, out_dir)
+    except (OSError, ValueError) as error:
+        print(f'qfa-report: {error}', file=sys.stderr)
+        return 1
+    if not written:
+        print('qfa-report: nothing to plot (no trace tables, IMU stream or temperature '
+              'points found)', file=sys.stderr)
+        return 1
+    for path in written:
+        print(path)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

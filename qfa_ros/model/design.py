@@ -1,0 +1,195 @@
+"""Controller design and the linearized loop of one QFA axis (discrete time, exact ZOH)."""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from scipy.linalg import expm
+
+from qfa_ros.model.hardware import nominal_gains
+
+GAIN_FRAC_BITS = 32
+"""Fraction bits of the controller gain word k(D(z))."""
+
+COEF_FRAC_BITS = 20
+"""Fraction bits of the lead and integrator coefficients."""
+
+SIGNAL_FRAC_BITS = 8
+"""Fraction bits carried through the controller signals."""
+
+
+@dataclass(frozen=True)
+class ControllerDesign:
+    r"""
+    Integer PID of one axis: a lead-compensated PI behind the scalar gain k(D(z)).
+
+    Per loop step ``n`` (integer arithmetic, ``>>`` rounds to nearest)::
+
+        x[n] = k_D e[n]                                  k_D = gain_word / 2^32
+        y[n] = a1 y[n-1] + b0 x[n] + b1 x[n-1]           lead, coefficients / 2^20
+        I[n] = I[n-1] + ki y[n]                          integrator, ki / 2^20
+        N_PI[n] = clamp(y[n] + I[n])                     DA2 command
+
+    so ``D(z) = k_D (b0 + b1 z^-1)/(1 - a1 z^-1) (1 + ki / (1 - z^-1))``. The lead
+    zero cancels the pendulum's fast pole ``C/J``; the design places the loop
+    crossover at ``crossover_hz``, the PI zero a decade below and the lead pole at
+    ``lead_pole_ratio`` times the crossover. The command is applied one loop step
+    later (``compute_delay`` = 1: ADC conversion and FPGA computation).
+
+    Attributes
+    ----------
+    gain_word : int
+        k(D(z)) in Q32 [count/count].
+    lead_a1, lead_b0, lead_b1 : int
+        Lead coefficients in Q20.
+    integrator_gain : int
+        ki in Q20 (= omega_i Ts).
+    crossover_hz, integrator_ratio, lead_pole_ratio : float
+        Design targets the words were computed from.
+    """
+
+    gain_word: int
+    lead_a1: int
+    lead_b0: int
+    lead_b1: int
+    integrator_gain: int
+    crossover_hz: float
+    integrator_ratio: float
+    lead_pole_ratio: float
+
+    @property
+    def gain(self):
+        """k(D(z)) as a number [count/count]."""
+        return self.gain_word / 2 ** GAIN_FRAC_BITS
+
+    def with_gain(self, gain):
+        """Return the same controller with k(D(z)) = ``gain`` (quantized to Q32)."""
+        if not math.isfinite(gain) or gain <= 0:
+            raise ValueError(f'controller gain must be positive and finite, got {gain!r}')
+        word = int(round(gain * 2 ** GAIN_FRAC_BITS))
+        return ControllerDesign(word, self.lead_a1, self.lead_b0, self.lead_b1,
+                                self.integrator_gain, self.crossover_hz,
+                                self.integrator_ratio, self.lead_pole_ratio)
+
+    def transfer(self, z):
+        """Evaluate D(z) at complex points ``z`` (quantized coefficients)."""
+        q = 2.0 ** COEF_FRAC_BITS
+        zi = 1.0 / z
+        lead = (self.lead_b0 / q + self.lead_b1 / q * zi) / (1.0 - self.lead_a1 / q * zi)
+        return self.gain * lead * (1.0 + self.integrator_gain / q / (1.0 - zi))
+
+
+def pendulum_matrices(hw, loop_period):
+    """
+    Return the exact ZOH discretization (Ad, Bd) of the pendulum.
+
+    Continuous model ``J th'' + C th' + D th = M`` with state ``[th, th']`` and the
+    moment ``M`` [N m] held over each loop period ``Ts`` [s]: ``Ad = e^(A Ts)``,
+    ``Bd = int_0^Ts e^(A s) ds B`` (block matrix exponential).
+    """
+    if not loop_period > 0:
+        raise ValueError(f'loop_period must be positive, got {loop_period!r}')
+    a = np.array([[0.0, 1.0],
+                  [-hw.stiffness / hw.inertia, -hw.damping / hw.inertia]])
+    b = np.array([[0.0], [1.0 / hw.inertia]])
+    block = np.zeros((3, 3))
+    block[:2, :2] = a
+    block[:2, 2:] = b
+    phi = expm(block * loop_period)
+    return phi[:2, :2].copy(), phi[:2, 2].copy()
+
+
+def design_controller(hw, loop_rate_hz, crossover_hz=300.0, integrator_ratio=0.1,
+                      lead_pole_ratio=6.0):
+    """
+    Design the integer controller of :class:`ControllerDesign` for ``hw``.
+
+    The lead is the Tustin image of ``(1 + s/w_z)/(1 + s/w_p)`` with ``w_z = C/J``
+    and ``w_p = lead_pole_ratio w_c``; k(D(z)) is then set so that the discrete
+    loop gain is exactly 1 at ``crossover_hz``.
+    """
+    ts = 1.0 / loop_rate_hz
+    nyquist = loop_rate_hz / 2.0
+    if not 0 < crossover_hz < nyquist / 4:
+        raise ValueError(f'crossover_hz must be in (0, {nyquist / 4:g}), got {crossover_hz!r}')
+    if not 0 < integrator_ratio < 1:
+        raise ValueError(f'integrator_ratio must be in (0, 1), got {integrator_ratio!r}')
+    if not 1 < lead_pole_ratio:
+        raise ValueError(f'lead_pole_ratio must exceed 1, got {lead_pole_ratio!r}')
+    w_c = 2 * math.pi * crossover_hz
+    w_z = hw.damping / hw.inertia
+    w_p = min(lead_pole_ratio * w_c, 0.9 * math.pi * loop_rate_hz)
+    c_z, c_p = 2.0 / (w_z * ts), 2.0 / (w_p * ts)
+    b0, b1, a1 = (1 + c_z) / (1 + c_p), (1 - c_z) / (1 + c_p), -(1 - c_p) / (1 + c_p)
+    q = 2 ** COEF_FRAC_BITS
+    unit = ControllerDesign(2 ** GAIN_FRAC_BITS, round(a1 * q), round(b0 * q), round(b1 * q),
+                            round(integrator_ratio * w_c * ts * q), crossover_hz,
+                            integrator_ratio, lead_pole_ratio)
+    model = LinearLoop(hw, unit, loop_rate_hz)
+    gain = 1.0 / abs(model.loop_gain(np.array([crossover_hz]))[0])
+    return unit.with_gain(gain)
+
+
+class LinearLoop:
+    r"""
+    Linearized discrete loop of one axis: plant, controller, delay, decimation.
+
+    ``P(z)``: moment [N m] to ADC counts through the ZOH pendulum and ``k_sense``;
+    the loop gain is ``L(z) = k_fb P(z) D(z) z^-1`` (``k_fb`` [N m/count]); the
+    closed-loop response from input acceleration [m/s^2] to the command is
+    ``H(z) = K0 P(z) D(z) / (1 + L(z))`` [count/(m/s^2)], and the published output
+    [m/s^2] is ``H(z) s_nom A(z)`` with ``s_nom = k_fb,nom / K0`` and ``A(z)`` the
+    averaging decimator of ``decimation`` loop steps.
+    """
+
+    def __init__(self, hw, controller, loop_rate_hz, gains=None):
+        self.hw = hw
+        self.controller = controller
+        self.loop_period = 1.0 / loop_rate_hz
+        self.gains = nominal_gains(hw) if gains is None else gains
+        self.ad, self.bd = pendulum_matrices(hw, self.loop_period)
+
+    def _plant(self, z):
+        # C (zI - Ad)^-1 Bd for the angle output, written out for a 2x2 system.
+        a = self.ad
+        det = (z - a[0, 0]) * (z - a[1, 1]) - a[0, 1] * a[1, 0]
+        angle = ((z - a[1, 1]) * self.bd[0] + a[0, 1] * self.bd[1]) / det
+        return angle * self.gains.k_sense
+
+    def _z(self, freq_hz):
+        return np.exp(2j * np.pi * np.asarray(freq_hz, dtype=float) * self.loop_period)
+
+    def loop_gain(self, freq_hz):
+        """Return L(e^{jwTs}) at ``freq_hz`` (dimensionless)."""
+        z = self._z(freq_hz)
+        return self.gains.feedback_gain * self._plant(z) * self.controller.transfer(z) / z
+
+    def closed_loop(self, freq_hz, decimation=1):
+        """Return the output/input response [(m/s^2)/(m/s^2)] at ``freq_hz``."""
+        z = self._z(freq_hz)
+        loop = self.gains.feedback_gain * self._plant(z) * self.controller.transfer(z) / z
+        response = self.hw.pendulosity * self._plant(z) * self.controller.transfer(z) \
+            / (1.0 + loop)
+        scale = nominal_gains(self.hw).feedback_gain / self.hw.pendulosity
+        averaging = sum(z ** -k for k in range(decimation)) / decimation
+        return response * scale * averaging
+
+    def margins(self):
+        """Return (crossover Hz, phase margin deg, gain margin dB, -3 dB bandwidth Hz)."""
+        nyquist = 0.5 / self.loop_period
+        freq = np.logspace(-1, math.log10(nyquist * 0.999), 40000)
+        loop = self.loop_gain(freq)
+        mag = np.abs(loop)
+        cross = np.nonzero(np.diff(np.sign(mag - 1.0)))[0]
+        crossover = freq[cross[-1]]
+        phase = np.unwrap(np.angle(loop))
+        phase_margin = 180.0 + math.degrees(phase[cross[-1]])
+        # Only phase crossings above the gain crossover bound the gain (the type-1 loop
+        # approaches -180 deg at low frequency with a gain far above 1).
+        turns = np.nonzero(np.diff(np.sign(phase + np.pi)))[0]
+        turns = turns[turns > cross[-1]]
+        gain_margin = -20 * math.log10(mag[turns[0]]) if len(turns) else math.inf
+        closed = np.abs(self.closed_loop(freq))
+        below = np.nonzero(closed < 1 / math.sqrt(2))[0]
+        bandwidth = freq[below[0]] if len(below) else nyquist
+        return crossover, phase_margin, gain_margin, bandwidth

@@ -1,0 +1,495 @@
+"""Digital closed-loop QFA triad: three simulated loops, decimated output (pure model)."""
+
+from dataclasses import dataclass, field
+from fractions import Fraction
+import math
+import numbers
+
+import numpy as np
+
+from qfa_ros.model import kernel
+from qfa_ros.model.design import design_controller, pendulum_matrices
+from qfa_ros.model.drift import DriftModel
+from qfa_ros.model.hardware import AxisHardware, counts_to_accel, loop_gains, STANDARD_GRAVITY
+from qfa_ros.model.noise import MICRO_G, NoiseConfig, NoiseSource
+from qfa_ros.model.profiles import StaticProfile
+from qfa_ros.model.thermal import ThermalModel
+
+AXES = ('x', 'y', 'z')
+NS_PER_S = 1_000_000_000
+FLAG_DA2_CLIPPED, FLAG_ADC_CLIPPED, FLAG_OVER_RANGE = 1, 2, 4
+MAX_CONTROLLER_GAIN = 4.0
+
+
+@dataclass(frozen=True)
+class TriadConfig:
+    """
+    Configuration of the triad (SI units unless named otherwise).
+
+    Attributes
+    ----------
+    hardware : AxisHardware
+        Nominal hardware, the same design for the three axes.
+    loop_rate_hz : float
+        Digital loop rate (ADC, controller, DAC) [Hz].
+    sample_rate_hz : float
+        Published sample rate [Hz]; ``loop_rate_hz`` must be an integer multiple.
+    noise : NoiseConfig
+        Noise of each axis.
+    misalignment : tuple
+        3x3 small-angle misalignment / cross-coupling matrix ``M``: each loop senses
+        ``((I + M) f)_i``.
+    bias : tuple
+        IEEE 1293 bias term per axis [m/s^2].
+    k2 : tuple
+        IEEE 1293 second-order coefficient per axis [1/(m/s^2)]: the loop senses
+        ``bias + a + k2 a^2``.
+    crossover_hz, integrator_ratio, lead_pole_ratio : float
+        Controller design targets (see :func:`qfa_ros.model.design.design_controller`).
+    open_loop_cref_sensitivity : float
+        Share of the reference-capacitor drift seen by the open-loop bridge.
+    settle_time : float
+        Time after re-closing a loop during which its output is flagged invalid [s].
+    thermal : ThermalConfig or None
+        Thermal model (ambient, body lag, temperature sensor, zero bias and
+        scale-factor error versus temperature, seed 2); None keeps the sensor at the
+        drift model's reference temperature with no thermal errors.
+    """
+
+    hardware: AxisHardware = field(default_factory=AxisHardware)
+    loop_rate_hz: float = 10000.0
+    sample_rate_hz: float = 1000.0
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    misalignment: tuple = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    bias: tuple = (0.0, 0.0, 0.0)
+    k2: tuple = (0.0, 0.0, 0.0)
+    crossover_hz: float = 300.0
+    integrator_ratio: float = 0.1
+    lead_pole_ratio: float = 6.0
+    open_loop_cref_sensitivity: float = 1.0
+    settle_time: float = 0.05
+    thermal: object = None
+
+    def __post_init__(self):
+        for name in ('loop_rate_hz', 'sample_rate_hz', 'settle_time', 'crossover_hz'):
+            value = getattr(self, name)
+            if not _is_real(value) or not math.isfinite(value) or value <= 0:
+                if name == 'settle_time' and value == 0:
+                    continue
+                raise ValueError(f'{name} must be a positive finite number, got {value!r}')
+        ratio = self.loop_rate_hz / self.sample_rate_hz
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError('loop_rate_hz must be an integer multiple of sample_rate_hz, got '
+                             f'{self.loop_rate_hz!r} / {self.sample_rate_hz!r}')
+        if not math.isfinite(self.open_loop_cref_sensitivity):
+            raise ValueError('open_loop_cref_sensitivity must be finite')
+        matrix = np.asarray(self.misalignment, dtype=float)
+        if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
+            raise ValueError('misalignment must be a finite 3x3 matrix')
+        for name in ('bias', 'k2'):
+            vector = np.asarray(getattr(self, name), dtype=float)
+            if vector.shape != (3,) or not np.all(np.isfinite(vector)):
+                raise ValueError(f'{name} must be 3 finite numbers')
+
+    @property
+    def decimation(self):
+        """Loop steps per published sample."""
+        return int(round(self.loop_rate_hz / self.sample_rate_hz))
+
+    @classmethod
+    def from_datasheet(cls, bias_ug=(0.0, 0.0, 0.0), k2_ug_per_g2=(0.0, 0.0, 0.0), **kwargs):
+        """Build a config with bias in micro-g and K2 in micro-g/g^2 (datasheet units)."""
+        bias = tuple(b * MICRO_G for b in bias_ug)
+        k2 = tuple(k * MICRO_G / STANDARD_GRAVITY ** 2 for k in k2_ug_per_g2)
+        return cls(bias=bias, k2=k2, **kwargs)
+
+
+class SampleGrid:
+    """
+    Instants of a stream of samples, exact in integer nanoseconds.
+
+    Sample ``j`` is stamped ``start_ns + (j + 1) / rate_hz``: the end of its averaging
+    block. A rate that is not an integer number of nanoseconds uses an exact fraction.
+
+    Parameters
+    ----------
+    rate_hz : float
+        Sample rate [Hz].
+    start_ns : int or None
+        Instant the stream starts [ns]; None until :meth:`anchor` is called.
+    """
+
+    def __init__(self, rate_hz, start_ns=None):
+        rate = Fraction(rate_hz).limit_denominator(1_000_000)
+        self._numerator = rate.numerator
+        self._scale = NS_PER_S * rate.denominator
+        self.start_ns = start_ns
+        self.next_index = 0
+
+    def anchor(self, start_ns):
+        """Start the stream at ``start_ns``: sample 0 ends one period later."""
+        self.start_ns = int(start_ns)
+        self.next_index = 0
+
+    def stamp_ns(self, index):
+        """Return the instant of sample(s) ``index`` [ns] (int, or int64 array)."""
+        return self.start_ns + (index + 1) * self._scale // self._numerator
+
+    def due(self, now_ns):
+        """Return how many samples have their instant at or before ``now_ns``."""
+        return max(0, (int(now_ns) - self.start_ns) * self._numerator // self._scale)
+
+
+@dataclass
+class TriadOutput:
+    """
+    Decimated output of a run.
+
+    Attributes
+    ----------
+    stamps_ns : int64[n]
+        Sample instants, sensor time [ns] (end of each averaging block).
+    accel : float64[n, 3]
+        Specific force through the nominal scale factor [m/s^2].
+    counts : float64[n, 3]
+        Mean raw output word per sample [count].
+    flags : int8[n, 3]
+        Saturation bits (``FLAG_*``).
+    valid : bool[n, 3]
+        False while the axis is open loop or settling after re-closing.
+    truth : float64[n, 3]
+        True specific force averaged over each sample [m/s^2].
+    temperature : float64[n]
+        Sensor body temperature [degC].
+    v_temp : float64[n]
+        On-board temperature-sensor reading [V] (NaN without a thermal model).
+    """
+
+    stamps_ns: np.ndarray
+    accel: np.ndarray
+    counts: np.ndarray
+    flags: np.ndarray
+    valid: np.ndarray
+    truth: np.ndarray
+    temperature: np.ndarray
+    v_temp: np.ndarray
+
+    FIELDS = ('stamps_ns', 'accel', 'counts', 'flags', 'valid', 'truth', 'temperature',
+              'v_temp')
+
+    @property
+    def saturated(self):
+        """Return bool[n, 3]: any saturation bit set."""
+        return self.flags != 0
+
+
+class AxisLoop:
+    """
+    One axis: its controller, the DA words, drifted gains and the kernel state.
+
+    The words the FPGA can change at run time are ``controller`` (k(D(z))),
+    ``n_fpga`` (modulation amplitude), ``n_vref`` (DA0 reference word), the switch
+    M1 of the constant current source, and the open/closed-loop state.
+    """
+
+    def __init__(self, config):
+        hw = config.hardware
+        self.hw = hw
+        self.config = config
+        self.controller = design_controller(hw, config.loop_rate_hz, config.crossover_hz,
+                                            config.integrator_ratio, config.lead_pole_ratio)
+        self.n_fpga = hw.n_fpga
+        self.n_vref = hw.n_vref
+        self.reference_current_on = False
+        self.open_loop = False
+        self.held_command = 0
+        self.gains = None
+        self.params_f = np.zeros(kernel.N_FLOAT_PARAMS)
+        self.params_i = np.zeros(kernel.N_INT_PARAMS, dtype=np.int64)
+        self.state_f = np.zeros(kernel.N_FLOAT_STATE)
+        self.state_i = np.zeros(kernel.N_INT_STATE, dtype=np.int64)
+        ad, bd = pendulum_matrices(hw, 1.0 / config.loop_rate_hz)
+        self.params_f[kernel.P_AD00:kernel.P_AD11 + 1] = ad.ravel()
+        self.params_f[kernel.P_BD0:kernel.P_BD1 + 1] = bd
+        self.params_f[kernel.P_PENDULOSITY] = hw.pendulosity
+        self.params_f[kernel.P_STOP] = hw.stop_angle
+        self.params_f[kernel.P_ADSORPTION] = hw.adsorption_g * STANDARD_GRAVITY * hw.pendulosity
+        self.params_i[kernel.Q_DA2_FULL_SCALE] = hw.da2_full_scale
+        self.params_i[kernel.Q_ADC_FULL_SCALE] = hw.adc_full_scale
+        self.params_i[kernel.Q_RANGE_COUNTS] = int(
+            hw.input_range_g * STANDARD_GRAVITY / counts_to_accel(hw))
+
+    def update(self, drift):
+        """Recompute the kernel parameters for the relative ``drift`` of each component."""
+        self.gains = loop_gains(self.hw, drift, self.n_fpga, self.n_vref,
+                                self.config.open_loop_cref_sensitivity)
+        self.params_f[kernel.P_K_SENSE] = self.gains.k_sense
+        self.params_f[kernel.P_OPEN_LOOP_COUNTS] = \
+            self.gains.open_loop_counts_per_fpga * self.n_fpga
+        self.params_f[kernel.P_K_FB] = self.gains.feedback_gain
+        self.params_f[kernel.P_REF_MOMENT] = \
+            self.gains.k_t * self.gains.i_ref if self.reference_current_on else 0.0
+        c = self.controller
+        self.params_i[kernel.Q_GAIN] = c.gain_word
+        self.params_i[kernel.Q_A1] = c.lead_a1
+        self.params_i[kernel.Q_B0] = c.lead_b0
+        self.params_i[kernel.Q_B1] = c.lead_b1
+        self.params_i[kernel.Q_KI] = c.integrator_gain
+        self.params_i[kernel.Q_OPEN_LOOP] = 1 if self.open_loop else 0
+
+    def close(self):
+        """Re-close the loop bumplessly: the integrator resumes the last closed-loop command."""
+        held = self.held_command
+        self.state_i[kernel.T_APPLIED] = held
+        self.state_i[kernel.T_X_PREV] = 0
+        self.state_i[kernel.T_Y_PREV] = 0
+        self.state_i[kernel.T_INTEGRATOR] = held << 28
+        self.open_loop = False
+
+    def open(self):
+        """Open the loop: feedback current off, the pendulum latches on its stop."""
+        self.held_command = int(self.state_i[kernel.T_LAST])
+        self.open_loop = True
+
+    def run(self, accel, adc_noise, decimation, out_mean, out_flags):
+        """Run the compiled kernel over one chunk (see :func:`kernel.run_axis`)."""
+        kernel.run_axis(accel, adc_noise, decimation, self.params_f, self.params_i,
+                        self.state_f, self.state_i, out_mean, out_flags)
+
+
+class QfaTriad:
+    r"""
+    Three digital closed-loop QFA axes advancing in discrete time.
+
+    Each axis runs the loop of :class:`qfa_ros.model.hardware.AxisHardware` at
+    ``dt = 1/loop_rate_hz`` in the compiled kernel; the published output is the
+    mean of ``decimation = loop_rate_hz / sample_rate_hz`` loop outputs (anti-alias
+    averaging), converted with the nominal scale factor ``k_fb,nom / K0``. The loop
+    input of axis ``i`` is ``(bias_i + a_i + k2_i a_i^2)(1 + e_i(T)) + b_i(T) + w_i``
+    with ``a = (I + M) f``, ``w`` the acceleration noise and, with a thermal model,
+    ``b_i(T)`` the zero bias and ``e_i(T)`` the scale-factor error at the body
+    temperature. With temperature compensation on, the published output subtracts the
+    fixed-point double-exponential zero-bias model evaluated at the measured V_temp.
+
+    Parameters
+    ----------
+    config : TriadConfig
+        Configuration.
+    rng : numpy.random.Generator or int or None
+        Source of every random number (an int is a seed).
+    profile : object with ``evaluate(t) -> (n, 3)``, optional
+        Input specific force [m/s^2] as a function of sensor time [s]; default level.
+    """
+
+    def __init__(self, config=None, rng=None, profile=None):
+        self.config = TriadConfig() if config is None else config
+        if not isinstance(rng, np.random.Generator):
+            rng = np.random.default_rng(rng)
+        self.rng = rng
+        self.profile = StaticProfile.level() if profile is None else profile
+        self.decimation = self.config.decimation
+        self.dt = 1.0 / self.config.loop_rate_hz
+        self.sample_period = 1.0 / self.config.sample_rate_hz
+        self._grid = SampleGrid(self.config.sample_rate_hz, start_ns=0)
+        self.axes = [AxisLoop(self.config) for _ in AXES]
+        self.drift = DriftModel(len(AXES))
+        self.drift.clock = lambda: self.time
+        self.noise = NoiseSource(self.config.noise, len(AXES), self.config.loop_rate_hz,
+                                 self.config.sample_rate_hz, rng)
+        self.thermal = None
+        if self.config.thermal is not None:
+            self.thermal = ThermalModel(self.config.thermal, rng.spawn(1)[0])
+        self.temperature_compensators = None
+        self.temperature_compensation = False
+        self.scale = counts_to_accel(self.config.hardware)
+        self.sample_index = 0
+        self.settle_until = np.zeros(len(AXES), dtype=np.int64)
+        self._misalignment = np.eye(3) + np.asarray(self.config.misalignment, dtype=float)
+        self._bias = np.asarray(self.config.bias, dtype=float)
+        self._k2 = np.asarray(self.config.k2, dtype=float)
+        self._applied_version = None
+        self.temperature = self.drift.reference_temperature
+        if self.thermal is not None:
+            self.temperature = self.thermal.sensor_c
+        self._refresh(force=True)
+        self._start_equilibrium()
+
+    # Time ------------------------------------------------------------------------------
+    @property
+    def time(self):
+        """Sensor time of the next sample's start [s]."""
+        return self.sample_index * self.sample_period
+
+    def stamp_ns(self, sample_index):
+        """Return the data-ready instant (end of the averaging block) of samples [ns]."""
+        return self._grid.stamp_ns(np.asarray(sample_index, dtype=np.int64))
+
+    # Loop words --------------------------------------------------------------------------
+    def _refresh(self, force=False):
+        key = (self.drift.version, self.temperature,
+               self.sample_index if self.drift.aging else None)
+        if force or key != self._applied_version:
+            for i, axis in enumerate(self.axes):
+                axis.update(self.drift.at(i, self.time, self.temperature))
+            self._applied_version = key
+
+    def invalidate(self):
+        """Recompute the kernel parameters after a loop word or switch changed."""
+        self._refresh(force=True)
+
+    def set_open_loop(self, axis, open_loop):
+        """Open (True) or re-close (False) the loop of ``axis``."""
+        loop = self.axes[axis]
+        if open_loop and not loop.open_loop:
+            loop.open()
+        elif not open_loop and loop.open_loop:
+            loop.close()
+            settle = int(math.ceil(self.config.settle_time / self.sample_period))
+            self.settle_until[axis] = self.sample_index + settle
+        self.invalidate()
+
+    def set_temperature(self, temperature):
+        """Set the sensor temperature [degC] that drives the temperature coefficients."""
+        if not math.isfinite(temperature):
+            raise ValueError(f'temperature must be finite, got {temperature!r}')
+        self.temperature = float(temperature)
+
+    def set_reference_current(self, axis, on):
+        """Close (True) or open (False) the switch M1 of the constant current source."""
+        self.axes[axis].reference_current_on = bool(on)
+        self.invalidate()
+
+    def set_n_fpga(self, axis, word):
+        """Write the modulation amplitude word N_FPGA of ``axis``."""
+        hw = self.config.hardware
+        if int(word) != word or not 0 < word < 2 ** (hw.n_da1_bits - 1):
+            raise ValueError(f'n_fpga must be an integer in (0, 2^{hw.n_da1_bits - 1}), '
+                             f'got {word!r}')
+        self.axes[axis].n_fpga = int(word)
+        self.invalidate()
+
+    def set_n_vref(self, axis, word):
+        """Write the DA0 reference word N_VREF of ``axis`` (eq. 30)."""
+        hw = self.config.hardware
+        if int(word) != word or not 0 < word < 2 ** hw.n_da0_bits:
+            raise ValueError(f'n_vref must be an integer in (0, 2^{hw.n_da0_bits}), '
+                             f'got {word!r}')
+        self.axes[axis].n_vref = int(word)
+        self.invalidate()
+
+    def set_controller_gain(self, axis, gain):
+        """Write k(D(z)) of ``axis`` (quantized to the Q32 gain word).
+
+        The bound keeps every int64 product of the kernel below 2^62 at full-scale ADC.
+        """
+        if not math.isfinite(gain) or not 0 < gain < MAX_CONTROLLER_GAIN:
+            raise ValueError(f'controller gain must be in (0, {MAX_CONTROLLER_GAIN}), '
+                             f'got {gain!r}')
+        loop = self.axes[axis]
+        loop.controller = loop.controller.with_gain(gain)
+        self.invalidate()
+
+    # Simulation --------------------------------------------------------------------------
+    def _start_equilibrium(self):
+        # Start each loop at rest under the initial input so runs need no warm-up.
+        f0 = self.profile.evaluate(np.zeros(1))[0]
+        sensed = self._sensed(f0[None, :])[0]
+        for i, loop in enumerate(self.axes):
+            command = int(round(loop.hw.pendulosity * sensed[i] / loop.gains.feedback_gain))
+            command = max(-loop.hw.da2_full_scale, min(loop.hw.da2_full_scale, command))
+            loop.state_i[kernel.T_APPLIED] = command
+            loop.state_i[kernel.T_LAST] = command
+            loop.state_i[kernel.T_INTEGRATOR] = command << 28
+
+    def _sensed(self, specific_force):
+        a = specific_force @ self._misalignment.T
+        return self._bias + a + self._k2 * a * a
+
+    def run(self, n_samples, specific_force=None):
+        """
+        Advance ``n_samples`` output samples and return a :class:`TriadOutput`.
+
+        Parameters
+        ----------
+        n_samples : int
+            Number of published samples (``n_samples * decimation`` loop steps).
+        specific_force : array_like, optional
+            True specific force in the sensor frame [m/s^2], shape (n_samples, 3) (held
+            over each sample) or (n_samples * decimation, 3) (per loop step). Default:
+            the profile evaluated at every loop step.
+        """
+        if int(n_samples) != n_samples or n_samples < 0:
+            raise ValueError(f'n_samples must be a non-negative integer, got {n_samples!r}')
+        n_samples = int(n_samples)
+        n_steps = n_samples * self.decimation
+        if specific_force is None:
+            t = self.time + np.arange(n_steps) * self.dt
+            force = self.profile.evaluate(t)
+        else:
+            force = np.asarray(specific_force, dtype=float)
+            if force.shape == (n_samples, 3):
+                force = np.repeat(force, self.decimation, axis=0)
+            elif force.shape != (n_steps, 3):
+                raise ValueError(f'specific_force must have shape ({n_samples}, 3) or '
+                                 f'({n_steps}, 3), got {force.shape}')
+            if not np.all(np.isfinite(force)):
+                raise ValueError('specific_force must be finite')
+        sensed = self._sensed(force)
+        if self.thermal is not None:
+            chunk = self.thermal.run(n_samples, self.sample_period)
+            temperature = chunk.sensor_c
+            v_temp = chunk.v_temp
+            # Gains follow the chunk's mean temperature: it moves far slower than a chunk.
+            self.temperature = float(temperature.mean())
+            sensed = sensed * np.repeat(1.0 + chunk.scale_factor_error, self.decimation, axis=0) \
+                + np.repeat(chunk.bias, self.decimation, axis=0)
+        else:
+            temperature = np.full(n_samples, self.temperature)
+            v_temp = np.full(n_samples, np.nan)
+        self._refresh()
+        accel_noise, adc_noise = self.noise.chunk(n_samples)
+        loop_input = sensed.T + accel_noise
+        counts = np.empty((3, n_samples))
+        flags = np.empty((3, n_samples), dtype=np.int8)
+        for i, loop in enumerate(self.axes):
+            loop.run(np.ascontiguousarray(loop_input[i]), adc_noise[i], self.decimation,
+                     counts[i], flags[i])
+        index = self.sample_index + np.arange(n_samples)
+        valid = np.empty((n_samples, 3), dtype=bool)
+        for i, loop in enumerate(self.axes):
+            valid[:, i] = (not loop.open_loop) & (index >= self.settle_until[i])
+        truth = force.reshape(n_samples, self.decimation, 3).mean(axis=1)
+        self.sample_index += n_samples
+        accel = counts.T * self.scale
+        if self.temperature_compensation and self.temperature_compensators:
+            for i, compensator in enumerate(self.temperature_compensators):
+                accel[:, i] -= compensator.evaluate_fixed(v_temp, clip=True)
+        return TriadOutput(stamps_ns=self.stamp_ns(index), accel=accel,
+                           counts=counts.T.copy(), flags=flags.T.copy(), valid=valid,
+                           truth=truth, temperature=temperature, v_temp=v_temp)
+
+    def run_for(self, duration_s, chunk_samples=1000):
+        """Run ``duration_s`` seconds in chunks and return the concatenated output."""
+        total = int(round(duration_s * self.config.sample_rate_hz))
+        parts = []
+        while total > 0:
+            n = min(chunk_samples, total)
+            parts.append(self.run(n))
+            total -= n
+        return concatenate(parts)
+
+
+def _is_real(value):
+    """Return True for a real number (Python or numpy), not a bool."""
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def concatenate(outputs):
+    """Concatenate :class:`TriadOutput` chunks in time order."""
+    if not outputs:
+        empty = np.empty((0, 3))
+        return TriadOutput(np.empty(0, np.int64), empty, empty.copy(),
+                           np.empty((0, 3), np.int8), np.empty((0, 3), bool), empty.copy(),
+                           np.empty(0), np.empty(0))
+    return TriadOutput(*(np.concatenate([getattr(o, f) for o in outputs])
+                         for f in TriadOutput.FIELDS))

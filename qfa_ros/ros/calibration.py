@@ -1,0 +1,108 @@
+"""The node's calibration state: stored corrections, the compensation switch, the state file."""
+
+from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.model.triad import AXES
+from qfa_ros.ros.state_store import StateFileError, StateStore
+
+
+class CalibrationKeeper:
+    """
+    Keep the calibration state of the running sensor and persist it.
+
+    The state is changed by a schedule (sensor thread) or a service (executor thread);
+    the caller holds the node lock around every method.
+
+    :param triad: The running model; its present words are the nominal ones.
+    :param state_file: Path of the persisted state, or '' for memory only.
+    :param logger: The node's logger.
+    """
+
+    def __init__(self, triad, state_file, logger):
+        self.triad = triad
+        self._logger = logger
+        self._nominal_gains = [loop.controller.gain for loop in triad.axes]
+        self._nominal_n_vref = [loop.n_vref for loop in triad.axes]
+        self.store = StateStore(state_file)
+        self.state = CalibrationState()
+        self.compensation = True
+        self.problem = None
+        self.unsaved = False
+
+    @property
+    def is_calibrated(self):
+        """Return True when references exist and the stored corrections are applied."""
+        return self.state.has_reference and self.compensation
+
+    def load(self):
+        """Restore the persisted state; a bad file is set aside and the sensor starts bare."""
+        store = self.store
+        try:
+            state, compensation = store.load()
+        except StateFileError as error:
+            where = f'kept as {error.kept_as}' if error.kept_as else 'could not be set aside'
+            self.problem = f'{error}; {where}; starting uncalibrated'
+            self._logger.error(self.problem)
+            return
+        if state is None:
+            return
+        try:
+            if compensation:
+                state.apply_to(self.triad)
+        except ValueError as error:
+            self.restore_nominal_words()
+            kept = store.set_aside()
+            where = f'kept as {kept}' if kept else 'could not be set aside'
+            self.problem = (f'state file {store.path} holds words the sensor cannot '
+                            f'take ({error}); {where}; starting uncalibrated')
+            self._logger.error(self.problem)
+            return
+        self.state = state
+        self.compensation = compensation
+        self._logger.info(f'calibration state loaded from {store.path} '
+                          f'(compensation {"on" if compensation else "off"})')
+
+    def save(self):
+        """Persist the calibration state; return a problem description or None."""
+        try:
+            self.store.save(self.state, self.compensation)
+        except OSError as error:
+            self.problem = f'state file not written ({error})'
+            self.unsaved = True
+            return self.problem
+        self.problem = None
+        self.unsaved = False
+        return None
+
+    def restore_nominal_words(self):
+        """Write the nominal k(D(z)) and N_VREF back and switch temperature compensation off."""
+        triad = self.triad
+        for axis in range(len(AXES)):
+            triad.set_controller_gain(axis, self._nominal_gains[axis])
+            triad.set_n_vref(axis, self._nominal_n_vref[axis])
+        triad.temperature_compensation = False
+
+    def set_compensation(self, on):
+        """
+        Apply (``on``) the stored corrections or restore the nominal words.
+
+        The caller saves the state afterwards (:meth:`save`), outside the node lock.
+
+        :returns: ``(success, message)`` for a ``SetBool`` answer.
+        """
+        state = self.state
+        if on and not (state.controller_gain or state.n_vref or state.temperature):
+            return False, ('no stored corrections: call capture_reference, '
+                           'self_calibrate or calibrate_temperature first')
+        try:
+            if on:
+                state.apply_to(self.triad)
+            else:
+                self.restore_nominal_words()
+        except ValueError as error:
+            return False, f'bad calibration state: {error}'
+        self.compensation = bool(on)
+        words = ', '.join(f'{axis} k(D(z)) {loop.controller.gain:.6g} N_VREF {loop.n_vref}'
+                          for axis, loop in zip(AXES, self.triad.axes))
+        thermal = 'on' if self.triad.temperature_compensation else 'off'
+        applied = 'stored corrections applied' if on else 'nominal words restored'
+        return True, f'{applied}: {words}; temperature compensation {thermal}'

@@ -1,0 +1,52 @@
+"""Diagnostics: the node's health on ``/diagnostics`` at about 1 Hz, not at the IMU rate."""
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
+
+
+def temperature_status(triad, keeper, last_reading_c):
+    """Return ``(level, message, key values)`` for the ``temperature`` diagnostic."""
+    thermal = triad.thermal
+    rom = 'stored' if keeper.state.temperature else 'none'
+    compensating = 'on' if triad.temperature_compensation else 'off'
+    values = [('thermal model', 'on' if thermal else 'off'),
+              ('temperature compensation', compensating), ('temperature ROM', rom)]
+    if last_reading_c is not None:
+        values.append(('reading [degC]', f'{last_reading_c:.3f}'))
+    if thermal is None:
+        values.append(('sensor temperature [degC]', f'{triad.temperature:.2f}'))
+        return DiagnosticStatus.OK, 'no thermal model: constant temperature', values
+    values += [('ambient profile', thermal.config.ambient_profile),
+               ('body temperature [degC]', f'{thermal.sensor_c:.3f}')]
+    if compensating == 'on':
+        return DiagnosticStatus.OK, 'zero bias compensated (fixed-point CORDIC)', values
+    return DiagnosticStatus.OK, 'uncompensated: call calibrate_temperature', values
+
+
+class Diagnostics:
+    """
+    Gather the ``stream``, ``calibration``, ``temperature`` and ``input`` statuses.
+
+    :param node: The node (name, clock).
+    :param values: The node's live parameter values (``hardware_id``).
+    :param sources: ``(topic, callable returning (level, message, key values))`` pairs.
+    """
+
+    def __init__(self, node, values, sources):
+        self._node = node
+        self._values = values
+        self._sources = sources
+
+    def array(self):
+        """Return a :class:`DiagnosticArray` of every status (call with the node lock held)."""
+        array = DiagnosticArray()
+        array.header.stamp = self._node.get_clock().now().to_msg()
+        prefix = self._node.get_fully_qualified_name()
+        for topic, source in self._sources:
+            level, message, values = source()
+            array.status.append(DiagnosticStatus(
+                level=level, name=f'{prefix}: {topic}', message=message,
+                hardware_id=self._values['hardware_id'],
+                values=[KeyValue(key=k, value=str(v)) for k, v in values]))
+        return array

@@ -1,0 +1,323 @@
+"""
+ROS 2 node of the emulated QFA triad: maps parameters, topics and services onto the model.
+
+Run it with ``qfa-node`` (``ros2 run qfa_ros qfa_node``) or
+``python -m qfa_ros.cli.node --ros-args --params-file config/qfa.yaml``. The interface is
+described in ``docs/node.md``.
+"""
+
+import threading
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import AccelStamped
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.exceptions import ParameterException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import Bool
+from std_srvs.srv import SetBool, Trigger
+
+from qfa_ros.bag.qos import QOS_LATCHED, QosProfile
+from qfa_ros.calibration.estimation import (
+    capture_reference,
+    feedback_schedule,
+    forward_schedule,
+    self_calibrate,
+)
+from qfa_ros.calibration.temperature import temperature_schedule
+from qfa_ros.model.noise import acceleration_variance
+from qfa_ros.model.triad import AXES, NS_PER_S, QfaTriad
+from qfa_ros.ros.calibration import CalibrationKeeper
+from qfa_ros.ros.diagnostics import Diagnostics, DIAGNOSTICS_TYPE, temperature_status
+from qfa_ros.ros.ground_truth import GroundTruthInput
+from qfa_ros.ros.params import (
+    ambient_settings,
+    check_all,
+    descriptor,
+    FEEDBACK_COMPONENT,
+    FORWARD_COMPONENT,
+    input_profile,
+    PARAMETERS,
+    temperature_settings,
+    THERMAL_RUNTIME_PARAMETERS,
+    triad_config,
+)
+from qfa_ros.ros.recording import RECORDER_PARAMETERS, StreamRecording
+from qfa_ros.ros.schedules import ScheduleService
+from qfa_ros.ros.stream import SampleStream
+
+PPM = 1e-6
+DRIFT_PARAMETERS = frozenset({'drift.forward_ppm', 'drift.feedback_ppm',
+                              'drift.aging_forward_ppm_per_year',
+                              'drift.aging_feedback_ppm_per_year', 'drift.time_acceleration'})
+
+
+class QfaNode(Node):
+    """
+    Emulated self-calibrating IMU of three digital closed-loop QFA.
+
+    Publishes ``imu/data_raw``, ``imu/temperature``, ``/diagnostics`` and
+    ``~/is_calibrated``; serves ``~/capture_reference``, ``~/estimate_forward_gain``,
+    ``~/estimate_feedback_gain``, ``~/self_calibrate``, ``~/calibrate_temperature`` and
+    ``~/set_compensation``.
+
+    The node wires small collaborators: :class:`SampleStream` (the sensor thread that
+    advances the model and publishes), :class:`ScheduleService` (schedules behind the
+    services), :class:`CalibrationKeeper` (state and state file),
+    :class:`GroundTruthInput`, :class:`StreamRecording` and :class:`Diagnostics`. The
+    executor thread serves parameters, services, diagnostics and the ground-truth input.
+
+    :param node_name: Node name.
+    :param kwargs: Passed to :class:`rclpy.node.Node` (e.g. ``context``,
+        ``parameter_overrides``).
+    :raises ValueError: A parameter is invalid; the message names it.
+    """
+
+    def __init__(self, node_name='qfa_node', **kwargs):
+        super().__init__(node_name, **kwargs)
+        for spec in PARAMETERS:
+            try:
+                self.declare_parameter(spec.name, spec.default, descriptor(spec))
+            except ParameterException as error:
+                raise ValueError(str(error)) from None
+        # The live parameter values, shared (read-only) by every collaborator.
+        self._values = {spec.name: self.get_parameter(spec.name).value for spec in PARAMETERS}
+        reason = check_all(self._values)
+        if reason:
+            raise ValueError(reason)
+        values = self._values
+        config = triad_config(values)
+        self._triad = QfaTriad(config, rng=values['seed'], profile=input_profile(values))
+        self._apply_ambient()
+        self._keeper = CalibrationKeeper(self._triad, values['state_file'], self.get_logger())
+        self._apply_drift()
+
+        # The sensor thread and the executor thread share the model, the sample grid,
+        # the running schedule, the ground-truth input queue, the recording, the
+        # calibration state and the counters of the collaborators; _lock makes each
+        # tick and each callback's use of them atomic.
+        self._lock = threading.Lock()
+        self._keeper.load()
+
+        stream_qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=values['qos.depth'],
+            reliability=ReliabilityPolicy.RELIABLE if values['qos.reliability'] == 'reliable'
+            else ReliabilityPolicy.BEST_EFFORT)
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                             reliability=ReliabilityPolicy.RELIABLE)
+        imu_publisher = self.create_publisher(Imu, 'imu/data_raw', stream_qos)
+        temperature_publisher = self.create_publisher(Temperature, 'imu/temperature',
+                                                      stream_qos)
+        self._diagnostics_publisher = self.create_publisher(
+            DiagnosticArray, '/diagnostics', 10)
+        self._calibrated_publisher = self.create_publisher(Bool, '~/is_calibrated', latched)
+
+        recorded_qos = QosProfile(depth=values['qos.depth'], reliability=values['qos.reliability'])
+        self._recording = StreamRecording(self, values, {
+            imu_publisher.topic_name: recorded_qos,
+            temperature_publisher.topic_name: recorded_qos,
+            '/diagnostics': QosProfile(depth=10),
+            self._calibrated_publisher.topic_name: QOS_LATCHED})
+        self._recording.restart()
+
+        self._ground_truth = GroundTruthInput(values)
+        input_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+        if values['input.topic_type'] == 'imu':
+            self.create_subscription(Imu, 'input/imu', self.input_imu_callback, input_qos)
+        else:
+            self.create_subscription(AccelStamped, 'input/accel', self.input_accel_callback,
+                                     input_qos)
+
+        variance = acceleration_variance(config.noise, config.sample_rate_hz)
+        self._stream = SampleStream(
+            self, self._lock, self._triad, values, self._ground_truth, self._recording,
+            imu_publisher, temperature_publisher,
+            [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0, variance])
+        self._schedules = ScheduleService(self, self._lock, values, self._stream, self._keeper)
+        self._diagnostics = Diagnostics(self, values, [
+            ('stream', self._stream.status),
+            ('calibration', self._schedules.status),
+            ('temperature', lambda: temperature_status(self._triad, self._keeper,
+                                                       self._stream.last_temperature)),
+            ('input', lambda: self._ground_truth.status(self.get_clock().now().nanoseconds)),
+        ])
+
+        # A schedule service awaits the schedule the sensor thread drives. In the default
+        # mutually exclusive group the pending coroutine would keep the other services
+        # from answering 'busy'; the reentrant group lets them run meanwhile.
+        services = ReentrantCallbackGroup()
+        for srv_type, name, callback in (
+                (Trigger, '~/capture_reference', self.capture_reference_callback),
+                (Trigger, '~/estimate_forward_gain', self.estimate_forward_gain_callback),
+                (Trigger, '~/estimate_feedback_gain', self.estimate_feedback_gain_callback),
+                (Trigger, '~/self_calibrate', self.self_calibrate_callback),
+                (Trigger, '~/calibrate_temperature', self.calibrate_temperature_callback),
+                (SetBool, '~/set_compensation', self.set_compensation_callback)):
+            self.create_service(srv_type, name, callback, callback_group=services)
+        # Triggered by the sensor thread when a schedule ends, so that the executor wakes
+        # and resumes the service coroutine awaiting it.
+        schedule_done = self.create_guard_condition(self.schedule_done_callback)
+        self._stream.on_schedule_end = schedule_done.trigger
+        self.add_on_set_parameters_callback(self.validate_parameters_callback)
+        self.add_post_set_parameters_callback(self.parameters_set_callback)
+
+        self.create_timer(1.0 / values['diagnostics_rate_hz'], self.diagnostics_callback)
+        self.publish_calibrated()
+        self._stream.start()
+        thermal = self._triad.thermal
+        self.get_logger().info(
+            f'{values["sample_rate_hz"]:g} Hz on imu/data_raw (frame {values["frame_id"]}), '
+            f'loop {values["loop_rate_hz"]:g} Hz, input {values["input.mode"]}, thermal '
+            f'{values["thermal.ambient_profile"] if thermal else "off"}, '
+            f'calibration state {self._keeper.store.path or "in memory only"}')
+
+    # Parameters ------------------------------------------------------------------------
+    def validate_parameters_callback(self, parameters):
+        """Accept a parameter change only if the whole set stays consistent."""
+        try:
+            merged = dict(self._values)
+            for parameter in parameters:
+                merged[parameter.name] = parameter.value
+            reason = check_all(merged)
+            names = {parameter.name for parameter in parameters}
+            if not reason and self._schedules.busy_kind == 'temperature' \
+                    and names & THERMAL_RUNTIME_PARAMETERS:
+                reason = 'busy: the temperature calibration controls the ambient until it ends'
+        except Exception as error:
+            # A parameter callback must never raise: it would kill the set_parameters call.
+            reason = f'cannot check the change: {error}'
+        if reason:
+            return SetParametersResult(successful=False, reason=reason)
+        return SetParametersResult(successful=True)
+
+    def parameters_set_callback(self, parameters):
+        """Apply accepted parameter changes to the running sensor at once."""
+        names = {parameter.name for parameter in parameters}
+        with self._lock:
+            for parameter in parameters:
+                self._values[parameter.name] = parameter.value
+            try:
+                if names & DRIFT_PARAMETERS:
+                    self._apply_drift()
+                if any(name.startswith('input.') for name in names):
+                    self._triad.profile = input_profile(self._values)
+                if 'frame_id' in names:
+                    self._stream.set_frame_id(self._values['frame_id'])
+                if names & THERMAL_RUNTIME_PARAMETERS:
+                    self._apply_ambient()
+                if names & RECORDER_PARAMETERS:
+                    self._recording.restart()
+            except (ValueError, OSError) as error:
+                self._schedules.last_error = f'applying {", ".join(sorted(names))}: {error}'
+                self.get_logger().error(self._schedules.last_error)
+
+    def _apply_drift(self):
+        values = self._values
+        drift = self._triad.drift
+        for axis in range(len(AXES)):
+            drift.set_step(axis, FORWARD_COMPONENT, values['drift.forward_ppm'][axis] * PPM)
+            drift.set_step(axis, FEEDBACK_COMPONENT, values['drift.feedback_ppm'][axis] * PPM)
+            drift.set_aging(axis, FORWARD_COMPONENT,
+                            values['drift.aging_forward_ppm_per_year'][axis])
+            drift.set_aging(axis, FEEDBACK_COMPONENT,
+                            values['drift.aging_feedback_ppm_per_year'][axis])
+        drift.set_time_acceleration(values['drift.time_acceleration'])
+
+    def _apply_ambient(self):
+        if self._triad.thermal is None:
+            self._triad.set_temperature(self._values['temperature_c'])
+        else:
+            self._triad.thermal.set_ambient(**ambient_settings(self._values))
+
+    @property
+    def is_calibrated(self):
+        """Return True when references exist and the stored corrections are applied."""
+        return self._keeper.is_calibrated
+
+    def publish_calibrated(self):
+        """Publish ``~/is_calibrated`` (transient local: late subscribers get it too)."""
+        self._calibrated_publisher.publish(Bool(data=self.is_calibrated))
+
+    # Ground-truth input -----------------------------------------------------------------
+    def input_imu_callback(self, message):
+        """Take the specific force of a ground-truth ``sensor_msgs/Imu``."""
+        self._accept_input(message.header.stamp, message.linear_acceleration)
+
+    def input_accel_callback(self, message):
+        """Take the specific force of a ground-truth ``geometry_msgs/AccelStamped``."""
+        self._accept_input(message.header.stamp, message.accel.linear)
+
+    def _accept_input(self, stamp, vector):
+        time_ns = stamp.sec * NS_PER_S + stamp.nanosec
+        if time_ns == 0:
+            time_ns = self.get_clock().now().nanoseconds
+        with self._lock:
+            self._ground_truth.accept(time_ns, (vector.x, vector.y, vector.z))
+
+    # Services ---------------------------------------------------------------------------
+    async def capture_reference_callback(self, request, response):
+        """Measure and persist the forward and feedback reference gains."""
+        return await self._schedules.run(response, 'reference', lambda f, b: capture_reference(
+            self._triad, self._keeper.state, f, b))
+
+    async def estimate_forward_gain_callback(self, request, response):
+        """Run the forward schedule and apply the correction in place."""
+        return await self._schedules.run(response, 'forward', lambda f, b: forward_schedule(
+            self._triad, self._keeper.state, f))
+
+    async def estimate_feedback_gain_callback(self, request, response):
+        """Run the feedback schedule and apply the correction in place."""
+        return await self._schedules.run(response, 'feedback', lambda f, b: feedback_schedule(
+            self._triad, self._keeper.state, b))
+
+    async def self_calibrate_callback(self, request, response):
+        """Run the forward, then the feedback schedule and apply both corrections."""
+        return await self._schedules.run(response, 'self_calibrate', lambda f, b: self_calibrate(
+            self._triad, self._keeper.state, f, b))
+
+    async def calibrate_temperature_callback(self, request, response):
+        """Run an accelerated chamber cycle, fit the zero bias and switch compensation on."""
+        return await self._schedules.run(
+            response, 'temperature', lambda f, b: temperature_schedule(
+                self._triad, self._keeper.state, temperature_settings(self._values)),
+            fast=True)
+
+    def set_compensation_callback(self, request, response):
+        """Apply (true) the stored corrections or restore the nominal words (false)."""
+        busy = self._schedules.busy_answer()
+        if busy:
+            response.success, response.message = False, busy
+            return response
+        with self._lock:
+            response.success, response.message = self._keeper.set_compensation(request.data)
+        if response.success:
+            problem = self._keeper.save()
+            if problem:
+                response.success = False
+                response.message += f'; {problem}'
+            self.publish_calibrated()
+        return response
+
+    def schedule_done_callback(self):
+        """Do nothing: the wake-up itself lets the executor resume the service coroutine."""
+
+    # Diagnostics ----------------------------------------------------------------------
+    def diagnostics_callback(self):
+        """Publish the stream, calibration, temperature and input status (about 1 Hz)."""
+        with self._lock:
+            self._recording.publish(self._diagnostics_publisher, self._diagnostics.array(),
+                                    DIAGNOSTICS_TYPE)
+
+    # Shutdown -------------------------------------------------------------------------
+    def close(self):
+        """Stop the sensor thread and a running schedule, save the state, close the recording."""
+        self._stream.stop()
+        with self._lock:
+            if self._stream.schedule is not None:
+                self._stream.schedule.abort()
+                self._stream.end_schedule()
+            if self._keeper.unsaved:
+                self._keeper.save()
+            self._recording.close()

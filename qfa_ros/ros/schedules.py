@@ -1,0 +1,215 @@
+"""
+Schedules behind the services: run on the sensor thread, awaited by the service call.
+
+A service callback is a coroutine: it starts a :class:`ScheduleRun` on the sample
+stream, awaits its future (the executor serves everything else meanwhile), then writes
+the trace, persists the state and answers. Nothing here blocks the executor.
+"""
+
+import os
+from pathlib import Path
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.task import Future
+
+from qfa_ros.bag.traces import trace_path, write_estimation_trace
+from qfa_ros.calibration.schedule import EstimationError
+from qfa_ros.model.triad import AXES, concatenate
+from qfa_ros.ros.params import feedback_settings, forward_settings
+
+SCHEDULE_PAUSE = {
+    'reference': 'reference capture running (open loop, then I_ref steps)',
+    'forward': 'forward-gain schedule running: loops open, no valid output',
+    'feedback': 'feedback-gain schedule running: I_ref steps of about 0.6 g on the output',
+    'self_calibrate': 'self-calibration running (open loop, then I_ref steps)',
+    'temperature': 'temperature calibration running: accelerated chamber cycle',
+}
+
+
+class ScheduleRun:
+    """
+    A self-estimation or calibration schedule driven by the sensor thread.
+
+    The schedule generator yields how many samples it needs; the sensor thread feeds
+    it the model output (as the samples become due, or as fast as the CPU allows when
+    ``fast``) and sends the concatenated block back. ``future`` gets the result.
+
+    :param kind: Schedule name.
+    :param generator: Schedule generator of :mod:`qfa_ros.calibration.estimation` or
+        :mod:`qfa_ros.calibration.temperature`.
+    :param fast: Run as fast as the CPU allows instead of at the node clock.
+    :raises EstimationError: The schedule refuses to start (e.g. no reference).
+    """
+
+    def __init__(self, kind, generator, fast):
+        self.kind = kind
+        self.generator = generator
+        self.fast = fast
+        self.future = Future()
+        self.parts = []
+        self.remaining = next(generator)
+
+    def feed(self, output):
+        """Hand over ``output``; return True once the schedule has finished."""
+        self.parts.append(output)
+        self.remaining -= len(output.stamps_ns)
+        if self.remaining > 0:
+            return False
+        block, self.parts = concatenate(self.parts), []
+        try:
+            self.remaining = self.generator.send(block)
+        except StopIteration as stop:
+            self.future.set_result(stop.value)
+            return True
+        except Exception as error:
+            # Whatever stopped the schedule, the waiting service call reports it.
+            self.future.set_exception(error)
+            return True
+        return False
+
+    def abort(self, reason='node shutting down'):
+        """Stop the schedule: its ``finally`` blocks re-close the loops."""
+        self.generator.close()
+        if not self.future.done():
+            self.future.set_exception(EstimationError(reason))
+
+
+class ScheduleService:
+    """
+    Run one schedule at a time for the Trigger services and answer them.
+
+    :param node: The node (clock, logger, name, ``is_calibrated`` publication).
+    :param lock: The node lock.
+    :param values: The node's live parameter values.
+    :param stream: :class:`~qfa_ros.ros.stream.SampleStream` that drives the schedule.
+    :param keeper: :class:`~qfa_ros.ros.calibration.CalibrationKeeper`.
+    """
+
+    def __init__(self, node, lock, values, stream, keeper):
+        self._node = node
+        self._lock = lock
+        self._values = values
+        self._stream = stream
+        self._keeper = keeper
+        # Read by the executor thread only (services, parameters, diagnostics).
+        self.busy_kind = None
+        self.last_results = {}
+        self.last_trace = None
+        self.last_error = None
+
+    def busy_answer(self):
+        """Return the reason a call must be refused now, or None."""
+        if self.busy_kind is not None:
+            return f'busy: {self.busy_kind} schedule running'
+        return None
+
+    async def run(self, response, kind, make_schedule, fast=None):
+        """Start a schedule, await its end, then persist, trace and answer ``response``."""
+        busy = self.busy_answer()
+        if busy:
+            response.success = False
+            response.message = busy
+            return response
+        # Busy from here until the answer: the state is saved and traced after the
+        # sensor thread has let go of the schedule.
+        self.busy_kind = kind
+        try:
+            return await self._run(response, kind, make_schedule, fast)
+        finally:
+            self.busy_kind = None
+
+    async def _run(self, response, kind, make_schedule, fast):
+        keeper = self._keeper
+        with self._lock:
+            before = keeper.state.to_dict()
+            try:
+                run = ScheduleRun(kind, make_schedule(forward_settings(self._values),
+                                                      feedback_settings(self._values)),
+                                  not self._values['estimation.realtime'] if fast is None
+                                  else fast)
+            except Exception as error:
+                # EstimationError and ValueError are the expected refusals; anything else
+                # must still answer the caller instead of leaving the call hanging.
+                return self._failed(response, kind, error, before)
+            self._stream.start_schedule(run, SCHEDULE_PAUSE[kind])
+        try:
+            result = await run.future
+        except Exception as error:
+            with self._lock:
+                return self._failed(response, kind, error, before)
+        results = result if isinstance(result, tuple) else (result,)
+        with self._lock:
+            if any(r.applied for r in results):
+                keeper.compensation = True
+            for r in results:
+                self.last_results[r.kind] = r.summary()
+            self.last_error = None
+        summary = '; '.join(r.summary() for r in results)
+        problems = []
+        node = self._node
+        try:
+            directory = Path(os.path.expanduser(self._values['trace_dir']))
+            directory.mkdir(parents=True, exist_ok=True)
+            self.last_trace = write_estimation_trace(
+                trace_path(directory, kind, node.get_clock().now().nanoseconds), kind, results,
+                source=node.get_fully_qualified_name())
+        except OSError as error:
+            problems.append(f'trace not written to {self._values["trace_dir"]} ({error})')
+        problem = keeper.save()
+        if problem:
+            problems.append(problem)
+        node.publish_calibrated()
+        if problems:
+            response.success = False
+            response.message = (f'{"; ".join(problems)}; estimate and correction kept in the '
+                                f'node and its diagnostics: {summary}')
+            self.last_error = response.message
+        else:
+            response.success = True
+            response.message = f'{summary}; trace {self.last_trace}'
+        node.get_logger().info(response.message)
+        return response
+
+    def _failed(self, response, kind, error, before):
+        """Answer a refused or failed schedule; keep and persist what it already applied."""
+        self._stream.end_schedule()
+        response.success = False
+        response.message = f'{kind} failed: {error}'
+        if self._keeper.state.to_dict() != before:
+            problem = self._keeper.save()
+            response.message += '; corrections applied before the failure are kept' + \
+                (f'; {problem}' if problem else '')
+        self.last_error = response.message
+        self._node.get_logger().warning(response.message)
+        return response
+
+    def status(self):
+        """Return ``(level, message, key values)`` for the ``calibration`` diagnostic."""
+        keeper = self._keeper
+        state = keeper.state
+        triad_axes = keeper.triad.axes
+        values = [('has reference', state.has_reference),
+                  ('compensation', 'on' if keeper.compensation else 'off'),
+                  ('state file', keeper.store.path or 'in memory only'),
+                  ('schedule running', self.busy_kind or 'none')]
+        values += [(f'k(D(z)) {a}', f'{loop.controller.gain:.9g}')
+                   for a, loop in zip(AXES, triad_axes)]
+        values += [(f'N_VREF {a}', loop.n_vref) for a, loop in zip(AXES, triad_axes)]
+        for kind, estimate in state.last_estimates.items():
+            values.append((f'last {kind} estimate [ppm]',
+                           ', '.join(f'{a} {e:+.2f}' for a, e in zip(AXES, estimate))))
+        values += [(f'last {kind}', summary) for kind, summary in self.last_results.items()]
+        if self.last_trace:
+            values.append(('last trace', self.last_trace))
+        if self.last_error:
+            values.append(('last error', self.last_error))
+        if keeper.problem:
+            values.append(('state file problem', keeper.problem))
+            return DiagnosticStatus.ERROR, keeper.problem, values
+        if not state.has_reference:
+            return DiagnosticStatus.WARN, 'uncalibrated: no reference captured', values
+        if not keeper.compensation:
+            return DiagnosticStatus.WARN, 'compensation bypassed: nominal words', values
+        if self.last_error:
+            return DiagnosticStatus.WARN, f'calibrated; {self.last_error}', values
+        return DiagnosticStatus.OK, 'calibrated', values

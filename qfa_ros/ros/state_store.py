@@ -1,0 +1,107 @@
+"""Persist the calibration state atomically; set a corrupt file aside instead of losing it."""
+
+from contextlib import suppress
+import datetime
+import json
+import os
+from pathlib import Path
+import tempfile
+
+from qfa_ros.bag.files import fsync_directory
+from qfa_ros.calibration.state import CalibrationState
+
+COMPENSATION_KEY = 'compensation_enabled'
+"""Extra key of the state file: whether the stored corrections are applied (node-level)."""
+
+
+class StateFileError(Exception):
+    """The state file exists but cannot be used; ``kept_as`` names where it was set aside."""
+
+    def __init__(self, message, kept_as=None):
+        super().__init__(message)
+        self.kept_as = kept_as
+
+
+class StateStore:
+    """
+    Load and save a :class:`CalibrationState` as JSON at ``path``.
+
+    Saving writes a temporary file in the same directory, fsyncs it, renames it over
+    the old file and fsyncs the directory, so the file is always either the old or the
+    new state, also across a power cut. A file that cannot be parsed is renamed to
+    ``<name>.corrupt-<UTC time>`` so that the next save never overwrites it silently.
+
+    :param path: State file; None or empty keeps the state in memory only.
+    """
+
+    def __init__(self, path):
+        self.path = Path(os.path.expanduser(path)) if path else None
+
+    def load(self):
+        """
+        Return ``(state, compensation_enabled)``; ``(None, True)`` when there is no file.
+
+        :raises StateFileError: The file is unreadable or corrupt (it is set aside when
+            it can be renamed).
+        """
+        if self.path is None or not self.path.exists():
+            return None, True
+        try:
+            text = self.path.read_text(encoding='utf-8')
+        except (OSError, UnicodeDecodeError) as error:
+            raise StateFileError(f'state file {self.path} unreadable: {error}',
+                                 self.set_aside()) from None
+        try:
+            data = json.loads(text)
+            state = CalibrationState.from_dict(data)
+            compensation = data.get(COMPENSATION_KEY, True)
+            if not isinstance(compensation, bool):
+                raise ValueError(f'{COMPENSATION_KEY} must be true or false')
+        except ValueError as error:
+            raise StateFileError(f'state file {self.path} corrupt: {error}',
+                                 self.set_aside()) from None
+        return state, compensation
+
+    def set_aside(self):
+        """Rename the state file to ``<name>.corrupt-<UTC time>``; return the new path or None."""
+        stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y%m%dT%H%M%S.%fZ')
+        target = self.path.with_name(f'{self.path.name}.corrupt-{stamp}')
+        try:
+            os.rename(self.path, target)
+        except OSError:
+            return None
+        # Best effort: the file is in place either way.
+        with suppress(OSError):
+            fsync_directory(self.path.parent)
+        return target
+
+    def save(self, state, compensation_enabled):
+        """
+        Write ``state`` atomically; return the path, or None without a state file.
+
+        :raises OSError: The directory is missing or not writable, or the disk is full.
+        """
+        if self.path is None:
+            return None
+        data = state.to_dict()
+        data[COMPENSATION_KEY] = bool(compensation_enabled)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        descriptor, temporary = tempfile.mkstemp(prefix=f'.{self.path.name}.',
+                                                 suffix='.tmp', dir=self.path.parent)
+        try:
+            with os.fdopen(descriptor, 'w', encoding='utf-8') as stream:
+                json.dump(data, stream, indent=2, sort_keys=True)
+                stream.write('\n')
+                stream.flush()
+                os.fsync(stream.fileno())
+            os.replace(temporary, self.path)
+        except BaseException:
+            try:
+                os.unlink(temporary)
+            except OSError:
+                pass
+            raise
+        # Best effort: the file is in place either way.
+        with suppress(OSError):
+            fsync_directory(self.path.parent)
+        return self.path
