@@ -86,6 +86,7 @@ def parse_case(text):
 def start_node(domain, directory, rate, tick_rate, recorder, depth):
     parameters = {'sample_rate_hz': rate, 'tick_rate_hz': tick_rate, 'qos.depth': depth,
                   'state_file': str(Path(directory) / 'state.json'),
+                  'output_dir': str(directory),
                   'trace_dir': str(Path(directory) / 'traces'),
                   'recorder.enabled': recorder,
                   'recorder.directory': str(Path(directory) / 'recordings')}

@@ -49,7 +49,7 @@ def setup(tmp_path_factory):
     node = NodeProcess(domain, directory, {
         'qos.depth': 1000, 'input.mode': 'topic', 'input.topic_type': 'accel',
         'input.timeout_s': 0.2, 'state_file': str(directory / 'state.json'),
-        'trace_dir': str(directory / 'traces')})
+        'output_dir': str(directory), 'trace_dir': str(directory / 'traces')})
     client = Client(domain)
     imu = ImuCollector(client)
     diagnostics = []

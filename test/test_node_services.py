@@ -36,7 +36,8 @@ def setup(tmp_path_factory):
     directory = tmp_path_factory.mktemp('services')
     domain = domain_id('services')
     parameters = {'qos.depth': 1000, 'state_file': str(directory / 'state.json'),
-                  'trace_dir': str(directory / 'traces'), **FAST}
+                  'output_dir': str(directory), 'trace_dir': str(directory / 'traces'),
+                  **FAST}
     node = NodeProcess(domain, directory, parameters)
     client = Client(domain)
     imu = ImuCollector(client)
@@ -232,7 +233,8 @@ def test_restart_restores_calibration_and_corrupt_state_is_set_aside(setup):
     restored_state.write_text(state.read_text())
     corrupt_state = directory / 'corrupt.json'
     corrupt_state.write_text('{"format": "qfa_ros.calibration/1", "references": [{')
-    common = {'qos.depth': 1000, 'trace_dir': str(directory / 'traces'), **FAST,
+    common = {'qos.depth': 1000, 'output_dir': str(directory),
+              'trace_dir': str(directory / 'traces'), **FAST,
               'drift.forward_ppm': FORWARD_PPM, 'drift.feedback_ppm': FEEDBACK_PPM}
     restored, restored_client = start_node(
         setup, 'restored', {**common, 'state_file': str(restored_state)})

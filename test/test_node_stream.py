@@ -31,7 +31,8 @@ def setup(tmp_path_factory):
     domain = domain_id('stream')
     node = NodeProcess(domain, directory, {
         'sample_rate_hz': RATE, 'qos.depth': 10000, 'model.bias_ug': list(BIAS_UG),
-        'state_file': str(directory / 'state.json'), 'trace_dir': str(directory / 'traces'),
+        'state_file': str(directory / 'state.json'), 'output_dir': str(directory),
+        'trace_dir': str(directory / 'traces'),
         'recorder.enabled': True, 'recorder.directory': str(directory / 'recordings'),
         'frame_id': 'qfa_imu'})
     client = Client(domain)

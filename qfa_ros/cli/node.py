@@ -1,31 +1,119 @@
 """``qfa-node`` (``ros2 run qfa_ros qfa_node``): run the emulated IMU until SIGINT/SIGTERM."""
 
+import os
+import re
 import signal
 import sys
+import warnings
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation
+from rclpy.logging import get_logger
 from rclpy.signals import SignalHandlerOptions
 
 from qfa_ros.ros.fastdds import use_shipped_fastdds_profile
 from qfa_ros.ros.node import QfaNode
 
+NODE_NAME = 'qfa_node'
+EXIT_MIDDLEWARE = 1
+"""Exit status when the middleware cannot start (DDS Security, arguments, ...)."""
+EXIT_PARAMETERS = 2
+"""Exit status of an invalid start configuration."""
+
+SECURITY_HINT = ('DDS Security (SROS2) needs a ROS 2 installation whose Fast DDS was built '
+                 'with security; the Kilted pip wheels are not')
+
+
+def require_security(environ=None):
+    """
+    Make ``ROS_SECURITY_ENABLE=true`` mean secured or not at all; call before ``rclpy.init``.
+
+    With security asked for, the ``Permissive`` strategy would start the node without
+    any security when the enclave is missing; the strategy is forced to ``Enforce``, so
+    that the node either runs secured or fails to start (then :func:`startup_failure`
+    says why in one line).
+
+    :returns: True when security is asked for.
+    """
+    environ = os.environ if environ is None else environ
+    if environ.get('ROS_SECURITY_ENABLE', '').strip().lower() != 'true':
+        return False
+    environ['ROS_SECURITY_STRATEGY'] = 'Enforce'
+    return True
+
+
+def one_line(error):
+    """Return an rcl error message as one line, without the C source locations."""
+    text = re.sub(r',? at /\S+:\d+', '', str(error))
+    return ' '.join(text.split())
+
+
+def startup_failure(stage, error, secured):
+    """
+    Report a start-up failure as one line (stderr via the ROS logger); return the status.
+
+    :param stage: What failed, e.g. ``'rclpy.init'``.
+    :param error: The exception.
+    :param secured: Whether ``ROS_SECURITY_ENABLE=true`` was asked for.
+    """
+    reason = one_line(error)
+    if secured:
+        status = EXIT_MIDDLEWARE
+        detail = ('error not set' in reason and 'check ROS_SECURITY_KEYSTORE and the '
+                  'enclave; ') or ''
+        line = (f'cannot start with ROS_SECURITY_ENABLE=true: {stage} failed ({reason}); '
+                f'{detail}{SECURITY_HINT}; the node never runs unsecured when security is '
+                f'asked for (ROS_SECURITY_STRATEGY Permissive is treated as Enforce)')
+    elif isinstance(error, ValueError):
+        status = EXIT_PARAMETERS
+        line = f'invalid parameters: {reason}'
+    else:
+        status = EXIT_MIDDLEWARE
+        line = f'cannot start: {stage} failed: {reason}'
+    try:
+        # The ROS logger writes to stderr and, once rcl logging is up, to the log file.
+        get_logger(NODE_NAME).fatal(line)
+    except Exception:
+        print(f'{NODE_NAME}: {line}', file=sys.stderr)
+    return status
+
+
+def start_node(args):
+    """
+    Initialise rclpy and create the node; return ``(node, None)`` or ``(None, status)``.
+
+    Every start-up error of the middleware (``RCLError`` from ``rclpy.init`` or the node
+    creation, DDS Security among them) and every invalid parameter ends here as one
+    line and a non-zero status, never a traceback.
+    """
+    secured = require_security()
+    try:
+        # Our own handlers (main) only set a flag: a signal never interrupts a write.
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except rclpy_implementation.RCLError as error:
+        return None, startup_failure('rclpy.init', error, secured)
+    try:
+        with warnings.catch_warnings():
+            # rclpy warns about the half-made rosout publisher of a node that failed.
+            warnings.simplefilter('ignore', RuntimeWarning)
+            return QfaNode(NODE_NAME), None
+    except (rclpy_implementation.RCLError, ValueError) as error:
+        status = startup_failure('creating the node', error, secured)
+        rclpy.try_shutdown()
+        return None, status
+
 
 def main(args=None):
     """Run the node until SIGINT or SIGTERM; return the exit status."""
     use_shipped_fastdds_profile()
-    # Our own handlers only set a flag, so that a signal never interrupts a state-file
-    # or recorder write half way: the spin loop below ends and the node closes cleanly.
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = []
     previous = {number: signal.signal(number, lambda signum, frame: stop.append(signum))
                 for number in (signal.SIGINT, signal.SIGTERM)}
     try:
-        try:
-            node = QfaNode()
-        except ValueError as error:
-            print(f'qfa_node: invalid parameters: {error}', file=sys.stderr)
-            return 2
+        node, status = start_node(args)
+        if node is None:
+            return status
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         try:

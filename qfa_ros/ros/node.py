@@ -39,6 +39,7 @@ from qfa_ros.ros.params import (
     FEEDBACK_COMPONENT,
     FORWARD_COMPONENT,
     input_profile,
+    output_directory,
     PARAMETERS,
     temperature_settings,
     THERMAL_RUNTIME_PARAMETERS,
@@ -60,8 +61,8 @@ class QfaNode(Node):
 
     Publishes ``imu/data_raw``, ``imu/temperature``, ``/diagnostics`` and
     ``~/is_calibrated``; serves ``~/capture_reference``, ``~/estimate_forward_gain``,
-    ``~/estimate_feedback_gain``, ``~/self_calibrate``, ``~/calibrate_temperature`` and
-    ``~/set_compensation``.
+    ``~/estimate_feedback_gain``, ``~/self_calibrate``, ``~/calibrate_temperature``,
+    ``~/set_compensation`` and ``~/cancel``.
 
     The node wires small collaborators: :class:`SampleStream` (the sensor thread that
     advances the model and publishes), :class:`ScheduleService` (schedules behind the
@@ -142,6 +143,7 @@ class QfaNode(Node):
             ('temperature', lambda: temperature_status(self._triad, self._keeper,
                                                        self._stream.last_temperature)),
             ('input', lambda: self._ground_truth.status(self.get_clock().now().nanoseconds)),
+            ('recorder', self._recording.status),
         ])
 
         # A schedule service awaits the schedule the sensor thread drives. In the default
@@ -154,7 +156,8 @@ class QfaNode(Node):
                 (Trigger, '~/estimate_feedback_gain', self.estimate_feedback_gain_callback),
                 (Trigger, '~/self_calibrate', self.self_calibrate_callback),
                 (Trigger, '~/calibrate_temperature', self.calibrate_temperature_callback),
-                (SetBool, '~/set_compensation', self.set_compensation_callback)):
+                (SetBool, '~/set_compensation', self.set_compensation_callback),
+                (Trigger, '~/cancel', self.cancel_callback)):
             self.create_service(srv_type, name, callback, callback_group=services)
         # Triggered by the sensor thread when a schedule ends, so that the executor wakes
         # and resumes the service coroutine awaiting it.
@@ -171,7 +174,8 @@ class QfaNode(Node):
             f'{values["sample_rate_hz"]:g} Hz on imu/data_raw (frame {values["frame_id"]}), '
             f'loop {values["loop_rate_hz"]:g} Hz, input {values["input.mode"]}, thermal '
             f'{values["thermal.ambient_profile"] if thermal else "off"}, '
-            f'calibration state {self._keeper.store.path or "in memory only"}')
+            f'calibration state {self._keeper.store.path or "in memory only"}, files only '
+            f'under {output_directory(values)}')
 
     # Parameters ------------------------------------------------------------------------
     def validate_parameters_callback(self, parameters):
@@ -298,6 +302,17 @@ class QfaNode(Node):
                 response.success = False
                 response.message += f'; {problem}'
             self.publish_calibrated()
+        return response
+
+    def cancel_callback(self, request, response):
+        """Abort the running schedule, restore the sensor and let the stream resume."""
+        with self._lock:
+            try:
+                response.success, response.message = self._schedules.cancel()
+            except Exception as error:
+                # Restoring a word the model refuses: say so instead of killing the call.
+                response.success, response.message = False, f'cancel failed: {error}'
+        self.get_logger().info(f'~/cancel: {response.message}')
         return response
 
     def schedule_done_callback(self):

@@ -1,36 +1,82 @@
-"""The flight recorder hook: what the node publishes, recorded as published."""
+"""The flight recorder hook: what the node publishes, recorded as published, within limits."""
 
-import os
-from pathlib import Path
+import shutil
+import time
 
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.serialization import serialize_message
 
 from qfa_ros.bag.files import RecorderError
 from qfa_ros.bag.flight_recorder import FlightRecorder
 from qfa_ros.model.triad import NS_PER_S
+from qfa_ros.ros.params import confined_directory
 
 RECORDER_PARAMETERS = frozenset({'recorder.enabled', 'recorder.directory', 'recorder.max_bytes',
                                  'recorder.max_duration_s'})
+
+FREE_SPACE_CHECK_S = 1.0
+"""Wall time between two free-space checks of a running recording [s]."""
+
+GUARD_BAND_BYTES = 16 << 20
+"""Margin above ``min_free_bytes`` at which writing stops [bytes]: more than the node
+writes between two checks (about 0.4 MB/s at 10 kHz), so the floor itself is never crossed."""
+
+MIB = float(1 << 20)
+
+
+class FreeSpaceGuard:
+    """
+    Say when writing under a directory would take its file system under a free-space floor.
+
+    :param floor_bytes: Free space to leave (``min_free_bytes``) [bytes].
+    :param usage: ``shutil.disk_usage`` or a stand-in with the same result (tests).
+    """
+
+    def __init__(self, floor_bytes, usage=shutil.disk_usage):
+        self.floor_bytes = int(floor_bytes)
+        self._usage = usage
+
+    def shortfall(self, directory):
+        """Return why nothing more may be written under ``directory``, or None."""
+        try:
+            free = self._usage(directory).free
+        except OSError as error:
+            return f'free space of {directory} unknown ({error})'
+        if free < self.floor_bytes + GUARD_BAND_BYTES:
+            return (f'only {free / MIB:.0f} MiB free on the file system of {directory}; '
+                    f'min_free_bytes keeps {self.floor_bytes / MIB:.0f} MiB free')
+        return None
 
 
 class StreamRecording:
     """
     Record the node's own output (``recorder.*`` parameters) into split MCAP files.
 
+    The recording goes to ``recorder.directory`` confined to ``output_dir``, split by
+    the (finite, positive) ``recorder.max_bytes`` and ``recorder.max_duration_s``. The
+    free space is checked when a recording or a file starts and every
+    :data:`FREE_SPACE_CHECK_S`; before it falls under ``min_free_bytes`` the recording
+    stops (the current file finished under its final name) with an ERROR diagnostic.
     A failed write stops the recording, never the stream; :attr:`problem` says why.
     The caller holds the node lock around every method.
 
     :param node: The node (its name prefixes the files; its logger reports).
     :param values: The node's live parameter values.
     :param qos: Offered QoS per recorded topic name.
+    :param guard: :class:`FreeSpaceGuard` (default: ``min_free_bytes`` of ``values``).
     """
 
-    def __init__(self, node, values, qos):
+    def __init__(self, node, values, qos, guard=None):
         self._node = node
         self._values = values
         self._qos = qos
+        self._guard = guard or FreeSpaceGuard(values['min_free_bytes'])
         self.recorder = None
+        self.directory = None
         self.problem = None
+        self.problem_level = DiagnosticStatus.OK
+        self._next_check = 0.0
+        self._checked_path = None
 
     @property
     def active(self):
@@ -42,26 +88,34 @@ class StreamRecording:
         """Return the file being written, or None between files."""
         return None if self.recorder is None else self.recorder.current_path
 
+    def _stop(self, problem, level):
+        self.problem, self.problem_level = problem, level
+        self._node.get_logger().error(problem)
+        self.close()
+
     def restart(self):
         """Close the current recording and open one with the present parameters."""
         self.close()
+        self.problem, self.problem_level = None, DiagnosticStatus.OK
         values = self._values
         if not values['recorder.enabled']:
             return
-        max_bytes = values['recorder.max_bytes'] or None
-        max_duration = values['recorder.max_duration_s']
-        directory = Path(os.path.expanduser(values['recorder.directory']))
         try:
+            directory = confined_directory(values, 'recorder.directory')
             directory.mkdir(parents=True, exist_ok=True)
+            shortfall = self._guard.shortfall(directory)
+            if shortfall:
+                self._stop(f'recorder not started: {shortfall}', DiagnosticStatus.ERROR)
+                return
             self.recorder = FlightRecorder(
-                directory,
-                prefix=self._node.get_name(), max_bytes=max_bytes,
-                max_duration_ns=int(max_duration * NS_PER_S) if max_duration else None,
+                directory, prefix=self._node.get_name(), max_bytes=values['recorder.max_bytes'],
+                max_duration_ns=int(values['recorder.max_duration_s'] * NS_PER_S),
                 qos=self._qos)
-            self.problem = None
+            self.directory = directory
+            self._next_check = time.monotonic() + FREE_SPACE_CHECK_S
+            self._checked_path = None
         except (OSError, ValueError) as error:
-            self.problem = f'recorder not started: {error}'
-            self._node.get_logger().error(self.problem)
+            self._stop(f'recorder not started: {error}', DiagnosticStatus.WARN)
 
     def close(self):
         """Finish the current file, if any; idempotent."""
@@ -71,18 +125,26 @@ class StreamRecording:
                 files = recorder.close()
             except (OSError, RecorderError) as error:
                 self.problem = f'recording not closed cleanly: {error}'
+                self.problem_level = DiagnosticStatus.WARN
                 return
             if files:
                 self._node.get_logger().info(f'recorded {", ".join(str(f) for f in files)}')
 
     def record(self, topic, msgtype, data, now_ns):
-        """Record serialized ``data``; on failure stop recording and say why."""
+        """Record serialized ``data``; on failure or low free space stop recording and say why."""
         try:
             self.recorder.record(topic, msgtype, data, now_ns)
         except (OSError, ValueError) as error:
-            self.problem = f'recording stopped: {error}'
-            self._node.get_logger().error(self.problem)
-            self.close()
+            self._stop(f'recording stopped: {error}', DiagnosticStatus.WARN)
+            return
+        path = self.recorder.current_path
+        now = time.monotonic()
+        if now >= self._next_check or path != self._checked_path:
+            # Each new file and every FREE_SPACE_CHECK_S: one statvfs call.
+            self._next_check, self._checked_path = now + FREE_SPACE_CHECK_S, path
+            shortfall = self._guard.shortfall(self.directory)
+            if shortfall:
+                self._stop(f'recording stopped: {shortfall}', DiagnosticStatus.ERROR)
 
     def publish(self, publisher, message, msgtype, now_ns=None):
         """Publish ``message`` and record the published bytes when recording."""
@@ -93,3 +155,20 @@ class StreamRecording:
         publisher.publish(data)
         self.record(publisher.topic_name, msgtype, data,
                     self._node.get_clock().now().nanoseconds if now_ns is None else now_ns)
+
+    def status(self):
+        """Return ``(level, message, key values)`` for the ``recorder`` diagnostic."""
+        values = self._values
+        items = [('enabled', values['recorder.enabled']),
+                 ('directory', self.directory or values['recorder.directory']),
+                 ('max bytes per file', values['recorder.max_bytes']),
+                 ('max duration per file [s]', values['recorder.max_duration_s']),
+                 ('min free bytes', self._guard.floor_bytes)]
+        if self.recorder is not None:
+            items.append(('file', self.current_path or 'between files'))
+        if self.problem:
+            items.append(('problem', self.problem))
+            return self.problem_level, self.problem, items
+        if self.recorder is not None:
+            return DiagnosticStatus.OK, 'recording', items
+        return DiagnosticStatus.OK, 'off', items

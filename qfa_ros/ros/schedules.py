@@ -4,10 +4,13 @@ Schedules behind the services: run on the sensor thread, awaited by the service 
 A service callback is a coroutine: it starts a :class:`ScheduleRun` on the sample
 stream, awaits its future (the executor serves everything else meanwhile), then writes
 the trace, persists the state and answers. Nothing here blocks the executor.
+
+Every schedule is bounded by the ranges of its parameters (``qfa_ros.ros.params``), so
+it ends even when its caller has gone; ``~/cancel`` ends it at once and puts the sensor
+back exactly as it was before the call.
 """
 
-import os
-from pathlib import Path
+import copy
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.task import Future
@@ -15,7 +18,8 @@ from rclpy.task import Future
 from qfa_ros.bag.traces import trace_path, write_estimation_trace
 from qfa_ros.calibration.schedule import EstimationError
 from qfa_ros.model.triad import AXES, concatenate
-from qfa_ros.ros.params import feedback_settings, forward_settings
+from qfa_ros.ros.params import confined_directory, feedback_settings, forward_settings
+from qfa_ros.ros.recording import FreeSpaceGuard
 
 SCHEDULE_PAUSE = {
     'reference': 'reference capture running (open loop, then I_ref steps)',
@@ -24,6 +28,43 @@ SCHEDULE_PAUSE = {
     'self_calibrate': 'self-calibration running (open loop, then I_ref steps)',
     'temperature': 'temperature calibration running: accelerated chamber cycle',
 }
+
+
+class ScheduleCancelledError(Exception):
+    """The running schedule was cancelled through ``~/cancel``; the sensor is restored."""
+
+
+class SensorSnapshot:
+    """
+    What a schedule may change, taken before it starts: loop words and calibration state.
+
+    :param keeper: :class:`~qfa_ros.ros.calibration.CalibrationKeeper`.
+    """
+
+    def __init__(self, keeper):
+        triad = keeper.triad
+        self._keeper = keeper
+        self.state = copy.deepcopy(keeper.state)
+        self.compensation = keeper.compensation
+        self.gains = [loop.controller.gain for loop in triad.axes]
+        self.n_vref = [loop.n_vref for loop in triad.axes]
+        self.n_fpga = [loop.n_fpga for loop in triad.axes]
+        self.temperature_compensation = triad.temperature_compensation
+        self.temperature_compensators = triad.temperature_compensators
+
+    def restore(self):
+        """Write the words, switches and state back (after the schedule's own clean-up)."""
+        keeper, triad = self._keeper, self._keeper.triad
+        for axis in range(len(AXES)):
+            triad.set_reference_current(axis, False)
+            triad.set_n_fpga(axis, self.n_fpga[axis])
+            triad.set_open_loop(axis, False)
+            triad.set_controller_gain(axis, self.gains[axis])
+            triad.set_n_vref(axis, self.n_vref[axis])
+        triad.temperature_compensators = self.temperature_compensators
+        triad.temperature_compensation = self.temperature_compensation
+        keeper.state = copy.deepcopy(self.state)
+        keeper.compensation = self.compensation
 
 
 class ScheduleRun:
@@ -67,11 +108,11 @@ class ScheduleRun:
             return True
         return False
 
-    def abort(self, reason='node shutting down'):
-        """Stop the schedule: its ``finally`` blocks re-close the loops."""
+    def abort(self, reason='node shutting down', error_type=EstimationError):
+        """Stop the schedule: its ``finally`` blocks re-close the loops and the ambient."""
         self.generator.close()
         if not self.future.done():
-            self.future.set_exception(EstimationError(reason))
+            self.future.set_exception(error_type(reason))
 
 
 class ScheduleService:
@@ -91,8 +132,10 @@ class ScheduleService:
         self._values = values
         self._stream = stream
         self._keeper = keeper
+        self._guard = FreeSpaceGuard(values['min_free_bytes'])
         # Read by the executor thread only (services, parameters, diagnostics).
         self.busy_kind = None
+        self._snapshot = None
         self.last_results = {}
         self.last_trace = None
         self.last_error = None
@@ -122,6 +165,7 @@ class ScheduleService:
         keeper = self._keeper
         with self._lock:
             before = keeper.state.to_dict()
+            self._snapshot = SensorSnapshot(keeper)
             try:
                 run = ScheduleRun(kind, make_schedule(forward_settings(self._values),
                                                       feedback_settings(self._values)),
@@ -134,6 +178,11 @@ class ScheduleService:
             self._stream.start_schedule(run, SCHEDULE_PAUSE[kind])
         try:
             result = await run.future
+        except ScheduleCancelledError as error:
+            # cancel() has restored the sensor; nothing was applied or saved.
+            response.success, response.message = False, str(error)
+            self._node.get_logger().warning(response.message)
+            return response
         except Exception as error:
             with self._lock:
                 return self._failed(response, kind, error, before)
@@ -148,12 +197,16 @@ class ScheduleService:
         problems = []
         node = self._node
         try:
-            directory = Path(os.path.expanduser(self._values['trace_dir']))
+            # Resolved again now: a symlink may have changed since the parameter was set.
+            directory = confined_directory(self._values, 'trace_dir')
             directory.mkdir(parents=True, exist_ok=True)
+            shortfall = self._guard.shortfall(directory)
+            if shortfall:
+                raise OSError(shortfall)
             self.last_trace = write_estimation_trace(
                 trace_path(directory, kind, node.get_clock().now().nanoseconds), kind, results,
                 source=node.get_fully_qualified_name())
-        except OSError as error:
+        except (OSError, ValueError) as error:
             problems.append(f'trace not written to {self._values["trace_dir"]} ({error})')
         problem = keeper.save()
         if problem:
@@ -169,6 +222,39 @@ class ScheduleService:
             response.message = f'{summary}; trace {self.last_trace}'
         node.get_logger().info(response.message)
         return response
+
+    def cancel(self):
+        """
+        Abort the running schedule and restore the sensor as it was before the call.
+
+        The schedule's own ``finally`` blocks re-close the loops, switch ``I_ref`` off and
+        restore the ambient; then the words, the temperature compensation and the
+        calibration state of the snapshot are written back, the stream resumes on its grid
+        and the pending call answers ``success: false``, ``... cancelled ...``. Call with
+        the node lock held.
+
+        :returns: ``(success, message)`` for the ``~/cancel`` answer.
+        """
+        stream = self._stream
+        run = stream.schedule
+        if run is None:
+            if self.busy_kind is not None:
+                return False, (f'{self.busy_kind} schedule has finished its sensor time and '
+                               'is being saved: too late to cancel')
+            return False, 'no schedule running'
+        run.abort(f'{run.kind} cancelled through ~/cancel: loops, loop words and calibration '
+                  'state restored as before the call; nothing saved', ScheduleCancelledError)
+        self._snapshot.restore()
+        if run.fast and stream.grid.start_ns is not None:
+            # As at the end of a fast schedule: the samples due meanwhile had no valid
+            # output; the stream goes on from the present instant of its grid.
+            due = stream.grid.due(self._node.get_clock().now().nanoseconds)
+            stream.withheld += max(0, due - stream.grid.next_index)
+            stream.grid.next_index = max(stream.grid.next_index, due)
+        stream.end_schedule()
+        if stream.on_schedule_end is not None:
+            stream.on_schedule_end()
+        return True, f'{run.kind} schedule cancelled; sensor restored, stream resuming'
 
     def _failed(self, response, kind, error, before):
         """Answer a refused or failed schedule; keep and persist what it already applied."""
