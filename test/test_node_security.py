@@ -1,0 +1,354 @@
+"""What a stray participant can try on the node, and what the node refuses or undoes."""
+
+import math
+import signal
+import subprocess
+import sys
+import time
+from types import SimpleNamespace
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from node_helpers import Client, domain_id, ImuCollector, node_environment, NodeProcess, ROOT
+import pytest
+from rclpy.logging import get_logger
+from rosbags.highlevel import AnyReader
+from std_srvs.srv import Trigger
+
+from qfa_ros.ros import recording as recording_module
+from qfa_ros.ros.params import (
+    CHAMBER_WORST_S,
+    check_all,
+    confined_directory,
+    MAX_SCHEDULE_LOOP_STEPS,
+    PARAMETERS,
+    SCHEDULE_WORST_S,
+)
+from qfa_ros.ros.recording import FreeSpaceGuard, GUARD_BAND_BYTES, StreamRecording
+
+NODE = '/qfa_node'
+STRING = b'\x00\x01\x00\x00\x02\x00\x00\x00'
+"""CDR of std_msgs/String: encapsulation, then the length of one character and NUL."""
+FORWARD_DRIFT_PPM = [500.0, -300.0, 200.0]
+# Short realtime schedules: a forward sweep of 5 x 0.32 s, then 8 chopped I_ref segments
+# of 1.05 s, so that a cancel lands in the middle of either part.
+SCHEDULES = {'estimation.forward.points': 4, 'estimation.forward.average_s': 0.3,
+             'estimation.forward.settle_s': 0.02, 'estimation.feedback.cycles': 2,
+             'estimation.feedback.order': 'chopped', 'estimation.feedback.average_s': 1.0,
+             'estimation.feedback.settle_s': 0.05}
+SERVICES = {'reference': 'capture_reference', 'forward': 'estimate_forward_gain',
+            'feedback': 'estimate_feedback_gain', 'self_calibrate': 'self_calibrate',
+            'temperature': 'calibrate_temperature'}
+
+
+def defaults(**changes):
+    values = {spec.name: spec.default for spec in PARAMETERS}
+    values.update(changes)
+    return values
+
+
+def statuses(diagnostics):
+    return {s.name.rsplit(': ', 1)[1]: s for s in diagnostics[-1].status}
+
+
+def key_values(status):
+    return {kv.key: kv.value for kv in status.values}
+
+
+@pytest.fixture(scope='module')
+def setup(tmp_path_factory):
+    directory = tmp_path_factory.mktemp('security')
+    output = directory / 'output'
+    domain = domain_id('security')
+    node = NodeProcess(domain, directory, {
+        'qos.depth': 1000, 'diagnostics_rate_hz': 10.0, 'output_dir': str(output),
+        'state_file': str(directory / 'state.json'), 'estimation.realtime': False,
+        **SCHEDULES})
+    client = Client(domain)
+    imu = ImuCollector(client)
+    diagnostics = []
+    client.subscribe(DiagnosticArray, '/diagnostics', diagnostics.append, depth=10)
+    client.spin_until(lambda: imu.samples and diagnostics, 60, 'the node')
+    yield SimpleNamespace(node=node, client=client, imu=imu, diagnostics=diagnostics,
+                          directory=directory, output=output)
+    client.close()
+    node.stop(signal.SIGKILL)
+
+
+def trigger(client, service):
+    return client.call(Trigger, f'{NODE}/{service}', Trigger.Request())
+
+
+@pytest.mark.parametrize('name, value', [
+    ('trace_dir', '/tmp/elsewhere'),
+    ('trace_dir', '../escape'),
+    ('trace_dir', 'a/../../escape'),
+    ('trace_dir', '~/traces'),
+    ('trace_dir', 'link/traces'),
+    ('recorder.directory', '/etc/qfa'),
+    ('recorder.directory', 'link'),
+    ('output_dir', '/'),
+    ('state_file', '/etc/passwd'),
+    ('min_free_bytes', 0),
+    ('recorder.max_bytes', 0),
+    ('recorder.max_bytes', -1),
+    ('recorder.max_bytes', 2 ** 62),
+    ('recorder.max_duration_s', 0.0),
+    ('recorder.max_duration_s', 1.0e9),
+    ('recorder.max_duration_s', math.inf),
+    ('estimation.forward.points', 1000),
+    ('estimation.forward.average_s', 600.0),
+    ('estimation.forward.settle_s', 60.0),
+    ('estimation.feedback.cycles', 10000),
+    ('estimation.feedback.average_s', 600.0),
+    ('estimation.feedback.settle_s', 60.0),
+    ('temperature_calibration.cycles', 100),
+    ('temperature_calibration.period_s', 1.0e6),
+])
+def test_attacks_are_refused_naming_the_parameter(setup, name, value):
+    client, imu = setup.client, setup.imu
+    outside = setup.directory / 'outside'
+    outside.mkdir(exist_ok=True)
+    link = setup.output / 'link'
+    if not link.is_symlink():
+        setup.output.mkdir(parents=True, exist_ok=True)
+        link.symlink_to(outside, target_is_directory=True)
+    imu.clear(time.time_ns())
+    result, = client.set_parameters({name: value})
+    assert not result.successful
+    assert name in result.reason, result.reason
+    # The stream went on meanwhile: fresh samples, never paused (a pause of a schedule
+    # lasts seconds; a busy machine may delay a few samples, not withhold them).
+    client.spin_until(lambda: len(imu.samples) >= 200, 20, 'samples after the attempt')
+    stamps = [s[0] for s in imu.samples]
+    assert max(b - a for a, b in zip(stamps, stamps[1:])) < 500_000_000
+    assert not any(outside.iterdir())
+
+
+def test_cancel_restores_the_sensor_for_every_schedule_kind(setup):
+    client, imu, diagnostics = setup.client, setup.imu, setup.diagnostics
+    response = trigger(client, 'cancel')
+    assert not response.success and response.message == 'no schedule running'
+    # A calibrated sensor with a state file, then a forward-gain drift the schedules see.
+    response = trigger(client, 'capture_reference')
+    assert response.success, response.message
+    state_file = setup.directory / 'state.json'
+    saved = state_file.read_bytes()
+    saved_mtime = state_file.stat().st_mtime_ns
+    results = client.set_parameters({'drift.forward_ppm': FORWARD_DRIFT_PPM,
+                                     'estimation.realtime': True,
+                                     'temperature_calibration.period_s': 7200.0,
+                                     'temperature_calibration.cycles': 2})
+    assert all(r.successful for r in results), [r.reason for r in results]
+    count = len(diagnostics)
+    client.spin_until(lambda: len(diagnostics) > count + 1, 10, 'diagnostics')
+    before = key_values(statuses(diagnostics)['calibration'])
+    assert before['has reference'] == 'True' and before['compensation'] == 'on'
+
+    for kind, service in SERVICES.items():
+        pending = client.call_async(Trigger, f'{NODE}/{service}', Trigger.Request())
+        if kind in ('reference', 'self_calibrate'):
+            # Into the feedback part: the forward part has captured or applied by now.
+            def in_feedback():
+                if not diagnostics:
+                    return False
+                status = statuses(diagnostics)
+                running = key_values(status['calibration'])['schedule running'] == kind
+                return running and key_values(status['stream'])['I_ref x'] == 'on'
+            client.spin_until(in_feedback, 30, f'{kind} in its feedback part')
+        while True:
+            assert not pending.done(), pending.result().message
+            response = trigger(client, 'cancel')
+            if response.success:
+                break
+            assert response.message == 'no schedule running', response.message
+            client.spin_for(0.05)
+        cancelled_ns = time.time_ns()
+        assert kind in response.message
+        client.spin_until(pending.done, 1.0, f'the cancelled {kind} call to answer')
+        answer = pending.result()
+        assert not answer.success and 'cancelled' in answer.message, answer.message
+        imu.clear(cancelled_ns)
+        client.spin_until(lambda: len(imu.samples) >= 100, 10, f'imu/data_raw after {kind}')
+        count = len(diagnostics)
+        client.spin_until(lambda: len(diagnostics) > count + 1, 10, 'fresh diagnostics')
+        status = statuses(diagnostics)
+        after = key_values(status['calibration'])
+        assert after['schedule running'] == 'none'
+        assert {k: v for k, v in after.items() if k != 'schedule running'} == \
+            {k: v for k, v in before.items() if k != 'schedule running'}, kind
+        stream = key_values(status['stream'])
+        assert [stream[f'loop {a}'] for a in 'xyz'] == ['closed'] * 3
+        assert [stream[f'I_ref {a}'] for a in 'xyz'] == ['off'] * 3
+        assert key_values(status['temperature'])['ambient profile'] == 'constant'
+        assert state_file.read_bytes() == saved
+        assert state_file.stat().st_mtime_ns == saved_mtime
+
+    # The references are those of the first capture, not the drifted ones the cancelled
+    # capture had measured: a forward estimate still sees the whole drift.
+    assert client.set_parameters({'estimation.realtime': False})[0].successful
+    response = trigger(client, 'estimate_forward_gain')
+    assert response.success, response.message
+    estimate = response.message.split('forward gain drift [ppm] ', 1)[1].split(';')[0]
+    values = [float(part.split()[1].split('±')[0]) for part in estimate.split(', ')]
+    assert values == pytest.approx(FORWARD_DRIFT_PPM, abs=5.0)
+
+
+def test_security_enabled_without_security_exits_with_one_line(tmp_path):
+    keystore = tmp_path / 'keystore'
+    enclave = keystore / 'enclaves' / 'qfa'
+    enclave.mkdir(parents=True)
+    for name in ('identity_ca.cert.pem', 'cert.pem', 'key.pem', 'permissions_ca.cert.pem',
+                 'governance.p7s', 'permissions.p7s'):
+        (enclave / name).write_text('not a certificate\n')
+    env = node_environment(domain_id('security_env'))
+    cases = {
+        'permissive, no enclave': ({'ROS_SECURITY_ENABLE': 'true',
+                                    'ROS_SECURITY_STRATEGY': 'Permissive',
+                                    'ROS_SECURITY_KEYSTORE': str(tmp_path / 'missing')}, []),
+        'enforce, enclave': ({'ROS_SECURITY_ENABLE': 'true', 'ROS_SECURITY_STRATEGY': 'Enforce',
+                              'ROS_SECURITY_KEYSTORE': str(keystore)}, ['--enclave', '/qfa']),
+        'missing parameters file': ({}, ['--params-file', str(tmp_path / 'missing.yaml')]),
+    }
+    processes = {
+        case: subprocess.Popen(
+            [sys.executable, '-m', 'qfa_ros.cli.node', '--ros-args', *args],
+            env={**env, **extra}, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            cwd=ROOT)
+        for case, (extra, args) in cases.items()}
+    for case, process in processes.items():
+        out, err = process.communicate(timeout=120)
+        assert process.returncode == 1, (case, out, err)
+        assert 'Traceback' not in out + err, (case, err)
+        lines = [line for line in err.splitlines() if '[qfa_node]' in line]
+        assert len(lines) == 1, (case, err)
+        line = lines[0]
+        if case == 'missing parameters file':
+            assert 'cannot start' in line and 'params file' in line, line
+        else:
+            assert 'ROS_SECURITY_ENABLE=true' in line and 'Fast DDS' in line, line
+            assert 'publishing' not in out + err and 'Hz on imu/data_raw' not in out + err
+
+
+def test_paths_are_confined_to_the_output_directory(tmp_path):
+    base = tmp_path / 'base'
+    (base / 'inside').mkdir(parents=True)
+    (base / 'escape').symlink_to(tmp_path, target_is_directory=True)
+    values = defaults(output_dir=str(base))
+    for value, expected in (('traces', base / 'traces'), (str(base / 'inside' / 'x'),
+                                                          base / 'inside' / 'x'),
+                            ('inside/../traces', base / 'traces'), ('.', base)):
+        values['trace_dir'] = value
+        assert confined_directory(values, 'trace_dir') == expected.resolve()
+        assert check_all(values) is None
+    for value in ('escape/traces', '..', str(tmp_path), '~/traces', ''):
+        values['trace_dir'] = value
+        with pytest.raises(ValueError, match='trace_dir'):
+            confined_directory(values, 'trace_dir')
+        assert 'trace_dir' in check_all(values)
+
+
+def test_schedule_bounds_hold_at_any_loop_rate():
+    # The worst case the ranges allow, stated in the descriptions and the README.
+    assert SCHEDULE_WORST_S == pytest.approx(911.6)
+    assert CHAMBER_WORST_S == 14400.0
+    assert MAX_SCHEDULE_LOOP_STEPS == CHAMBER_WORST_S * 10000.0
+    worst = defaults(**{'estimation.forward.points': 50, 'estimation.forward.settle_s': 0.5,
+                        'estimation.forward.average_s': 2.0,
+                        'estimation.forward.order': 'bidirectional',
+                        'estimation.feedback.cycles': 8, 'estimation.feedback.order': 'chopped',
+                        'estimation.feedback.settle_s': 0.5,
+                        'estimation.feedback.average_s': 20.0,
+                        'temperature_calibration.period_s': 7200.0,
+                        'temperature_calibration.cycles': 2})
+    assert check_all(worst) is None
+    # A faster loop costs more CPU per sensor second: the loop-step budget then refuses.
+    reason = check_all({**worst, 'loop_rate_hz': 100000.0})
+    assert 'temperature_calibration.period_s' in reason and 'loop steps' in reason
+    reason = check_all({**worst, 'loop_rate_hz': 1.0e6,
+                        'temperature_calibration.period_s': 60.0,
+                        'temperature_calibration.cycles': 1})
+    assert 'estimation.forward' in reason
+
+
+class FakeUsage:
+    """``shutil.disk_usage`` of a file system whose free space the test sets."""
+
+    def __init__(self, free):
+        self.free = free
+
+    def __call__(self, path):
+        return SimpleNamespace(total=1 << 40, used=0, free=self.free)
+
+
+class RecordingNode:
+    """What :class:`StreamRecording` uses of the node: name, logger, clock."""
+
+    def get_name(self):
+        return 'qfa_node'
+
+    def get_logger(self):
+        return get_logger('test_recording')
+
+    def get_clock(self):
+        return SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=time.time_ns()))
+
+
+def test_recorder_stops_before_the_free_space_floor(tmp_path, monkeypatch):
+    # Check at every message instead of every second.
+    monkeypatch.setattr(recording_module, 'FREE_SPACE_CHECK_S', 0.0)
+    floor = 1 << 30
+    usage = FakeUsage(floor + GUARD_BAND_BYTES + (1 << 20))
+    values = defaults(**{'output_dir': str(tmp_path), 'recorder.enabled': True,
+                         'min_free_bytes': floor})
+    recording = StreamRecording(RecordingNode(), values, {}, FreeSpaceGuard(floor, usage))
+    recording.restart()
+    assert recording.active
+    stamp = time.time_ns()
+    recording.record('/chatter', 'std_msgs/msg/String', STRING + b'a\x00',
+                     stamp)
+    assert recording.active
+    recording.record('/chatter', 'std_msgs/msg/String', STRING + b'b\x00',
+                     stamp + 1)
+    assert recording.active
+    path = recording.current_path
+    usage.free = floor + GUARD_BAND_BYTES - 1
+    recording.record('/chatter', 'std_msgs/msg/String', STRING + b'c\x00',
+                     stamp + 2)
+    assert not recording.active
+    level, message, _ = recording.status()
+    assert level == DiagnosticStatus.ERROR and 'min_free_bytes' in message
+    files = sorted((tmp_path / 'recordings').iterdir())
+    assert files == [path], 'a partial file or a file under another name'
+    with AnyReader([path]) as reader:
+        assert sum(c.msgcount for c in reader.connections) == 3
+    # Below the floor a recording does not even start.
+    recording.restart()
+    assert not recording.active and recording.status()[0] == DiagnosticStatus.ERROR
+
+
+def test_floor_refuses_traces_and_recording_on_a_running_node(tmp_path):
+    domain = domain_id('floor')
+    node = NodeProcess(domain, tmp_path, {
+        'output_dir': str(tmp_path / 'output'), 'state_file': '', 'recorder.enabled': True,
+        'min_free_bytes': 2 ** 50, 'estimation.realtime': False, 'diagnostics_rate_hz': 10.0,
+        **SCHEDULES})
+    client = Client(domain)
+    try:
+        imu = ImuCollector(client)
+        diagnostics = []
+        client.subscribe(DiagnosticArray, '/diagnostics', diagnostics.append, depth=10)
+        client.spin_until(lambda: imu.samples and diagnostics, 60, 'the node')
+        recorder = statuses(diagnostics)['recorder']
+        assert recorder.level == DiagnosticStatus.ERROR
+        assert 'recorder not started' in recorder.message
+        assert 'min_free_bytes' in recorder.message
+        response = trigger(client, 'capture_reference')
+        assert not response.success
+        assert 'trace not written' in response.message and 'min_free_bytes' in response.message
+        count = len(imu.samples)
+        client.spin_until(lambda: len(imu.samples) > count + 100, 10, 'the stream')
+        assert not (tmp_path / 'output' / 'traces').exists() or \
+            not any((tmp_path / 'output' / 'traces').iterdir())
+    finally:
+        client.close()
+        assert node.stop() == 0
