@@ -13,7 +13,6 @@ from rclpy.logging import get_logger
 from rclpy.signals import SignalHandlerOptions
 
 from qfa_ros.ros.fastdds import use_shipped_fastdds_profile
-from qfa_ros.ros.node import QfaNode
 
 NODE_NAME = 'qfa_node'
 EXIT_MIDDLEWARE = 1
@@ -93,6 +92,8 @@ def start_node(args):
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except rclpy_implementation.RCLError as error:
         return None, startup_failure('rclpy.init', error, secured)
+    # Imported only now: the model takes seconds to load, a middleware refusal does not.
+    from qfa_ros.ros.node import QfaNode
     try:
         with warnings.catch_warnings():
             # rclpy warns about the half-made rosout publisher of a node that failed.
