@@ -15,14 +15,13 @@ from rosbags.highlevel import AnyReader
 from std_srvs.srv import Trigger
 
 from qfa_ros.ros import recording as recording_module
-from qfa_ros.ros.params import (
+from qfa_ros.ros.bounds import (
     CHAMBER_WORST_S,
-    check_all,
     confined_directory,
     MAX_SCHEDULE_LOOP_STEPS,
-    PARAMETERS,
     SCHEDULE_WORST_S,
 )
+from qfa_ros.ros.params import check_all, PARAMETERS
 from qfa_ros.ros.recording import FreeSpaceGuard, GUARD_BAND_BYTES, StreamRecording
 
 NODE = '/qfa_node'

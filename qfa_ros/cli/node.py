@@ -78,20 +78,23 @@ def startup_failure(stage, error, secured):
     return status
 
 
-def start_node(args):
+def init_rclpy(args, secured):
     """
-    Initialise rclpy and create the node; return ``(node, None)`` or ``(None, status)``.
+    Initialise rclpy; return None, or the exit status after a one-line report.
 
-    Every start-up error of the middleware (``RCLError`` from ``rclpy.init`` or the node
-    creation, DDS Security among them) and every invalid parameter ends here as one
-    line and a non-zero status, never a traceback.
+    Every start-up error of the middleware (``RCLError``: arguments, parameters file,
+    DDS Security, ...) ends here or in :func:`create_node`, never in a traceback.
     """
-    secured = require_security()
     try:
         # Our own handlers (main) only set a flag: a signal never interrupts a write.
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except rclpy_implementation.RCLError as error:
-        return None, startup_failure('rclpy.init', error, secured)
+        return startup_failure('rclpy.init', error, secured)
+    return None
+
+
+def create_node(secured):
+    """Create the node; return ``(node, None)`` or ``(None, status)`` after a one-line report."""
     # Imported only now: the model takes seconds to load, a middleware refusal does not.
     from qfa_ros.ros.node import QfaNode
     try:
@@ -100,19 +103,22 @@ def start_node(args):
             warnings.simplefilter('ignore', RuntimeWarning)
             return QfaNode(NODE_NAME), None
     except (rclpy_implementation.RCLError, ValueError) as error:
-        status = startup_failure('creating the node', error, secured)
-        rclpy.try_shutdown()
-        return None, status
+        return None, startup_failure('creating the node', error, secured)
 
 
 def main(args=None):
     """Run the node until SIGINT or SIGTERM; return the exit status."""
     use_shipped_fastdds_profile()
+    secured = require_security()
+    status = init_rclpy(args, secured)
+    if status is not None:
+        return status
+    # After rclpy.init, which would put back the handlers it found.
     stop = []
     previous = {number: signal.signal(number, lambda signum, frame: stop.append(signum))
                 for number in (signal.SIGINT, signal.SIGTERM)}
     try:
-        node, status = start_node(args)
+        node, status = create_node(secured)
         if node is None:
             return status
         executor = SingleThreadedExecutor()

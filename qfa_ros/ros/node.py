@@ -29,6 +29,7 @@ from qfa_ros.calibration.estimation import (
 from qfa_ros.calibration.temperature import temperature_schedule
 from qfa_ros.model.noise import acceleration_variance
 from qfa_ros.model.triad import AXES, NS_PER_S, QfaTriad
+from qfa_ros.ros.bounds import output_directory
 from qfa_ros.ros.calibration import CalibrationKeeper
 from qfa_ros.ros.diagnostics import Diagnostics, DIAGNOSTICS_TYPE, temperature_status
 from qfa_ros.ros.ground_truth import GroundTruthInput
@@ -39,7 +40,6 @@ from qfa_ros.ros.params import (
     FEEDBACK_COMPONENT,
     FORWARD_COMPONENT,
     input_profile,
-    output_directory,
     PARAMETERS,
     temperature_settings,
     THERMAL_RUNTIME_PARAMETERS,

@@ -3,8 +3,6 @@
 from contextlib import contextmanager
 from dataclasses import dataclass
 import math
-import os
-from pathlib import Path
 import sys
 import textwrap
 
@@ -22,6 +20,20 @@ from qfa_ros.model.noise import MICRO_G, NoiseConfig
 from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import TriadConfig
+from qfa_ros.ros.bounds import (
+    budget_problem,
+    CHAMBER_BOUND,
+    CHAMBER_MAX_CYCLES,
+    CHAMBER_MAX_PERIOD_S,
+    confined_directory,
+    ESTIMATION_BOUND,
+    FEEDBACK_MAX_AVERAGE_S,
+    FEEDBACK_MAX_CYCLES,
+    FEEDBACK_MAX_SETTLE_S,
+    FORWARD_MAX_AVERAGE_S,
+    FORWARD_MAX_POINTS,
+    FORWARD_MAX_SETTLE_S,
+)
 
 INPUT_MODES = ('static', 'profile', 'topic')
 INPUT_PROFILES = ('sine', 'tumble', 'steps')
@@ -35,22 +47,6 @@ FORWARD_COMPONENT = 'k_amp'
 
 FEEDBACK_COMPONENT = 'k_vi'
 """Drift component behind ``drift.feedback_ppm``: the V/I sense resistor (seed 1 §IV)."""
-
-# Ranges of the schedule parameters. They bound what one service call can cost, whoever
-# makes it: the sensor time it takes (imu/data_raw is withheld meanwhile) and the model
-# loop steps it computes (its CPU time). SCHEDULE_WORST_S is the sensor time of the
-# longest call the ranges allow (capture_reference or self_calibrate: a bidirectional
-# forward sweep, then a chopped feedback schedule, each at its longest).
-FORWARD_MAX_POINTS = 50
-FORWARD_MAX_SETTLE_S = 0.5
-FORWARD_MAX_AVERAGE_S = 2.0
-FEEDBACK_MAX_CYCLES = 8
-FEEDBACK_MAX_SETTLE_S = 0.5
-FEEDBACK_MAX_AVERAGE_S = 20.0
-CHAMBER_MAX_PERIOD_S = 7200.0
-CHAMBER_MAX_CYCLES = 2
-MAX_SCHEDULE_LOOP_STEPS = 144_000_000
-"""Model loop steps one call may compute: 14400 s of sensor time at the default 10 kHz loop."""
 
 _NOISE = NoiseConfig()
 _FORWARD = ForwardSettings()
@@ -81,39 +77,6 @@ class ParameterSpec:
     high: float = None
     choices: tuple = None
     length: int = None
-
-
-def forward_sensor_time_s(settings, settle_time_s):
-    """Return the sensor time of one forward schedule [s] (sweep plus the loops' settling)."""
-    return len(settings.sequence()) * (settings.settle_s + settings.average_s) + settle_time_s
-
-
-def feedback_sensor_time_s(settings, settle_time_s):
-    """Return the sensor time of one feedback schedule [s] (segments plus the settling)."""
-    return (len(settings.sequence()) * (settings.settle_s + settings.average_s)
-            + settings.settle_s + settle_time_s)
-
-
-_SETTLE_TIME_S = TriadConfig.settle_time
-FORWARD_WORST_S = forward_sensor_time_s(
-    ForwardSettings(points=FORWARD_MAX_POINTS, settle_s=FORWARD_MAX_SETTLE_S,
-                    average_s=FORWARD_MAX_AVERAGE_S, order='bidirectional'), _SETTLE_TIME_S)
-FEEDBACK_WORST_S = feedback_sensor_time_s(
-    FeedbackSettings(cycles=FEEDBACK_MAX_CYCLES, settle_s=FEEDBACK_MAX_SETTLE_S,
-                     average_s=FEEDBACK_MAX_AVERAGE_S, order='chopped'), _SETTLE_TIME_S)
-SCHEDULE_WORST_S = FORWARD_WORST_S + FEEDBACK_WORST_S
-"""Longest sensor time of an estimation call the ranges allow [s]."""
-CHAMBER_WORST_S = CHAMBER_MAX_PERIOD_S * CHAMBER_MAX_CYCLES
-"""Longest sensor time of a calibrate_temperature call the ranges allow [s]."""
-
-_ESTIMATION_BOUND = (
-    f'; bounded: one call takes at most {SCHEDULE_WORST_S:.0f} s of sensor time '
-    f'(capture_reference, self_calibrate; forward alone {FORWARD_WORST_S:.0f} s, feedback '
-    f'alone {FEEDBACK_WORST_S:.0f} s) and at most {MAX_SCHEDULE_LOOP_STEPS:.3g} model loop '
-    'steps')
-_CHAMBER_BOUND = (
-    f'; bounded: one call takes at most {CHAMBER_WORST_S:.0f} s of sensor time and '
-    f'{MAX_SCHEDULE_LOOP_STEPS:.3g} model loop steps (cycles x period_s x loop_rate_hz)')
 
 
 def _vector(name, default, description, read_only=False):
@@ -221,26 +184,26 @@ PARAMETERS = (
                   'true: a schedule takes its sensor time at the node clock; false: as fast '
                   'as the CPU allows'),
     ParameterSpec('estimation.forward.points', _FORWARD.points,
-                  'Forward sweep steps n (N_FPGA + i dN0, i = 0..n)' + _ESTIMATION_BOUND,
+                  'Forward sweep steps n (N_FPGA + i dN0, i = 0..n)' + ESTIMATION_BOUND,
                   False, 2, FORWARD_MAX_POINTS),
     ParameterSpec('estimation.forward.step', _FORWARD.step,
                   'Forward sweep increment dN0 [count]', False, 1, 2 ** 14),
     ParameterSpec('estimation.forward.settle_s', _FORWARD.settle_s,
-                  'Discarded time per forward point [s]' + _ESTIMATION_BOUND, False,
+                  'Discarded time per forward point [s]' + ESTIMATION_BOUND, False,
                   0.0, FORWARD_MAX_SETTLE_S),
     ParameterSpec('estimation.forward.average_s', _FORWARD.average_s,
-                  'Averaged time per forward point [s]' + _ESTIMATION_BOUND, False,
+                  'Averaged time per forward point [s]' + ESTIMATION_BOUND, False,
                   1.0e-3, FORWARD_MAX_AVERAGE_S),
     ParameterSpec('estimation.forward.order', _FORWARD.order, 'Forward sweep order',
                   choices=FORWARD_ORDERS),
     ParameterSpec('estimation.feedback.cycles', _FEEDBACK.cycles,
                   'I_ref on/off cycles (chopped: off-on-on-off quadruples)'
-                  + _ESTIMATION_BOUND, False, 1, FEEDBACK_MAX_CYCLES),
+                  + ESTIMATION_BOUND, False, 1, FEEDBACK_MAX_CYCLES),
     ParameterSpec('estimation.feedback.settle_s', _FEEDBACK.settle_s,
-                  'Discarded time per I_ref segment [s]' + _ESTIMATION_BOUND, False,
+                  'Discarded time per I_ref segment [s]' + ESTIMATION_BOUND, False,
                   0.0, FEEDBACK_MAX_SETTLE_S),
     ParameterSpec('estimation.feedback.average_s', _FEEDBACK.average_s,
-                  'Averaged time per I_ref segment [s]' + _ESTIMATION_BOUND, False,
+                  'Averaged time per I_ref segment [s]' + ESTIMATION_BOUND, False,
                   1.0e-3, FEEDBACK_MAX_AVERAGE_S),
     ParameterSpec('estimation.feedback.order', _FEEDBACK.order, 'I_ref switching order',
                   choices=FEEDBACK_ORDERS),
@@ -258,10 +221,10 @@ PARAMETERS = (
                   -60.0, 125.0),
     ParameterSpec('temperature_calibration.period_s', _CHAMBER.period_s,
                   'Chamber cycle period of calibrate_temperature in sensor time [s] (always '
-                  'run as fast as the CPU allows)' + _CHAMBER_BOUND, False,
+                  'run as fast as the CPU allows)' + CHAMBER_BOUND, False,
                   60.0, CHAMBER_MAX_PERIOD_S),
     ParameterSpec('temperature_calibration.cycles', _CHAMBER.cycles,
-                  'Chamber cycles of calibrate_temperature' + _CHAMBER_BOUND, False,
+                  'Chamber cycles of calibrate_temperature' + CHAMBER_BOUND, False,
                   1, CHAMBER_MAX_CYCLES),
     ParameterSpec('temperature_calibration.m_bits', _CHAMBER.m_bits,
                   'Fraction bits M of the fixed-point CORDIC compensator (seed 2: 16)', False,
@@ -426,59 +389,6 @@ def feedback_settings(values):
             reference_tc_ppm=values['estimation.feedback.reference_tc_ppm'])
 
 
-def output_directory(values):
-    """Return the resolved ``output_dir``: ``~`` expanded, symlinks and ``..`` resolved."""
-    return Path(os.path.expanduser(values['output_dir'])).resolve()
-
-
-def confined_directory(values, name):
-    """
-    Return the resolved directory of parameter ``name``, confined to ``output_dir``.
-
-    A relative value is taken under ``output_dir``; an absolute one must resolve inside
-    it. Symlinks and ``..`` are resolved (as far as the path exists) before the
-    comparison, so neither leads out. ``~`` is not expanded: a value starting with it
-    is refused rather than taken literally. Resolve again right before writing: a
-    symlink may have been swapped since the parameter was checked.
-
-    :raises ValueError: The directory would lie outside ``output_dir``; the message
-        names the parameter.
-    """
-    value = values[name]
-    if not value:
-        raise ValueError(f'{name} must not be empty')
-    if value.startswith('~'):
-        raise ValueError(f'{name} {value!r}: ~ is not expanded; give a path relative to '
-                         f'output_dir or an absolute path inside it')
-    base = output_directory(values)
-    directory = (base / value).resolve()
-    if directory != base and base not in directory.parents:
-        raise ValueError(f'{name} {value!r} resolves to {directory}, outside output_dir '
-                         f'{base}: the node writes only under output_dir (read-only, chosen '
-                         f'at start)')
-    return directory
-
-
-def check_budget(values):
-    """Return why one schedule call of ``values`` would compute too many loop steps, or None."""
-    loop_rate = values['loop_rate_hz']
-    estimation = (forward_sensor_time_s(forward_settings(values), _SETTLE_TIME_S)
-                  + feedback_sensor_time_s(feedback_settings(values), _SETTLE_TIME_S))
-    if estimation * loop_rate > MAX_SCHEDULE_LOOP_STEPS:
-        return (f'estimation.forward.* / estimation.feedback.*: one capture_reference would '
-                f'take {estimation:.0f} s of sensor time, {estimation * loop_rate:.3g} loop '
-                f'steps at loop_rate_hz {loop_rate:g}; at most '
-                f'{MAX_SCHEDULE_LOOP_STEPS:.3g} are allowed')
-    chamber = values['temperature_calibration.period_s'] * \
-        values['temperature_calibration.cycles']
-    if chamber * loop_rate > MAX_SCHEDULE_LOOP_STEPS:
-        return (f'temperature_calibration.period_s x temperature_calibration.cycles: one '
-                f'calibrate_temperature would take {chamber:.0f} s of sensor time, '
-                f'{chamber * loop_rate:.3g} loop steps at loop_rate_hz {loop_rate:g}; at most '
-                f'{MAX_SCHEDULE_LOOP_STEPS:.3g} are allowed')
-    return None
-
-
 def static_profile(values):
     """Return the static orientation of ``input.roll`` / ``input.pitch``."""
     return StaticProfile.orientation(values['input.roll'], values['input.pitch'])
@@ -524,7 +434,8 @@ def check_all(values):
     except (ValueError, OSError) as error:
         # OSError: a symlink loop or an unreadable component while resolving a directory.
         return str(error)
-    return check_budget(values)
+    return budget_problem(values['loop_rate_hz'], forward_settings(values),
+                          feedback_settings(values), temperature_settings(values))
 
 
 def _yaml_value(value):

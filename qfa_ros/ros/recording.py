@@ -9,7 +9,7 @@ from rclpy.serialization import serialize_message
 from qfa_ros.bag.files import RecorderError
 from qfa_ros.bag.flight_recorder import FlightRecorder
 from qfa_ros.model.triad import NS_PER_S
-from qfa_ros.ros.params import confined_directory
+from qfa_ros.ros.bounds import confined_directory
 
 RECORDER_PARAMETERS = frozenset({'recorder.enabled', 'recorder.directory', 'recorder.max_bytes',
                                  'recorder.max_duration_s'})

@@ -18,7 +18,8 @@ from rclpy.task import Future
 from qfa_ros.bag.traces import trace_path, write_estimation_trace
 from qfa_ros.calibration.schedule import EstimationError
 from qfa_ros.model.triad import AXES, concatenate
-from qfa_ros.ros.params import confined_directory, feedback_settings, forward_settings
+from qfa_ros.ros.bounds import confined_directory
+from qfa_ros.ros.params import feedback_settings, forward_settings
 from qfa_ros.ros.recording import FreeSpaceGuard
 
 SCHEDULE_PAUSE = {
