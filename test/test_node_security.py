@@ -147,6 +147,7 @@ def test_cancel_restores_the_sensor_for_every_schedule_kind(setup):
     count = len(diagnostics)
     client.spin_until(lambda: len(diagnostics) > count + 1, 10, 'diagnostics')
     before = key_values(statuses(diagnostics)['calibration'])
+    compensating = key_values(statuses(diagnostics)['temperature'])['temperature compensation']
     assert before['has reference'] == 'True' and before['compensation'] == 'on'
 
     for kind, service in SERVICES.items():
@@ -184,7 +185,9 @@ def test_cancel_restores_the_sensor_for_every_schedule_kind(setup):
         stream = key_values(status['stream'])
         assert [stream[f'loop {a}'] for a in 'xyz'] == ['closed'] * 3
         assert [stream[f'I_ref {a}'] for a in 'xyz'] == ['off'] * 3
-        assert key_values(status['temperature'])['ambient profile'] == 'constant'
+        temperature = key_values(status['temperature'])
+        assert temperature['ambient profile'] == 'constant'
+        assert temperature['temperature compensation'] == compensating
         assert state_file.read_bytes() == saved
         assert state_file.stat().st_mtime_ns == saved_mtime
 
@@ -212,6 +215,7 @@ def test_security_enabled_without_security_exits_with_one_line(tmp_path):
                                     'ROS_SECURITY_KEYSTORE': str(tmp_path / 'missing')}, []),
         'enforce, enclave': ({'ROS_SECURITY_ENABLE': 'true', 'ROS_SECURITY_STRATEGY': 'Enforce',
                               'ROS_SECURITY_KEYSTORE': str(keystore)}, ['--enclave', '/qfa']),
+        'security spelled True': ({'ROS_SECURITY_ENABLE': 'True'}, []),
         'missing parameters file': ({}, ['--params-file', str(tmp_path / 'missing.yaml')]),
     }
     processes = {
@@ -230,7 +234,7 @@ def test_security_enabled_without_security_exits_with_one_line(tmp_path):
         if case == 'missing parameters file':
             assert 'cannot start' in line and 'params file' in line, line
         else:
-            assert 'ROS_SECURITY_ENABLE=true' in line and 'Fast DDS' in line, line
+            assert 'ROS_SECURITY_ENABLE' in line and 'Fast DDS' in line, line
             assert 'publishing' not in out + err and 'Hz on imu/data_raw' not in out + err
 
 

@@ -31,15 +31,21 @@ def require_security(environ=None):
     With security asked for, the ``Permissive`` strategy would start the node without
     any security when the enclave is missing; the strategy is forced to ``Enforce``, so
     that the node either runs secured or fails to start (then :func:`startup_failure`
-    says why in one line).
+    says why in one line). rcl enables security only for exactly ``true``: another
+    spelling of yes (``True``, ``1``) would start the node open, so it is refused.
 
-    :returns: True when security is asked for.
+    :returns: ``(secured, problem)``: whether security is asked for, and why the node
+        must not start (or None).
     """
     environ = os.environ if environ is None else environ
-    if environ.get('ROS_SECURITY_ENABLE', '').strip().lower() != 'true':
-        return False
+    value = environ.get('ROS_SECURITY_ENABLE', '')
+    if value.strip().lower() in ('true', '1', 'yes', 'on') and value != 'true':
+        return True, (f'ROS_SECURITY_ENABLE={value!r}: rcl enables DDS Security only for '
+                      f'exactly true and would start this node unsecured')
+    if value != 'true':
+        return False, None
     environ['ROS_SECURITY_STRATEGY'] = 'Enforce'
-    return True
+    return True, None
 
 
 def one_line(error):
@@ -53,20 +59,21 @@ def startup_failure(stage, error, secured):
     Report a start-up failure as one line (stderr via the ROS logger); return the status.
 
     :param stage: What failed, e.g. ``'rclpy.init'``.
-    :param error: The exception.
-    :param secured: Whether ``ROS_SECURITY_ENABLE=true`` was asked for.
+    :param error: The exception, or a message.
+    :param secured: Whether DDS Security was asked for (``ROS_SECURITY_ENABLE``).
     """
     reason = one_line(error)
-    if secured:
+    if isinstance(error, ValueError):
+        status = EXIT_PARAMETERS
+        line = f'invalid parameters: {reason}'
+    elif secured:
         status = EXIT_MIDDLEWARE
         detail = ('error not set' in reason and 'check ROS_SECURITY_KEYSTORE and the '
                   'enclave; ') or ''
-        line = (f'cannot start with ROS_SECURITY_ENABLE=true: {stage} failed ({reason}); '
-                f'{detail}{SECURITY_HINT}; the node never runs unsecured when security is '
-                f'asked for (ROS_SECURITY_STRATEGY Permissive is treated as Enforce)')
-    elif isinstance(error, ValueError):
-        status = EXIT_PARAMETERS
-        line = f'invalid parameters: {reason}'
+        line = (f'cannot start with DDS Security asked for (ROS_SECURITY_ENABLE): {stage} '
+                f'failed ({reason}); {detail}{SECURITY_HINT}; the node never runs unsecured '
+                f'when security is asked for (ROS_SECURITY_STRATEGY Permissive is treated as '
+                f'Enforce)')
     else:
         status = EXIT_MIDDLEWARE
         line = f'cannot start: {stage} failed: {reason}'
@@ -109,7 +116,9 @@ def create_node(secured):
 def main(args=None):
     """Run the node until SIGINT or SIGTERM; return the exit status."""
     use_shipped_fastdds_profile()
-    secured = require_security()
+    secured, problem = require_security()
+    if problem:
+        return startup_failure('checking the environment', problem, secured)
     status = init_rclpy(args, secured)
     if status is not None:
         return status

@@ -5,7 +5,7 @@ A service callback is a coroutine: it starts a :class:`ScheduleRun` on the sampl
 stream, awaits its future (the executor serves everything else meanwhile), then writes
 the trace, persists the state and answers. Nothing here blocks the executor.
 
-Every schedule is bounded by the ranges of its parameters (``qfa_ros.ros.params``), so
+Every schedule is bounded by the ranges of its parameters (``qfa_ros.ros.bounds``), so
 it ends even when its caller has gone; ``~/cancel`` ends it at once and puts the sensor
 back exactly as it was before the call.
 """
