@@ -324,15 +324,16 @@ def test_recorder_stops_before_the_free_space_floor(tmp_path, monkeypatch):
     recording.record('/chatter', 'std_msgs/msg/String', STRING + b'c\x00',
                      stamp + 2)
     assert not recording.active
-    level, message, _ = recording.status()
-    assert level == DiagnosticStatus.ERROR and 'min_free_bytes' in message
+    assert recording.problem_level == DiagnosticStatus.ERROR
+    assert 'recording stopped' in recording.problem and 'min_free_bytes' in recording.problem
     files = sorted((tmp_path / 'recordings').iterdir())
     assert files == [path], 'a partial file or a file under another name'
     with AnyReader([path]) as reader:
         assert sum(c.msgcount for c in reader.connections) == 3
     # Below the floor a recording does not even start.
     recording.restart()
-    assert not recording.active and recording.status()[0] == DiagnosticStatus.ERROR
+    assert not recording.active and recording.problem_level == DiagnosticStatus.ERROR
+    assert 'recorder not started' in recording.problem
 
 
 def test_floor_refuses_traces_and_recording_on_a_running_node(tmp_path):
@@ -347,10 +348,10 @@ def test_floor_refuses_traces_and_recording_on_a_running_node(tmp_path):
         diagnostics = []
         client.subscribe(DiagnosticArray, '/diagnostics', diagnostics.append, depth=10)
         client.spin_until(lambda: imu.samples and diagnostics, 60, 'the node')
-        recorder = statuses(diagnostics)['recorder']
-        assert recorder.level == DiagnosticStatus.ERROR
-        assert 'recorder not started' in recorder.message
-        assert 'min_free_bytes' in recorder.message
+        stream = statuses(diagnostics)['stream']
+        assert stream.level == DiagnosticStatus.ERROR
+        assert 'recorder not started' in stream.message
+        assert 'min_free_bytes' in stream.message
         response = trigger(client, 'capture_reference')
         assert not response.success
         assert 'trace not written' in response.message and 'min_free_bytes' in response.message

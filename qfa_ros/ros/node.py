@@ -143,7 +143,6 @@ class QfaNode(Node):
             ('temperature', lambda: temperature_status(self._triad, self._keeper,
                                                        self._stream.last_temperature)),
             ('input', lambda: self._ground_truth.status(self.get_clock().now().nanoseconds)),
-            ('recorder', self._recording.status),
         ])
 
         # A schedule service awaits the schedule the sensor thread drives. In the default

@@ -472,7 +472,8 @@ def parameter_table():
             kind = 'double[3]' if spec.length == 3 else 'double[]'
         limits = ''
         if spec.low is not None:
-            limits = f'{spec.low:g} … {spec.high:g}'
+            limits = f'{spec.low} … {spec.high}' if isinstance(spec.default, int) \
+                else f'{spec.low:g} … {spec.high:g}'
         elif spec.choices:
             limits = ' \\| '.join(spec.choices)
         runtime = 'read-only' if spec.read_only else 'yes'

@@ -74,6 +74,8 @@ class StreamRecording:
         self.recorder = None
         self.directory = None
         self.problem = None
+        # Level of the stream diagnostic while there is a problem: WARN for a write
+        # error, ERROR when the recording stopped for lack of free space.
         self.problem_level = DiagnosticStatus.OK
         self._next_check = 0.0
         self._checked_path = None
@@ -155,20 +157,3 @@ class StreamRecording:
         publisher.publish(data)
         self.record(publisher.topic_name, msgtype, data,
                     self._node.get_clock().now().nanoseconds if now_ns is None else now_ns)
-
-    def status(self):
-        """Return ``(level, message, key values)`` for the ``recorder`` diagnostic."""
-        values = self._values
-        items = [('enabled', values['recorder.enabled']),
-                 ('directory', self.directory or values['recorder.directory']),
-                 ('max bytes per file', values['recorder.max_bytes']),
-                 ('max duration per file [s]', values['recorder.max_duration_s']),
-                 ('min free bytes', self._guard.floor_bytes)]
-        if self.recorder is not None:
-            items.append(('file', self.current_path or 'between files'))
-        if self.problem:
-            items.append(('problem', self.problem))
-            return self.problem_level, self.problem, items
-        if self.recorder is not None:
-            return DiagnosticStatus.OK, 'recording', items
-        return DiagnosticStatus.OK, 'off', items

@@ -281,7 +281,8 @@ class SampleStream:
         elif self.saturated.any():
             level, message = DiagnosticStatus.WARN, 'publishing; output saturated at times'
         if recording.problem:
-            level = DiagnosticStatus.WARN
+            # WARN for a write error; ERROR when it stopped for lack of free space.
+            level = max(level, recording.problem_level)
             message += f'; {recording.problem}'
         if self.sensor_error:
             level = DiagnosticStatus.ERROR
