@@ -13,7 +13,7 @@ from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.cli.sim import static_sensor
 from qfa_ros.model import axis as axis_module
 from qfa_ros.model import kernel
-from qfa_ros.model.allan import allan_deviation
+from qfa_ros.model.allan import allan_deviation, allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop, pendulum_matrices
 from qfa_ros.model.drift import SECONDS_PER_YEAR
 from qfa_ros.model.hardware import (
@@ -355,6 +355,10 @@ def test_allan_deviation_follows_allantools():
                                                     taus=np.asarray(chosen))
         assert_allclose(taus, ref_taus, rtol=1e-12)
         assert_allclose(adev, ref_adev, rtol=1e-9)
+        # A phase accumulated around another constant (chunk by chunk, as qfa-sim does).
+        phase = np.concatenate(([0.0], np.cumsum(y - y[0])))
+        taus, adev = allan_deviation(y, 1e-3)
+        assert_allclose(allan_deviation_of_phase(phase, 1e-3)[1], adev, rtol=1e-9)
 
 
 def test_qfa_sim_static_simulates_the_node_default_sensor():

@@ -5,13 +5,14 @@ Runs without ROS or DDS, as fast as it can.
 
 import argparse
 import contextlib
+import functools
 import sys
 import time
 
 import numpy as np
 from tqdm import tqdm
 
-from qfa_ros.model.allan import allan_deviation
+from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.parallel import run_chains
@@ -19,7 +20,7 @@ from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 
-STATIC_CHUNK_SECONDS = 10.0
+STATIC_CHUNK_SECONDS = 30.0
 """Sensor time per :meth:`QfaTriad.run` call of the static scenario [s]."""
 
 
@@ -53,7 +54,11 @@ def run_static(args, out=None):
     rate = int(round(config.sample_rate_hz))
     chunk = int(round(STATIC_CHUNK_SECONDS * config.sample_rate_hz))
     total = int(round(args.duration * config.sample_rate_hz))
-    accel = np.empty((len(AXES), total))  # one row per axis for the Allan deviation
+    # Per axis, the phase of (accel - reference) for the Allan deviation (one row, the
+    # only array of the run's length) and the sums of its first two powers.
+    phase = np.zeros((len(AXES), total + 1))
+    reference = None
+    sums = np.zeros((2, len(AXES)))
     truth = np.zeros(len(AXES))
     saturated = np.zeros(len(AXES), dtype=np.int64)
     temperature = 0.0
@@ -66,7 +71,12 @@ def run_static(args, out=None):
         while done < total:
             part = triad.run(min(chunk, total - done))
             n = len(part.stamps_ns)
-            accel[:, done:done + n] = part.accel.T
+            if reference is None:
+                reference = part.accel.mean(axis=0)
+            centered = part.accel - reference
+            sums += (centered.sum(axis=0), (centered * centered).sum(axis=0))
+            np.cumsum(centered.T, axis=1, out=phase[:, done + 1:done + n + 1])
+            phase[:, done + 1:done + n + 1] += phase[:, done:done + 1]
             truth += part.truth.sum(axis=0)
             saturated += part.saturated.sum(axis=0)
             temperature += part.temperature.sum()
@@ -78,8 +88,12 @@ def run_static(args, out=None):
                 bag.write_temperature(part.stamps_ns[marks], part.temperature[marks])
             done += n
             progress.update(n / config.sample_rate_hz)
-    print_summary(triad, accel, truth / max(total, 1), saturated, temperature / max(total, 1),
-                  out)
+    count = max(total, 1)
+    mean = sums[0] / count
+    std = np.sqrt(np.maximum(sums[1] / count - mean ** 2, 0.0))
+    offset = np.zeros(len(AXES)) if reference is None else reference
+    print_summary(triad, phase, offset + mean, std, truth / count, saturated,
+                  temperature / count, out)
     return 0
 
 
@@ -93,41 +107,44 @@ def run_paper_2019(args, out=None):
     return 0
 
 
-def axis_statistics(series, sample_period):
+def allan_summary(phase, sample_period):
     """
-    Return (mean, std, ADEV at 1 s, minimum ADEV, its tau [s]) of one axis's series.
+    Return (ADEV at 1 s, minimum ADEV, its tau [s]) from one axis's phase.
 
-    The Allan deviation is computed once, at octave-spaced tau plus tau = 1 s (NaN where
-    the series is too short), on the published (decimated) stream.
+    Computed once, at octave-spaced tau plus tau = 1 s (NaN where the series is too
+    short), on the published (decimated) stream; see
+    :func:`qfa_ros.model.allan.allan_deviation_of_phase`.
     """
-    mean, std = series.mean(), series.std()
-    taus, adev = allan_deviation(series, sample_period)
-    _, at_one = allan_deviation(series, sample_period, taus=[1.0])
+    if len(phase) < 4:
+        return float('nan'), float('nan'), float('nan')
+    taus, adev = allan_deviation_of_phase(phase, sample_period)
+    _, at_one = allan_deviation_of_phase(phase, sample_period, taus=[1.0])
     at_one = at_one[0] if len(at_one) else float('nan')
-    if not len(adev):
-        return mean, std, at_one, float('nan'), float('nan')
     k = int(np.argmin(adev))
-    return mean, std, at_one, adev[k], taus[k]
+    return at_one, adev[k], taus[k]
 
 
-def print_summary(triad, accel, truth, saturated, temperature, out):
+def print_summary(triad, phase, mean, std, truth, saturated, temperature, out):
     """
     Print per-axis mean, error vs truth, std, Allan deviation and saturation counts.
 
-    ``accel`` is (3, n) [m/s^2]; ``truth`` the mean true specific force per axis; the
-    thermal zero bias at the mean body ``temperature`` [degC] is printed beside the
-    error it explains.
+    ``phase`` is (3, n + 1), the running sum of each axis's output minus a constant
+    [m/s^2 per sample]; ``mean``, ``std``, ``truth`` (the mean true specific force)
+    per axis [m/s^2]; the thermal zero bias at the mean body ``temperature`` [degC] is
+    printed beside the error it explains.
     """
     config = triad.config
     loop = triad.axes[0]
     crossover, phase_margin, gain_margin, bandwidth = LinearLoop(
         config.hardware, loop.controller, config.loop_rate_hz).margins()
-    duration = accel.shape[1] / config.sample_rate_hz
+    duration = (phase.shape[1] - 1) / config.sample_rate_hz
     stats = [None] * len(AXES)
-    if accel.shape[1] >= 3:
-        def job(i):
-            stats[i] = axis_statistics(accel[i], triad.sample_period)
-        run_chains([[lambda i=i: job(i)] for i in range(len(AXES))], triad.workers)
+
+    def job(i):
+        stats[i] = allan_summary(phase[i], triad.sample_period)
+
+    # The axes' passes release the GIL: they share the cores like the simulation.
+    run_chains([[functools.partial(job, i)] for i in range(len(AXES))], triad.workers)
     if triad.thermal is not None:
         zero_bias = triad.thermal.zero_bias(temperature) / MICRO_G
         sensor = (f'thermal model on, body {temperature:.2f} degC, '
@@ -145,14 +162,10 @@ def print_summary(triad, accel, truth, saturated, temperature, out):
               f'{"saturated":>9}')
     print(header, file=out)
     for i, name in enumerate(AXES):
-        if stats[i] is None:
-            mean = accel[i].mean() if accel.shape[1] else float('nan')
-            std = at_one = minimum = tau_min = float('nan')
-        else:
-            mean, std, at_one, minimum, tau_min = stats[i]
-        error = (mean - truth[i]) / MICRO_G
-        print(f'{name:>4} {mean:14.8f} {error:10.2f} {zero_bias[i]:10.2f} '
-              f'{std / MICRO_G:9.2f} {at_one / MICRO_G:12.3f} {minimum / MICRO_G:12.3f} '
+        at_one, minimum, tau_min = stats[i]
+        error = (mean[i] - truth[i]) / MICRO_G
+        print(f'{name:>4} {mean[i]:14.8f} {error:10.2f} {zero_bias[i]:10.2f} '
+              f'{std[i] / MICRO_G:9.2f} {at_one / MICRO_G:12.3f} {minimum / MICRO_G:12.3f} '
               f'{tau_min:9.3g} {int(saturated[i]):9d}', file=out)
 
 

@@ -48,9 +48,27 @@ def allan_deviation(samples, sample_period, taus='octave'):
     y = np.asarray(samples, dtype=float)
     if y.ndim != 1 or len(y) < 3:
         raise ValueError('samples must be a 1-D series of at least 3 values')
+    phase = np.empty(len(y) + 1)
+    phase[0] = 0.0
+    np.cumsum(y - y.mean(), out=phase[1:])
+    return allan_deviation_of_phase(phase, sample_period, taus)
+
+
+def allan_deviation_of_phase(phase, sample_period, taus='octave'):
+    """
+    Return (taus [s], overlapping Allan deviation) from the phase of a series.
+
+    ``phase`` is ``x_0 = 0, x_k = sum_{i<k} (y_i - c)`` (``N + 1`` values) for any
+    constant ``c`` near the mean of ``y`` (the second differences cancel it; the mean
+    itself gives :func:`allan_deviation` exactly): a long run can accumulate it chunk
+    by chunk instead of keeping ``y``. ``taus`` as in :func:`allan_deviation`.
+    """
+    phase = np.ascontiguousarray(phase, dtype=float)
+    n = len(phase) - 1
+    if phase.ndim != 1 or n < 3:
+        raise ValueError('phase must be a 1-D series of at least 4 values')
     if not sample_period > 0:
         raise ValueError(f'sample_period must be positive, got {sample_period!r}')
-    n = len(y)
     if taus is None:
         taus = 'octave'
     if isinstance(taus, str):
@@ -60,9 +78,6 @@ def allan_deviation(samples, sample_period, taus='octave'):
     else:
         m = np.unique(np.round(np.asarray(taus, dtype=float) / sample_period)).astype(np.int64)
         m = m[(m >= 1) & (n + 1 - 2 * m >= 2)]
-    phase = np.empty(n + 1)
-    phase[0] = 0.0
-    np.cumsum(y - y.mean(), out=phase[1:])
     deviation = np.empty(len(m))
     _overlapping_adev(phase, m, deviation)
     return m * sample_period, deviation

@@ -131,12 +131,16 @@ def run_axes(loops, sensed, scale, offset, decimation, counts, flags, workers):
             return array[start * decimation:stop * decimation]
         return array[start:stop]
 
-    step_input = sensed.shape[1] == n_samples * decimation and decimation > 1
     threaded = workers > 1 and n_samples * decimation >= PARALLEL_MIN_STEPS
-    size = max(1, SLICE_STEPS // decimation) if threaded else max(1, n_samples)
-    bounds = [(a, min(a + size, n_samples)) for a in range(0, n_samples, size)] or [(0, 0)]
+    if not threaded:
+        for i, loop in enumerate(loops):
+            loop.run(sensed[i], scale[i], offset[i], decimation, counts[i], flags[i])
+        return
+    step_input = sensed.shape[1] == n_samples * decimation and decimation > 1
+    size = max(1, SLICE_STEPS // decimation)
+    bounds = [(a, min(a + size, n_samples)) for a in range(0, n_samples, size)]
     chains = [[functools.partial(loop.run, part(sensed[i], a, b, step_input),
                                  part(scale[i], a, b, False), part(offset[i], a, b, False),
                                  decimation, counts[i, a:b], flags[i, a:b])
                for a, b in bounds] for i, loop in enumerate(loops)]
-    run_chains(chains, workers if threaded else 1)
+    run_chains(chains, workers)

@@ -332,6 +332,9 @@ class QfaTriad:
         # Start each loop at rest under the initial input so runs need no warm-up.
         f0 = self.profile.evaluate(np.zeros(1))[0]
         sensed = self._sensed(f0[None, :])[0]
+        if self.thermal is not None:  # the loop input includes the thermal terms (run)
+            sensed = sensed * (1.0 + self.thermal.scale_factor_error(self.temperature)) \
+                + self.thermal.zero_bias(self.temperature)
         for i, loop in enumerate(self.axes):
             command = int(round(loop.hw.pendulosity * sensed[i] / loop.gains.feedback_gain))
             command = max(-loop.hw.da2_full_scale, min(loop.hw.da2_full_scale, command))
