@@ -43,6 +43,7 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/loop_throughput.py
+	$(PY) bench/sim_limit.py
 
 # Example bags, deterministic for the seeds given here (see bags/README.md).
 bags: $(STAMP)

@@ -10,8 +10,10 @@ from numpy.testing import assert_allclose
 import pytest
 
 from qfa_ros.cli.sim import main as sim_main
+from qfa_ros.cli.sim import static_sensor
+from qfa_ros.model import axis as axis_module
 from qfa_ros.model import kernel
-from qfa_ros.model.allan import allan_deviation
+from qfa_ros.model.allan import allan_deviation, allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop, pendulum_matrices
 from qfa_ros.model.drift import SECONDS_PER_YEAR
 from qfa_ros.model.hardware import (
@@ -23,7 +25,9 @@ from qfa_ros.model.hardware import (
     STANDARD_GRAVITY,
 )
 from qfa_ros.model.noise import MICRO_G, NoiseConfig
+from qfa_ros.model.parallel import run_chains
 from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile, tumble_profile
+from qfa_ros.model.thermal import ThermalConfig, ThermalModel
 from qfa_ros.model.triad import (
     concatenate,
     FLAG_DA2_CLIPPED,
@@ -285,6 +289,85 @@ def test_same_seed_same_output_and_chunking_is_invisible():
                               getattr(one, field))
     other = QfaTriad(TriadConfig(), rng=43).run(3000)
     assert not np.array_equal(one.accel, other.accel)
+
+
+@pytest.mark.parametrize('source', ['static', 'sine', 'per-sample array'])
+def test_threaded_axes_equal_the_serial_run(monkeypatch, source):
+    # Small thresholds: a 3000-sample chunk runs as 15 slices per axis on the threads.
+    monkeypatch.setattr(axis_module, 'PARALLEL_MIN_STEPS', 1000)
+    monkeypatch.setattr(axis_module, 'SLICE_STEPS', 2000)
+    profile = SineProfile(37.0, amplitude=(0.2, -0.1, 0.3), offset=(0.0, 0.0, G)) \
+        if source == 'sine' else None
+    force = None
+    if source == 'per-sample array':
+        force = StaticProfile.orientation(0.3, 0.2).evaluate(np.zeros(3000)) \
+            + np.linspace(0.0, 0.5, 3000)[:, None]
+    config = TriadConfig(thermal=ThermalConfig(ambient_profile='ramp', sensor_tau_s=2.0))
+    outputs = []
+    for workers in (1, 3, 2):
+        triad = QfaTriad(config, rng=9, profile=profile)
+        triad.workers = workers
+        outputs.append([triad.run(3000, specific_force=force), triad.run(7)])
+    for field in ('accel', 'counts', 'flags', 'truth', 'temperature'):
+        for threaded in outputs[1:]:
+            for serial_part, part in zip(outputs[0], threaded):
+                assert np.array_equal(getattr(part, field), getattr(serial_part, field))
+
+
+def test_chains_keep_their_order_and_raise_the_first_error():
+    log = [[], [], []]
+    chains = [[(lambda c=c, k=k: log[c].append(k)) for k in range(20)] for c in range(3)]
+    run_chains(chains, 2)
+    assert log == [list(range(20))] * 3
+
+    def fail():
+        raise RuntimeError('slice failed')
+
+    with pytest.raises(RuntimeError, match='slice failed'):
+        run_chains([[fail], [lambda: None] * 5], 2)
+
+
+@pytest.mark.parametrize('given', ['per sample', 'per step'])
+def test_a_static_profile_equals_the_same_force_given_as_an_array(given):
+    profile = StaticProfile.orientation(0.4, -0.7)
+    expected = QfaTriad(TriadConfig(), rng=6, profile=profile).run(400)
+    triad = QfaTriad(TriadConfig(), rng=6, profile=profile)  # same start; the array drives
+    force = profile.evaluate(np.zeros(400 * (10 if given == 'per step' else 1)))
+    out = triad.run(400, specific_force=force)
+    for field in ('accel', 'counts', 'truth'):
+        assert np.array_equal(getattr(out, field), getattr(expected, field))
+
+
+def test_allan_deviation_follows_allantools():
+    allantools = pytest.importorskip('allantools')
+    rng = np.random.default_rng(2)
+    for n in (3, 8, 1000, 4097):
+        y = 9.8 + 1e-4 * np.cumsum(rng.standard_normal(n)) / math.sqrt(n) \
+            + 1e-4 * rng.standard_normal(n)
+        taus, adev = allan_deviation(y, 1e-3)
+        ref_taus, ref_adev, _, _ = allantools.oadev(y, rate=1000.0, data_type='freq',
+                                                    taus='octave')
+        assert_allclose(taus, ref_taus, rtol=1e-15)
+        assert_allclose(adev, ref_adev, rtol=1e-9)
+        chosen = [0.001, 0.003, 0.0031, 0.5, 1.0, 10.0]
+        taus, adev = allan_deviation(y, 1e-3, taus=chosen)
+        ref_taus, ref_adev, _, _ = allantools.oadev(y, rate=1000.0, data_type='freq',
+                                                    taus=np.asarray(chosen))
+        assert_allclose(taus, ref_taus, rtol=1e-12)
+        assert_allclose(adev, ref_adev, rtol=1e-9)
+        # A phase accumulated around another constant (chunk by chunk, as qfa-sim does).
+        phase = np.concatenate(([0.0], np.cumsum(y - y[0])))
+        taus, adev = allan_deviation(y, 1e-3)
+        assert_allclose(allan_deviation_of_phase(phase, 1e-3)[1], adev, rtol=1e-9)
+
+
+def test_qfa_sim_static_simulates_the_node_default_sensor():
+    from qfa_ros.ros.params import input_profile, PARAMETERS, triad_config
+    defaults = {spec.name: spec.default for spec in PARAMETERS}
+    config, profile = static_sensor()
+    assert config == triad_config(defaults)
+    assert config.thermal is not None
+    assert profile == input_profile(defaults)
 
 
 def test_stamps_are_evenly_spaced_integer_nanoseconds():
@@ -555,16 +638,20 @@ def _summary(capsys, *argv):
 def test_qfa_sim_static_prints_the_summary(capsys):
     lines, rows = _summary(capsys, '--duration', '20', '--seed', '3')
     header = next(line for line in lines if line.split()[:1] == ['axis'])
-    for column in ('mean m/s^2', 'error ug', 'std ug', 'ADEV(1s) ug', 'ADEV min ug',
-                   'saturated'):
+    for column in ('mean m/s^2', 'error ug', 'bias(T) ug', 'std ug', 'ADEV(1s) ug',
+                   'ADEV min ug', 'saturated'):
         assert column in header
     assert set(rows) == {'x', 'y', 'z'}
+    assert 'thermal model on, body 25.00 degC' in lines[0]
     noise = NoiseConfig()
     white = noise.noise_density / MICRO_G
-    for axis, truth in zip('xyz', (0.0, 0.0, G)):
-        mean, error, std, adev_1s, adev_min, _tau, saturated = rows[axis]
+    config, _ = static_sensor()
+    zero_bias = ThermalModel(config.thermal, np.random.default_rng(0)).zero_bias(25.0)
+    for axis, truth, bias in zip('xyz', (0.0, 0.0, G), zero_bias / MICRO_G):
+        mean, error, bias_t, std, adev_1s, adev_min, _tau, saturated = rows[axis]
         assert_allclose(error, (mean - truth) / MICRO_G, atol=0.01 + 1e-8 / MICRO_G)
-        assert abs(error) < 20.0          # a few ug of bias instability over 20 s
+        assert_allclose(bias_t, bias, atol=0.01)
+        assert abs(error - bias_t) < 20.0  # a few ug of bias instability over 20 s
         # One sample averages 1 ms of white noise: std = N sqrt(1000 Hz).
         assert_allclose(std, white * math.sqrt(1000.0), rtol=0.1)
         assert white / 1.5 < adev_1s < 1.5 * math.hypot(white, noise.bias_instability / MICRO_G)

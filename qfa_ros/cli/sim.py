@@ -5,62 +5,101 @@ Runs without ROS or DDS, as fast as it can.
 
 import argparse
 import contextlib
+import functools
 import sys
 import time
 
 import numpy as np
+from tqdm import tqdm
 
-from qfa_ros.bag.scenario_bag import ScenarioBag
-from qfa_ros.calibration.experiments import format_paper_tables, paper_experiment
-from qfa_ros.calibration.schedule import run_schedule
-from qfa_ros.calibration.state import CalibrationState
-from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
-from qfa_ros.model.allan import allan_deviation
+from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.noise import MICRO_G
+from qfa_ros.model.parallel import run_chains
+from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 
-CHUNK_SECONDS = 1.0
+STATIC_CHUNK_SECONDS = 30.0
+"""Sensor time per :meth:`QfaTriad.run` call of the static scenario [s]."""
 
 
 def scenario_bag(args, config):
     """Return a :class:`ScenarioBag` for ``--out``, or a null context without it."""
     if args.out is None:
         return contextlib.nullcontext()
+    # Imported where used, as the calibration modules below: a scenario loads only what
+    # it runs (the MCAP writer and scipy.optimize cost start-up time).
+    from qfa_ros.bag.scenario_bag import ScenarioBag
     return ScenarioBag(args.out, config.noise, config.sample_rate_hz)
 
 
+def static_sensor():
+    """
+    Return (config, profile) of the sensor ``qfa-node`` publishes with its defaults.
+
+    The thermal model is on (constant 25 degC ambient, the body at ambient, so the zero
+    bias is the double exponential's value at 25 degC), default noise, level.
+    ``test_loop_model`` checks that this equals the node's parameter defaults.
+    """
+    return (TriadConfig(thermal=ThermalConfig(ambient_profile='constant')),
+            StaticProfile.level())
+
+
 def run_static(args, out=None):
-    """Run a level, static sensor for ``args.duration`` seconds and summarize it."""
+    """Run the default sensor, level and static, for ``args.duration`` s and summarize it."""
     out = out or sys.stdout
-    config = TriadConfig()
-    triad = QfaTriad(config, rng=args.seed)
-    chunk = int(round(CHUNK_SECONDS * config.sample_rate_hz))
+    config, profile = static_sensor()
+    triad = QfaTriad(config, rng=args.seed, profile=profile)
+    rate = int(round(config.sample_rate_hz))
+    chunk = int(round(STATIC_CHUNK_SECONDS * config.sample_rate_hz))
     total = int(round(args.duration * config.sample_rate_hz))
-    accel = np.empty((total, 3))
-    truth = np.empty((total, 3))
-    saturated = np.zeros(3, dtype=np.int64)
+    # Per axis, the phase of (accel - reference) for the Allan deviation (one row, the
+    # only array of the run's length) and the sums of its first two powers.
+    phase = np.zeros((len(AXES), total + 1))
+    reference = None
+    sums = np.zeros((2, len(AXES)))
+    truth = np.zeros(len(AXES))
+    saturated = np.zeros(len(AXES), dtype=np.int64)
+    temperature = 0.0
     done = 0
-    with scenario_bag(args, config) as bag:
+    with scenario_bag(args, config) as bag, \
+            tqdm(total=args.duration, unit='s', desc='qfa-sim static', disable=None,
+                 leave=False) as progress:
         if bag:
             bag.write_phase('static', 0)
         while done < total:
             part = triad.run(min(chunk, total - done))
             n = len(part.stamps_ns)
-            accel[done:done + n] = part.accel
-            truth[done:done + n] = part.truth
+            if reference is None:
+                reference = part.accel.mean(axis=0)
+            centered = part.accel - reference
+            sums += (centered.sum(axis=0), (centered * centered).sum(axis=0))
+            np.cumsum(centered.T, axis=1, out=phase[:, done + 1:done + n + 1])
+            phase[:, done + 1:done + n + 1] += phase[:, done:done + 1]
+            truth += part.truth.sum(axis=0)
             saturated += part.saturated.sum(axis=0)
-            done += n
+            temperature += part.temperature.sum()
             if bag:
                 bag.write_imu(part)
-                bag.write_temperature(part.stamps_ns[-1:], part.temperature[-1:])
-    print_summary(triad, accel, truth, saturated, out)
+                # 1 Hz: the end of every second, and the last sample of the run.
+                index = np.arange(done, done + n)
+                marks = ((index + 1) % rate == 0) | (index == total - 1)
+                bag.write_temperature(part.stamps_ns[marks], part.temperature[marks])
+            done += n
+            progress.update(n / config.sample_rate_hz)
+    count = max(total, 1)
+    mean = sums[0] / count
+    std = np.sqrt(np.maximum(sums[1] / count - mean ** 2, 0.0))
+    offset = np.zeros(len(AXES)) if reference is None else reference
+    print_summary(triad, phase, offset + mean, std, truth / count, saturated,
+                  temperature / count, out)
     return 0
 
 
 def run_paper_2019(args, out=None):
     """Follow seed 1 section IV-A for ``args.trials`` trials and print its tables."""
+    from qfa_ros.calibration.experiments import format_paper_tables, paper_experiment
     out = out or sys.stdout
     with scenario_bag(args, TriadConfig()) as bag:
         trials = paper_experiment(seed=args.seed, trials=args.trials, recorder=bag)
@@ -68,38 +107,73 @@ def run_paper_2019(args, out=None):
     return 0
 
 
-def print_summary(triad, accel, truth, saturated, out):
-    """Print per-axis mean, error vs truth, std, Allan deviation and saturation counts."""
+def allan_summary(phase, sample_period):
+    """
+    Return (ADEV at 1 s, minimum ADEV, its tau [s]) from one axis's phase.
+
+    Computed once, at octave-spaced tau plus tau = 1 s (NaN where the series is too
+    short), on the published (decimated) stream; see
+    :func:`qfa_ros.model.allan.allan_deviation_of_phase`.
+    """
+    if len(phase) < 4:
+        return float('nan'), float('nan'), float('nan')
+    taus, adev = allan_deviation_of_phase(phase, sample_period)
+    _, at_one = allan_deviation_of_phase(phase, sample_period, taus=[1.0])
+    at_one = at_one[0] if len(at_one) else float('nan')
+    k = int(np.argmin(adev))
+    return at_one, adev[k], taus[k]
+
+
+def print_summary(triad, phase, mean, std, truth, saturated, temperature, out):
+    """
+    Print per-axis mean, error vs truth, std, Allan deviation and saturation counts.
+
+    ``phase`` is (3, n + 1), the running sum of each axis's output minus a constant
+    [m/s^2 per sample]; ``mean``, ``std``, ``truth`` (the mean true specific force)
+    per axis [m/s^2]; the thermal zero bias at the mean body ``temperature`` [degC] is
+    printed beside the error it explains.
+    """
     config = triad.config
     loop = triad.axes[0]
     crossover, phase_margin, gain_margin, bandwidth = LinearLoop(
         config.hardware, loop.controller, config.loop_rate_hz).margins()
-    duration = len(accel) / config.sample_rate_hz
+    duration = (phase.shape[1] - 1) / config.sample_rate_hz
+    stats = [None] * len(AXES)
+
+    def job(i):
+        stats[i] = allan_summary(phase[i], triad.sample_period)
+
+    # The axes' passes release the GIL: they share the cores like the simulation.
+    run_chains([[functools.partial(job, i)] for i in range(len(AXES))], triad.workers)
+    if triad.thermal is not None:
+        zero_bias = triad.thermal.zero_bias(temperature) / MICRO_G
+        sensor = (f'thermal model on, body {temperature:.2f} degC, '
+                  f'{config.thermal.ambient_profile} ambient')
+    else:
+        zero_bias = np.zeros(len(AXES))
+        sensor = 'thermal model off'
     print(f'qfa-sim: {duration:g} s of sensor time at {config.sample_rate_hz:g} Hz '
-          f'(loop {config.loop_rate_hz:g} Hz)', file=out)
+          f'(loop {config.loop_rate_hz:g} Hz); {sensor}', file=out)
     print(f'loop: k(D(z)) = {loop.controller.gain:.4f}, crossover {crossover:.0f} Hz, '
           f'phase margin {phase_margin:.1f} deg, gain margin {gain_margin:.1f} dB, '
           f'bandwidth {bandwidth:.0f} Hz', file=out)
-    header = (f'{"axis":>4} {"mean m/s^2":>14} {"error ug":>10} {"std ug":>9} '
-              f'{"ADEV(1s) ug":>12} {"ADEV min ug":>12} {"at tau s":>9} {"saturated":>9}')
+    header = (f'{"axis":>4} {"mean m/s^2":>14} {"error ug":>10} {"bias(T) ug":>10} '
+              f'{"std ug":>9} {"ADEV(1s) ug":>12} {"ADEV min ug":>12} {"at tau s":>9} '
+              f'{"saturated":>9}')
     print(header, file=out)
     for i, name in enumerate(AXES):
-        mean = accel[:, i].mean()
-        error = (mean - truth[:, i].mean()) / MICRO_G
-        std = accel[:, i].std() / MICRO_G
-        if len(accel) >= 30:
-            taus, adev = allan_deviation(accel[:, i], triad.sample_period)
-            at_one = np.interp(1.0, taus, adev) / MICRO_G if taus[-1] >= 1.0 else float('nan')
-            k = int(np.argmin(adev))
-            minimum, tau_min = adev[k] / MICRO_G, taus[k]
-        else:
-            at_one = minimum = tau_min = float('nan')
-        print(f'{name:>4} {mean:14.8f} {error:10.2f} {std:9.2f} {at_one:12.3f} '
-              f'{minimum:12.3f} {tau_min:9.3g} {int(saturated[i]):9d}', file=out)
+        at_one, minimum, tau_min = stats[i]
+        error = (mean[i] - truth[i]) / MICRO_G
+        print(f'{name:>4} {mean[i]:14.8f} {error:10.2f} {zero_bias[i]:10.2f} '
+              f'{std[i] / MICRO_G:9.2f} {at_one / MICRO_G:12.3f} {minimum / MICRO_G:12.3f} '
+              f'{tau_min:9.3g} {int(saturated[i]):9d}', file=out)
 
 
 def run_temperature_cycle(args, out=None):
     """Calibrate on one chamber cycle, verify on a second with compensation on."""
+    from qfa_ros.calibration.schedule import run_schedule
+    from qfa_ros.calibration.state import CalibrationState
+    from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
     out = out or sys.stdout
     config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant'))
     triad = QfaTriad(config, rng=args.seed)

@@ -1,4 +1,10 @@
-"""Compiled per-step kernel of one digital closed-loop QFA axis (numba, over chunks)."""
+"""Compiled per-step kernel of one digital closed-loop QFA axis (numba, over chunks).
+
+The noise of the axis is drawn inside the loop from its own ``numpy.random.Generator``
+(numba shares the bit generator's state with the Python object, so a run split into
+chunks draws the same numbers as one long run), and the input arrives at the rate it
+changes: one value per chunk, per sample or per loop step.
+"""
 
 from numba import njit
 import numpy as np
@@ -12,7 +18,9 @@ P_K_FB = 9               # k_DA2 k_VI k_t [N m/count]
 P_REF_MOMENT = 10        # k_t I_ref while the switch M1 is closed, else 0 [N m]
 P_STOP = 11              # stop angle [rad]
 P_ADSORPTION = 12        # open-loop latching moment [N m]
-N_FLOAT_PARAMS = 13
+P_WHITE_STD = 13         # white acceleration noise per loop step, std [m/s^2]
+P_ADC_STD = 14           # ADC input noise per loop step, std [count]
+N_FLOAT_PARAMS = 15
 
 # Integer parameter vector layout.
 Q_GAIN, Q_A1, Q_B0, Q_B1, Q_KI = range(5)
@@ -42,22 +50,37 @@ def _round_shift(value, shift):
 
 
 @njit(cache=True, nogil=True)
-def run_axis(accel, adc_noise, decimation, params_f, params_i, state_f, state_i,
-             out_mean, out_flags):
-    """
-    Advance one axis over a chunk of loop steps and decimate its output.
+def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
+             params_f, params_i, state_f, state_i, out_mean, out_flags):
+    r"""
+    Advance one axis over a chunk of ``n = len(out_mean) * decimation`` loop steps.
+
+    The loop input at step ``i`` of sample ``j`` is
+    ``a_i = s_i c_j + o_j + sum_k b_k[j] + sigma_w w_i`` [m/s^2]: ``s`` the sensed
+    specific force (model-equation terms included), ``c`` and ``o`` the thermal
+    scale (1 + e(T)) and zero bias, ``b_k`` the first-order Gauss-Markov processes of
+    the bias instability, ``b_k[j] = phi_k b_k[j-1] + q_k v_{j,k}``, held over each
+    sample, and ``w_i`` white. The ADC adds ``sigma_adc n_i`` [count]. ``v``, ``w`` and
+    ``n`` are standard normal draws from ``rng`` in a fixed order (per sample: the
+    Gauss-Markov drives; per step: ``w`` then ``n``; a source whose std is 0 draws
+    nothing), so the output depends on the seed, not on the chunk lengths.
 
     Parameters
     ----------
-    accel : float64[n]
-        Input specific force along the sensitive axis per loop step, noise and
-        model-equation terms included [m/s^2].
-    adc_noise : float64[n]
-        ADC input noise per loop step [count].
+    rng : numpy.random.Generator
+        This axis's stream (its state advances).
+    sensed : float64[1], float64[n // decimation] or float64[n]
+        Sensed specific force ``s`` [m/s^2]: constant over the chunk, per sample or
+        per loop step (the latter only when its length is ``n`` and ``decimation > 1``).
+    scale, offset : float64[1] or float64[n // decimation]
+        Thermal scale factor ``c`` [1] and zero bias ``o`` [m/s^2], constant or per sample.
+    gm_phi, gm_drive, gm_state : float64[k]
+        Gauss-Markov ``phi_k``, drive std ``q_k`` [m/s^2] and state (updated in place);
+        ``k = 0`` without bias instability.
     decimation : int
-        Loop steps per output sample; ``n`` must be a multiple of it.
+        Loop steps per output sample.
     params_f, params_i : float64[N_FLOAT_PARAMS], int64[N_INT_PARAMS]
-        Loop parameters (layout constants above).
+        Loop and noise parameters (layout constants above).
     state_f, state_i : float64[N_FLOAT_STATE], int64[N_INT_STATE]
         Loop state, updated in place.
     out_mean : float64[n // decimation]
@@ -79,6 +102,8 @@ def run_axis(accel, adc_noise, decimation, params_f, params_i, state_f, state_i,
     ref_moment = params_f[P_REF_MOMENT]
     stop = params_f[P_STOP]
     adsorption = params_f[P_ADSORPTION]
+    white_std = params_f[P_WHITE_STD]
+    adc_std = params_f[P_ADC_STD]
     gain = params_i[Q_GAIN]
     a1 = params_i[Q_A1]
     b0 = params_i[Q_B0]
@@ -89,6 +114,17 @@ def run_axis(accel, adc_noise, decimation, params_f, params_i, state_f, state_i,
     adc_fs = params_i[Q_ADC_FULL_SCALE]
     range_counts = params_i[Q_RANGE_COUNTS]
     integrator_limit = (da2_fs << _SIGNAL_SHIFT) << _COEF_SHIFT
+    draw_white = white_std > 0.0
+    draw_adc = adc_std > 0.0
+    n_components = gm_phi.shape[0]
+    if open_loop:
+        bias_moment = -ref_moment + adsorption
+        sense = 0.0
+        level = open_counts
+    else:
+        bias_moment = -ref_moment
+        sense = k_sense
+        level = 0.0
 
     theta = state_f[S_THETA]
     omega = state_f[S_OMEGA]
@@ -98,82 +134,91 @@ def run_axis(accel, adc_noise, decimation, params_f, params_i, state_f, state_i,
     applied = state_i[T_APPLIED]
     output = state_i[T_LAST]
 
-    n = accel.shape[0]
-    block_sum = 0.0
-    block_flags = 0
-    k = 0
-    for i in range(n):
-        # Pick-off, bridge, ADC: in open loop the latched bridge gives a fixed level (eq. 16).
-        if open_loop:
-            volts = open_counts + adc_noise[i]
-        else:
-            volts = k_sense * theta + adc_noise[i]
-        code = np.int64(np.floor(volts + 0.5))
-        if code > adc_fs:
-            code = adc_fs
-            block_flags |= 2
-        elif code < -adc_fs:
-            code = -adc_fs
-            block_flags |= 2
-        x = _round_shift(gain * code, _GAIN_SHIFT)
-        if open_loop:
-            # The open-loop readout keeps the 8 fraction bits of the FPGA word.
-            output = _round_shift(x, _SIGNAL_SHIFT)
-            reading = x / 256.0
-            command = np.int64(0)
-        else:
-            y = _round_shift(a1 * y_prev + b0 * x + b1 * x_prev, _COEF_SHIFT)
-            candidate = integrator + ki * y
-            if candidate > integrator_limit:
-                candidate = integrator_limit
-            elif candidate < -integrator_limit:
-                candidate = -integrator_limit
-            command = _round_shift(y + _round_shift(candidate, _COEF_SHIFT), _SIGNAL_SHIFT)
-            if command > da2_fs:
-                command = da2_fs
-                block_flags |= 1
-                if candidate < integrator:  # anti-windup: integrate only back into range
-                    integrator = candidate
-            elif command < -da2_fs:
-                command = -da2_fs
-                block_flags |= 1
-                if candidate > integrator:
-                    integrator = candidate
+    n_samples = out_mean.shape[0]
+    per_step = sensed.shape[0] == n_samples * decimation and decimation > 1
+    per_sample = sensed.shape[0] > 1 and not per_step
+    scale_per_sample = scale.shape[0] > 1
+    offset_per_sample = offset.shape[0] > 1
+    for j in range(n_samples):
+        held = offset[j if offset_per_sample else 0]
+        for k in range(n_components):
+            value = gm_phi[k] * gm_state[k] + gm_drive[k] * rng.standard_normal()
+            gm_state[k] = value
+            held += value
+        factor = scale[j if scale_per_sample else 0]
+        if not per_step:
+            held += sensed[j if per_sample else 0] * factor
+        block_sum = 0.0
+        block_flags = 0
+        base = j * decimation
+        for s in range(decimation):
+            accel = held
+            if per_step:
+                accel += sensed[base + s] * factor
+            if draw_white:
+                accel += white_std * rng.standard_normal()
+            # Pick-off, bridge, ADC: in open loop the latched bridge gives a fixed level
+            # (eq. 16).
+            volts = sense * theta + level
+            if draw_adc:
+                volts += adc_std * rng.standard_normal()
+            code = np.int64(np.floor(volts + 0.5))
+            if code > adc_fs:
+                code = adc_fs
+                block_flags |= 2
+            elif code < -adc_fs:
+                code = -adc_fs
+                block_flags |= 2
+            x = _round_shift(gain * code, _GAIN_SHIFT)
+            if open_loop:
+                # The open-loop readout keeps the 8 fraction bits of the FPGA word.
+                output = _round_shift(x, _SIGNAL_SHIFT)
+                reading = x / 256.0
+                command = np.int64(0)
             else:
-                integrator = candidate
-            x_prev = x
-            y_prev = y
-            output = command
-            reading = float(command)
-        if output > range_counts or output < -range_counts:
-            block_flags |= 4
+                y = _round_shift(a1 * y_prev + b0 * x + b1 * x_prev, _COEF_SHIFT)
+                candidate = integrator + ki * y
+                if candidate > integrator_limit:
+                    candidate = integrator_limit
+                elif candidate < -integrator_limit:
+                    candidate = -integrator_limit
+                command = _round_shift(y + _round_shift(candidate, _COEF_SHIFT), _SIGNAL_SHIFT)
+                if command > da2_fs:
+                    command = da2_fs
+                    block_flags |= 1
+                    if candidate < integrator:  # anti-windup: integrate only back into range
+                        integrator = candidate
+                elif command < -da2_fs:
+                    command = -da2_fs
+                    block_flags |= 1
+                    if candidate > integrator:
+                        integrator = candidate
+                else:
+                    integrator = candidate
+                x_prev = x
+                y_prev = y
+                output = command
+                reading = float(command)
+            if output > range_counts or output < -range_counts:
+                block_flags |= 4
 
-        # Torquer acts with one step of computation delay; pendulum by exact ZOH.
-        moment = k0 * accel[i] - k_fb * applied - ref_moment
-        if open_loop:
-            moment += adsorption
-        theta_next = ad00 * theta + ad01 * omega + bd0 * moment
-        omega = ad10 * theta + ad11 * omega + bd1 * moment
-        theta = theta_next
-        if theta > stop:
-            theta = stop
-            if omega > 0.0:
-                omega = 0.0
-        elif theta < -stop:
-            theta = -stop
-            if omega < 0.0:
-                omega = 0.0
-        applied = command
-
-        block_sum += reading
-        k += 1
-        if k == decimation:
-            j = i // decimation
-            out_mean[j] = block_sum / decimation
-            out_flags[j] = block_flags
-            block_sum = 0.0
-            block_flags = 0
-            k = 0
+            # Torquer acts with one step of computation delay; pendulum by exact ZOH.
+            moment = k0 * accel - k_fb * applied + bias_moment
+            theta_next = ad00 * theta + ad01 * omega + bd0 * moment
+            omega = ad10 * theta + ad11 * omega + bd1 * moment
+            theta = theta_next
+            if theta > stop:
+                theta = stop
+                if omega > 0.0:
+                    omega = 0.0
+            elif theta < -stop:
+                theta = -stop
+                if omega < 0.0:
+                    omega = 0.0
+            applied = command
+            block_sum += reading
+        out_mean[j] = block_sum / decimation
+        out_flags[j] = block_flags
 
     state_f[S_THETA] = theta
     state_f[S_OMEGA] = omega

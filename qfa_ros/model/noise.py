@@ -1,9 +1,8 @@
-"""Sensor noise: velocity random walk, bias instability, ADC noise (generated per chunk)."""
+"""Sensor noise: velocity random walk, bias instability, ADC noise (drawn in the kernel)."""
 
 from dataclasses import dataclass
 import math
 
-import numba
 import numpy as np
 
 MICRO_G = 9.80665e-6
@@ -79,71 +78,50 @@ def flicker_component_variance(config):
 
 class NoiseSource:
     """
-    Chunked noise of ``n_axes`` independent axes.
+    Noise of ``n_axes`` independent axes, drawn inside the compiled loop kernel.
 
     White acceleration noise per loop step ``w ~ N(0, N^2 f_loop)``; the bias
     instability processes advance at the sample rate, ``b[k] = phi b[k-1] + v[k]``,
     ``phi = exp(-dt/T)``, ``v ~ N(0, q^2 (1 - phi^2))``, and are held over each
     decimation block; ADC noise ``n ~ N(0, sigma_adc^2)`` per loop step [count].
-    Every random number comes from ``rng``: each source of each axis draws from its own
-    child stream (``rng.spawn``), so the output does not depend on the chunk lengths.
+    Every random number of axis ``i`` comes from ``streams[i]``, a child of ``rng``
+    (``rng.spawn``): :func:`qfa_ros.model.kernel.run_axis` draws them in a fixed order,
+    so the output depends on the seed only, not on the chunk lengths or on which thread
+    runs which axis. This object holds the parameters and the Gauss-Markov states.
+
+    Attributes
+    ----------
+    streams : list of numpy.random.Generator
+        One stream per axis.
+    white_std : float
+        Standard deviation of ``w`` per loop step [m/s^2].
+    adc_std : float
+        Standard deviation of ``n`` per loop step [count].
+    phi, drive_std : float64[k]
+        ``phi`` and ``q sqrt(1 - phi^2)`` [m/s^2] per Gauss-Markov component (``k = 0``
+        without bias instability).
+    bias_state : float64[n_axes, k]
+        Gauss-Markov states [m/s^2], started in their stationary distribution.
     """
 
     def __init__(self, config, n_axes, loop_rate_hz, sample_rate_hz, rng):
         self.config = config
         self.n_axes = n_axes
         self.decimation = int(round(loop_rate_hz / sample_rate_hz))
-        self.white_streams = rng.spawn(n_axes)
-        self.adc_streams = rng.spawn(n_axes)
-        self.bias_streams = rng.spawn(n_axes)
+        self.streams = rng.spawn(n_axes)
         self.white_std = config.noise_density * math.sqrt(loop_rate_hz)
-        dt = 1.0 / sample_rate_hz
-        self.phi = np.exp(-dt / np.asarray(config.correlation_times, dtype=float))
-        variance = flicker_component_variance(config)
-        self.innovation_std = np.sqrt(variance * (1.0 - self.phi ** 2))
-        # Start the Gauss-Markov processes in their stationary distribution.
-        self.bias_state = np.array([stream.standard_normal(len(self.phi))
-                                    for stream in self.bias_streams]) * math.sqrt(variance)
-
-    def chunk(self, n_samples):
-        """Return (acceleration noise [m/s^2], ADC noise [count]), each (n_axes, n_steps)."""
-        n_steps = n_samples * self.decimation
-        accel = np.zeros((self.n_axes, n_steps))
-        adc = np.zeros((self.n_axes, n_steps))
-        for axis in range(self.n_axes):
-            if self.white_std > 0:
-                accel[axis] = self.white_streams[axis].standard_normal(n_steps) * self.white_std
-            if self.config.adc_noise > 0:
-                adc[axis] = self.adc_streams[axis].standard_normal(n_steps) \
-                    * self.config.adc_noise
-        if self.config.bias_instability > 0:
-            # Drive draws are interleaved per sample (n_samples x components) so that
-            # they too are independent of the chunk length.
-            drive = np.stack([stream.standard_normal((n_samples, len(self.phi)))
-                              for stream in self.bias_streams]) * self.innovation_std
-            bias = np.zeros((self.n_axes, n_samples))
-            _gauss_markov_sum(drive, self.phi, self.bias_state, bias)
-            accel += np.repeat(bias, self.decimation, axis=1)
-        return accel, adc
-
-
-@numba.njit(cache=True)
-def _gauss_markov_sum(drive, phi, state, out):
-    """
-    Advance first-order Gauss-Markov processes and add them up per axis.
-
-    ``b_j[k] = phi_j b_j[k-1] + drive[axis, k, j]`` for every axis and component ``j``,
-    starting from ``state[axis, j]`` (updated to the last value); ``out[axis, k]`` gets
-    the sum over the components.
-    """
-    n_axes, n_samples, n_components = drive.shape
-    for axis in range(n_axes):
-        for j in range(n_components):
-            value = state[axis, j]
-            for k in range(n_samples):
-                value = phi[j] * value + drive[axis, k, j]
-                out[axis, k] += value
-            state[axis, j] = value
+        self.adc_std = float(config.adc_noise)
+        if config.bias_instability > 0:
+            dt = 1.0 / sample_rate_hz
+            self.phi = np.exp(-dt / np.asarray(config.correlation_times, dtype=float))
+            variance = flicker_component_variance(config)
+            self.drive_std = np.sqrt(variance * (1.0 - self.phi ** 2))
+            self.bias_state = np.array([stream.standard_normal(len(self.phi))
+                                        for stream in self.streams]) * math.sqrt(variance)
+        else:
+            self.phi = np.zeros(0)
+            self.drive_std = np.zeros(0)
+            self.bias_state = np.zeros((n_axes, 0))
 
 
 def acceleration_variance(config, sample_rate_hz):

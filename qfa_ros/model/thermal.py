@@ -211,7 +211,7 @@ class ThermalChunk(NamedTuple):
     """Scale-factor relative error per axis, shape (n, 3) [1]."""
 
 
-@numba.njit(cache=False, nogil=True)
+@numba.njit(cache=True, nogil=True)
 def _advance(ambient_det, room_noise, use_room, room_center, room_amplitude, room_phi,
              room_gain, room_x, ambient_now, sensor_now, probe_now, hysteresis_now,
              a_s, c_s, a_p, c_p, hysteresis_width):

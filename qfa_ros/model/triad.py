@@ -8,10 +8,11 @@ import numbers
 import numpy as np
 
 from qfa_ros.model import kernel
-from qfa_ros.model.design import design_controller, pendulum_matrices
+from qfa_ros.model.axis import AxisLoop, run_axes
 from qfa_ros.model.drift import DriftModel
-from qfa_ros.model.hardware import AxisHardware, counts_to_accel, loop_gains, STANDARD_GRAVITY
+from qfa_ros.model.hardware import AxisHardware, counts_to_accel, STANDARD_GRAVITY
 from qfa_ros.model.noise import MICRO_G, NoiseConfig, NoiseSource
+from qfa_ros.model.parallel import available_cores
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalModel
 
@@ -183,80 +184,6 @@ class TriadOutput:
         return self.flags != 0
 
 
-class AxisLoop:
-    """
-    One axis: its controller, the DA words, drifted gains and the kernel state.
-
-    The words the FPGA can change at run time are ``controller`` (k(D(z))),
-    ``n_fpga`` (modulation amplitude), ``n_vref`` (DA0 reference word), the switch
-    M1 of the constant current source, and the open/closed-loop state.
-    """
-
-    def __init__(self, config):
-        hw = config.hardware
-        self.hw = hw
-        self.config = config
-        self.controller = design_controller(hw, config.loop_rate_hz, config.crossover_hz,
-                                            config.integrator_ratio, config.lead_pole_ratio)
-        self.n_fpga = hw.n_fpga
-        self.n_vref = hw.n_vref
-        self.reference_current_on = False
-        self.open_loop = False
-        self.held_command = 0
-        self.gains = None
-        self.params_f = np.zeros(kernel.N_FLOAT_PARAMS)
-        self.params_i = np.zeros(kernel.N_INT_PARAMS, dtype=np.int64)
-        self.state_f = np.zeros(kernel.N_FLOAT_STATE)
-        self.state_i = np.zeros(kernel.N_INT_STATE, dtype=np.int64)
-        ad, bd = pendulum_matrices(hw, 1.0 / config.loop_rate_hz)
-        self.params_f[kernel.P_AD00:kernel.P_AD11 + 1] = ad.ravel()
-        self.params_f[kernel.P_BD0:kernel.P_BD1 + 1] = bd
-        self.params_f[kernel.P_PENDULOSITY] = hw.pendulosity
-        self.params_f[kernel.P_STOP] = hw.stop_angle
-        self.params_f[kernel.P_ADSORPTION] = hw.adsorption_g * STANDARD_GRAVITY * hw.pendulosity
-        self.params_i[kernel.Q_DA2_FULL_SCALE] = hw.da2_full_scale
-        self.params_i[kernel.Q_ADC_FULL_SCALE] = hw.adc_full_scale
-        self.params_i[kernel.Q_RANGE_COUNTS] = int(
-            hw.input_range_g * STANDARD_GRAVITY / counts_to_accel(hw))
-
-    def update(self, drift):
-        """Recompute the kernel parameters for the relative ``drift`` of each component."""
-        self.gains = loop_gains(self.hw, drift, self.n_fpga, self.n_vref,
-                                self.config.open_loop_cref_sensitivity)
-        self.params_f[kernel.P_K_SENSE] = self.gains.k_sense
-        self.params_f[kernel.P_OPEN_LOOP_COUNTS] = \
-            self.gains.open_loop_counts_per_fpga * self.n_fpga
-        self.params_f[kernel.P_K_FB] = self.gains.feedback_gain
-        self.params_f[kernel.P_REF_MOMENT] = \
-            self.gains.k_t * self.gains.i_ref if self.reference_current_on else 0.0
-        c = self.controller
-        self.params_i[kernel.Q_GAIN] = c.gain_word
-        self.params_i[kernel.Q_A1] = c.lead_a1
-        self.params_i[kernel.Q_B0] = c.lead_b0
-        self.params_i[kernel.Q_B1] = c.lead_b1
-        self.params_i[kernel.Q_KI] = c.integrator_gain
-        self.params_i[kernel.Q_OPEN_LOOP] = 1 if self.open_loop else 0
-
-    def close(self):
-        """Re-close the loop bumplessly: the integrator resumes the last closed-loop command."""
-        held = self.held_command
-        self.state_i[kernel.T_APPLIED] = held
-        self.state_i[kernel.T_X_PREV] = 0
-        self.state_i[kernel.T_Y_PREV] = 0
-        self.state_i[kernel.T_INTEGRATOR] = held << 28
-        self.open_loop = False
-
-    def open(self):
-        """Open the loop: feedback current off, the pendulum latches on its stop."""
-        self.held_command = int(self.state_i[kernel.T_LAST])
-        self.open_loop = True
-
-    def run(self, accel, adc_noise, decimation, out_mean, out_flags):
-        """Run the compiled kernel over one chunk (see :func:`kernel.run_axis`)."""
-        kernel.run_axis(accel, adc_noise, decimation, self.params_f, self.params_i,
-                        self.state_f, self.state_i, out_mean, out_flags)
-
-
 class QfaTriad:
     r"""
     Three digital closed-loop QFA axes advancing in discrete time.
@@ -279,6 +206,16 @@ class QfaTriad:
         Source of every random number (an int is a seed).
     profile : object with ``evaluate(t) -> (n, 3)``, optional
         Input specific force [m/s^2] as a function of sensor time [s]; default level.
+        A :class:`StaticProfile` is applied as one value per chunk; other profiles are
+        evaluated at every loop step.
+
+    Attributes
+    ----------
+    workers : int
+        Threads :meth:`run` may use for the three axes when a chunk has at least
+        ``qfa_ros.model.axis.PARALLEL_MIN_STEPS`` loop steps (default: the cores
+        available, at most 3; 1 runs them in turn). Each axis draws from its own
+        stream, so the output does not depend on it.
     """
 
     def __init__(self, config=None, rng=None, profile=None):
@@ -291,11 +228,12 @@ class QfaTriad:
         self.dt = 1.0 / self.config.loop_rate_hz
         self.sample_period = 1.0 / self.config.sample_rate_hz
         self._grid = SampleGrid(self.config.sample_rate_hz, start_ns=0)
-        self.axes = [AxisLoop(self.config) for _ in AXES]
-        self.drift = DriftModel(len(AXES))
-        self.drift.clock = lambda: self.time
         self.noise = NoiseSource(self.config.noise, len(AXES), self.config.loop_rate_hz,
                                  self.config.sample_rate_hz, rng)
+        self.axes = [AxisLoop(self.config, self.noise, i) for i in range(len(AXES))]
+        self.workers = min(len(AXES), available_cores())
+        self.drift = DriftModel(len(AXES))
+        self.drift.clock = lambda: self.time
         self.thermal = None
         if self.config.thermal is not None:
             self.thermal = ThermalModel(self.config.thermal, rng.spawn(1)[0])
@@ -394,6 +332,9 @@ class QfaTriad:
         # Start each loop at rest under the initial input so runs need no warm-up.
         f0 = self.profile.evaluate(np.zeros(1))[0]
         sensed = self._sensed(f0[None, :])[0]
+        if self.thermal is not None:  # the loop input includes the thermal terms (run)
+            sensed = sensed * (1.0 + self.thermal.scale_factor_error(self.temperature)) \
+                + self.thermal.zero_bias(self.temperature)
         for i, loop in enumerate(self.axes):
             command = int(round(loop.hw.pendulosity * sensed[i] / loop.gains.feedback_gain))
             command = max(-loop.hw.da2_full_scale, min(loop.hw.da2_full_scale, command))
@@ -421,44 +362,31 @@ class QfaTriad:
         if int(n_samples) != n_samples or n_samples < 0:
             raise ValueError(f'n_samples must be a non-negative integer, got {n_samples!r}')
         n_samples = int(n_samples)
-        n_steps = n_samples * self.decimation
-        if specific_force is None:
-            t = self.time + np.arange(n_steps) * self.dt
-            force = self.profile.evaluate(t)
-        else:
-            force = np.asarray(specific_force, dtype=float)
-            if force.shape == (n_samples, 3):
-                force = np.repeat(force, self.decimation, axis=0)
-            elif force.shape != (n_steps, 3):
-                raise ValueError(f'specific_force must have shape ({n_samples}, 3) or '
-                                 f'({n_steps}, 3), got {force.shape}')
-            if not np.all(np.isfinite(force)):
-                raise ValueError('specific_force must be finite')
-        sensed = self._sensed(force)
+        force, truth = self._input(n_samples, specific_force)
+        # Rows per axis: one value for the chunk, one per sample or one per loop step.
+        sensed = np.ascontiguousarray(self._sensed(force).T)
         if self.thermal is not None:
             chunk = self.thermal.run(n_samples, self.sample_period)
             temperature = chunk.sensor_c
             v_temp = chunk.v_temp
             # Gains follow the chunk's mean temperature: it moves far slower than a chunk.
             self.temperature = float(temperature.mean())
-            sensed = sensed * np.repeat(1.0 + chunk.scale_factor_error, self.decimation, axis=0) \
-                + np.repeat(chunk.bias, self.decimation, axis=0)
+            scale = np.ascontiguousarray(1.0 + chunk.scale_factor_error.T)
+            offset = np.ascontiguousarray(chunk.bias.T)
         else:
             temperature = np.full(n_samples, self.temperature)
             v_temp = np.full(n_samples, np.nan)
+            scale = np.ones((len(AXES), 1))
+            offset = np.zeros((len(AXES), 1))
         self._refresh()
-        accel_noise, adc_noise = self.noise.chunk(n_samples)
-        loop_input = sensed.T + accel_noise
-        counts = np.empty((3, n_samples))
-        flags = np.empty((3, n_samples), dtype=np.int8)
-        for i, loop in enumerate(self.axes):
-            loop.run(np.ascontiguousarray(loop_input[i]), adc_noise[i], self.decimation,
-                     counts[i], flags[i])
+        counts = np.empty((len(AXES), n_samples))
+        flags = np.empty((len(AXES), n_samples), dtype=np.int8)
+        run_axes(self.axes, sensed, scale, offset, self.decimation, counts, flags,
+                 self.workers)
         index = self.sample_index + np.arange(n_samples)
         valid = np.empty((n_samples, 3), dtype=bool)
         for i, loop in enumerate(self.axes):
             valid[:, i] = (not loop.open_loop) & (index >= self.settle_until[i])
-        truth = force.reshape(n_samples, self.decimation, 3).mean(axis=1)
         self.sample_index += n_samples
         accel = counts.T * self.scale
         if self.temperature_compensation and self.temperature_compensators:
@@ -467,6 +395,29 @@ class QfaTriad:
         return TriadOutput(stamps_ns=self.stamp_ns(index), accel=accel,
                            counts=counts.T.copy(), flags=flags.T.copy(), valid=valid,
                            truth=truth, temperature=temperature, v_temp=v_temp)
+
+    def _input(self, n_samples, specific_force):
+        # Return the specific force at the rate it changes ((1, 3), (n_samples, 3) or
+        # (n_steps, 3)) and its mean per sample (truth).
+        n_steps = n_samples * self.decimation
+        if specific_force is None:
+            if isinstance(self.profile, StaticProfile):
+                force = np.asarray(self.profile.specific_force, dtype=float)[None, :]
+                return force, np.repeat(force, n_samples, axis=0)
+            force = self.profile.evaluate(self.time + np.arange(n_steps) * self.dt)
+        else:
+            force = np.asarray(specific_force, dtype=float)
+            if force.shape not in ((n_samples, 3), (n_steps, 3)):
+                raise ValueError(f'specific_force must have shape ({n_samples}, 3) or '
+                                 f'({n_steps}, 3), got {force.shape}')
+            if not np.all(np.isfinite(force)):
+                raise ValueError('specific_force must be finite')
+        if len(force) == n_samples:
+            return force, force.copy()
+        blocks = force.reshape(n_samples, self.decimation, 3)
+        if np.array_equal(blocks, np.broadcast_to(blocks[:, :1], blocks.shape)):
+            return blocks[:, 0], blocks[:, 0].copy()  # held over each sample
+        return force, blocks.mean(axis=1)
 
     def run_for(self, duration_s, chunk_samples=1000):
         """Run ``duration_s`` seconds in chunks and return the concatenated output."""
