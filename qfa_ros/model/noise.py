@@ -31,7 +31,7 @@ class NoiseConfig:
         White noise at the ADC input, standard deviation [count].
     """
 
-    noise_density: float = 5.0 * MICRO_G
+    noise_density: float = 2.0 * MICRO_G
     bias_instability: float = 3.0 * MICRO_G
     correlation_times: tuple = (0.1, 1.0, 10.0, 100.0, 1000.0)
     adc_noise: float = 4.0
