@@ -97,6 +97,10 @@ class FeedbackSettings:
         ``step0 (1 + c (T - T0))``, with the coefficient ``c`` per axis that
         :func:`reference_tc_schedule` stored in ``state.reference_tc_ppm``; refused
         without one. False = the paper's schedule.
+    bias_instability : float
+        Datasheet bias instability (Allan floor) [m/s^2]; adds to the standard error of
+        the two-segment (paper) schedule, whose segments the white scatter alone does
+        not describe. A specification the user sets, not the model's noise.
     """
 
     cycles: int = 1
@@ -105,6 +109,7 @@ class FeedbackSettings:
     order: str = 'single'
     motion_limit: float = 200.0 * MICRO_G
     temperature_correction: bool = False
+    bias_instability: float = 3.0 * MICRO_G
 
     def __post_init__(self):
         _check_int('cycles', self.cycles, 1, 10000)
@@ -112,6 +117,8 @@ class FeedbackSettings:
         _check_time('average_s', self.average_s)
         if self.order not in FEEDBACK_ORDERS:
             raise ValueError(f'order must be one of {FEEDBACK_ORDERS}, got {self.order!r}')
+        if not math.isfinite(self.bias_instability) or self.bias_instability < 0:
+            raise ValueError(f'bias_instability must be >= 0, got {self.bias_instability!r}')
         if not math.isfinite(self.motion_limit) or self.motion_limit <= 0:
             raise ValueError(f'motion_limit must be positive, got {self.motion_limit!r}')
         if not isinstance(self.temperature_correction, bool):
@@ -380,18 +387,18 @@ def _segment_allan_variance(counts, rate_hz):
     """
     Return the Allan variance of the output at the segment length, from the segment [count^2].
 
-    The segment is cut into four sub-means: their Allan variance at ``tau = T/4`` is
-    ``W / tau + F`` (white density ``W`` from sample differences, ``F`` the flicker
-    floor); at ``tau = T`` it is ``W / T + F``, never below the white part.
+    The segment is cut into halves: ``(m_2 - m_1)^2 / 2`` estimates the Allan variance at
+    ``tau = T/2``, ``2 W / T + F`` (white density ``W`` from sample differences, ``F``
+    the flicker floor); at ``tau = T`` it is ``W / T + F``, never below the white part.
     """
-    n = len(counts) // 4 * 4
+    n = len(counts) // 2 * 2
     if n < 8:
         return np.var(counts, axis=0) / max(1, len(counts))
     duration = n / rate_hz
-    sub = counts[:n].reshape(4, -1, counts.shape[1]).mean(axis=1)
-    avar_quarter = 0.5 * np.mean(np.diff(sub, axis=0) ** 2, axis=0)
+    halves = counts[:n].reshape(2, -1, counts.shape[1]).mean(axis=1)
+    avar_half = 0.5 * (halves[1] - halves[0]) ** 2
     white = np.var(np.diff(counts[:n], axis=0), axis=0) / 2.0 / rate_hz   # count^2 s
-    return np.maximum(avar_quarter - 3.0 * white / duration, white / duration)
+    return np.maximum(avar_half - white / duration, white / duration)
 
 
 def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, capture=False):
@@ -416,7 +423,7 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
         if not state.reference_tc_ppm:
             raise EstimationError('temperature correction needs the I_ref temperature '
                                   'coefficient: run the reference_tc schedule first')
-        if any(r.temperature is None for r in state.references) \
+        if any(r is None for r in state.reference_readings_c()) \
                 or not port.has_temperature_sensor:
             raise EstimationError('temperature correction needs the on-board temperature '
                                   'reading at the reference and now')
@@ -438,9 +445,12 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
         step_se = np.sqrt((residuals ** 2).sum(axis=0) / dof
                           / ((on - on.mean()) ** 2).sum())
     else:
-        # Two adjacent segment means: var(m_on - m_off) = 2 AVAR(T), the Allan variance
-        # at the segment length estimated from the segments themselves.
-        step_se = np.sqrt(2.0 * allan.mean(axis=0))
+        # The sample scatter measures the white noise of each segment mean; the bias
+        # instability, correlated over a segment, adds its Allan floor (the datasheet
+        # figure of the settings), twice for the difference.
+        per_segment = np.asarray(stds) / math.sqrt(port.samples_for(settings.average_s))
+        floor = 2.0 * (settings.bias_instability / port.count_scale) ** 2
+        step_se = np.sqrt((per_segment ** 2).sum(axis=0) + floor)
     reading = float(np.mean(readings))
     words_before = np.array([port.n_vref(axis) for axis in range(port.n_axes)], dtype=float)
     points = {'time_ns': np.asarray(times, dtype=np.int64),
@@ -455,7 +465,7 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
     else:
         reference = np.array([r.feedback_step for r in state.references])
         if correct:
-            shift = np.array([reading - r.temperature for r in state.references])
+            shift = reading - np.asarray(state.reference_readings_c(), dtype=float)
             reference = reference * (1.0 + np.asarray(state.reference_tc_ppm) * PPM * shift)
         ratio = reference / step
     std_error = np.abs(step_se / step) / PPM
@@ -464,7 +474,7 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
     if capture:
         for axis, ref in enumerate(state.references):
             ref.feedback_step = float(step[axis])
-            ref.temperature = reading if math.isfinite(reading) else None
+            state.set_reference_reading(axis, reading if math.isfinite(reading) else None)
     elif apply:
         for axis in range(port.n_axes):
             port.set_n_vref(axis, int(round(words_before[axis] / ratio[axis])))

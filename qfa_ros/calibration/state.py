@@ -19,7 +19,7 @@ class AxisReference:
     feedback_step : float or None
         N_out-on - N_out-off [count] (eq. 27), i.e. -I_ref / (k_VI0 k_DA0).
     temperature : float or None
-        Sensor temperature when the feedback reference was captured [degC].
+        On-board temperature reading when the feedback reference was captured [degC].
     """
 
     forward_slope: float = None
@@ -111,6 +111,14 @@ class CalibrationState:
                 triad.set_n_vref(axis, self.n_vref[axis])
         if self.temperature:
             install_compensation(triad, self.temperature)
+
+    def reference_readings_c(self):
+        """Return the on-board temperature reading of each feedback reference [degC]."""
+        return [r.temperature for r in self.references]
+
+    def set_reference_reading(self, axis, reading_c):
+        """Store the on-board temperature reading [degC] of the feedback reference."""
+        self.references[axis].temperature = reading_c
 
     def record_words(self, triad):
         """Store the words currently in ``triad``."""
