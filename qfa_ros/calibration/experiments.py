@@ -372,18 +372,18 @@ def monte_carlo(schedule, draws=200, seed=0, torquer_drift=False, span_ppm=200.0
     """
     Self-calibrate random drifts with ``schedule``; return a :class:`MonteCarloResult`.
 
-    Each draw takes a fresh sensor (default noise, default thermal model in the room
-    of :class:`PaperRoom`: wandering within +-1.5 degC, correlation 12 h; zero-bias and
-    scale-factor temperature curves on, the profile's component temperature
-    coefficients; the magnet's only with ``torquer_drift``). A schedule with temperature
-    correction first measures the I_ref coefficient in the chamber (:func:`reference_tc_schedule`, three plateaus).
-    Then, back in the room: references captured; after a gap uniform in ``gap_s`` the
-    drifts act on every axis at once: forward uniform in ``+-span`` ppm split randomly
-    over the excitation-chain components, feedback likewise over the DA0/DA2 reference
-    and V/I, with ``torquer_drift`` a k_t step uniform in +-50 ppm. Truth: the output
-    scale measured with a known input (:func:`measure_scale`) before and after
-    self-calibration, against the scale at the reference capture. ``config`` replaces
-    the sensor configuration (it needs a thermal model).
+    Each draw takes a fresh sensor (default noise, default thermal model in the room of
+    :class:`PaperRoom`: wandering within +-1.5 degC, correlation 12 h; zero-bias and
+    scale-factor temperature curves on, the profile's component temperature coefficients;
+    the magnet's only with ``torquer_drift``). A schedule with temperature correction first
+    measures the I_ref coefficient in the chamber (:func:`reference_tc_schedule`, three
+    plateaus). Then, back in the room: references captured; after a gap uniform in ``gap_s``
+    the drifts act on every axis at once: forward uniform in ``+-span`` ppm split randomly
+    over the excitation-chain components, feedback likewise over the DA0/DA2 reference and
+    V/I, with ``torquer_drift`` a k_t step uniform in +-50 ppm. Truth: the output scale
+    measured with a known input (:func:`measure_scale`) before and after self-calibration,
+    against the scale at the reference capture. ``config`` replaces the sensor configuration
+    (it needs a thermal model).
     """
     rng = np.random.default_rng(seed)
     if not torquer_drift:
