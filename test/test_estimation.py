@@ -16,12 +16,8 @@ from qfa_ros.calibration.estimation import (
     self_calibrate,
 )
 from qfa_ros.calibration.experiments import (
-    ErrorProfile,
     IMPROVED_SCHEDULE,
-    monte_carlo,
-    paper_experiment,
     PAPER_SCHEDULE,
-    schedule_sensor_time,
 )
 from qfa_ros.calibration.schedule import EstimationError, run_schedule
 from qfa_ros.calibration.state import CalibrationState
@@ -39,7 +35,10 @@ FAST_FEEDBACK = FeedbackSettings(average_s=1.0)
 
 
 FAST_PAPER = replace(PAPER_SCHEDULE, feedback=FAST_FEEDBACK)
-SCHEDULES = {'paper': FAST_PAPER, 'improved': IMPROVED_SCHEDULE}
+# Without a thermal model there is no temperature reading to correct with.
+IMPROVED = replace(IMPROVED_SCHEDULE, feedback=replace(IMPROVED_SCHEDULE.feedback,
+                                                       temperature_correction=False))
+SCHEDULES = {'paper': FAST_PAPER, 'improved': IMPROVED}
 TILTED = StaticProfile.orientation(0.5, -0.4)  # every axis carries 0.4-0.8 g
 
 
@@ -186,7 +185,7 @@ def test_saturated_input_is_refused_and_nothing_applied(level_g):
 def test_move_between_switching_segments_is_refused():
     # The sensor tilts by 5 mg inside a settle window: each segment is static, but the
     # chopped schedule's segment means no longer follow the on/off model.
-    chosen = IMPROVED_SCHEDULE
+    chosen = IMPROVED
     triad, state = calibrated_triad(noise=NoiseConfig(), schedule=chosen)
     settings = chosen.feedback
     # Inside the settle window of the third segment (after the first switch-back).
@@ -200,7 +199,7 @@ def test_move_between_switching_segments_is_refused():
 
 def test_still_sensor_is_not_refused_for_motion():
     # Default noise, the improved schedule's short segments: no false alarm in 12 draws.
-    chosen = IMPROVED_SCHEDULE
+    chosen = IMPROVED
     for seed in range(12):
         triad = QfaTriad(TriadConfig(), rng=seed)
         state = CalibrationState()
@@ -293,10 +292,11 @@ def test_error_sources_bias_the_estimates_as_their_physics_says():
     feedback = run_schedule(triad, feedback_schedule(triad, state, FAST_FEEDBACK,
                                                      apply=False))
     assert_allclose(feedback.estimate_ppm, (1 / 1.00006 - 1) / PPM, atol=0.1)
-    # Co-regression on the temperature channel (the improved schedule) removes it.
-    coregressed = replace(FAST_FEEDBACK, reference_tc_ppm=30.0)
-    again = run_schedule(triad, feedback_schedule(triad, state, coregressed, apply=False))
-    assert_allclose(again.estimate_ppm, 0.0, atol=0.1)
+    # Without an on-board temperature sensor and a measured coefficient the temperature
+    # correction is refused, never guessed.
+    corrected = replace(FAST_FEEDBACK, temperature_correction=True)
+    with pytest.raises(EstimationError, match='coefficient'):
+        run_schedule(triad, feedback_schedule(triad, state, corrected, apply=False))
 
 
 @pytest.mark.parametrize('order', ['single', 'chopped'])
@@ -353,41 +353,8 @@ def test_calibration_state_rejects_malformed_data(data):
     (ForwardSettings, {'average_s': float('nan')}, 'average_s'),
     (FeedbackSettings, {'cycles': 0}, 'cycles'),
     (FeedbackSettings, {'settle_s': -1.0}, 'settle_s'),
-    (FeedbackSettings, {'reference_tc_ppm': float('inf')}, 'reference_tc_ppm'),
+    (FeedbackSettings, {'temperature_correction': 1}, 'temperature_correction'),
 ])
 def test_invalid_schedule_settings_raise_value_error(cls, kwargs, name):
     with pytest.raises(ValueError, match=name):
         cls(**kwargs)
-
-
-def test_paper_experiment_lands_in_the_papers_range():
-    trials = paper_experiment(seed=0)
-    forward = np.mean([t.forward_estimate_ppm for t in trials])
-    feedback = np.mean([t.feedback_estimate_ppm for t in trials])
-    drifted = np.mean([abs(t.drifted_error_ug) for t in trials])
-    compensated = np.mean([abs(t.compensated_error_ug) for t in trials])
-    assert 88.0 <= 100 * forward / -200.0 <= 92.0          # seed 1: 90.26 %
-    assert 85.0 <= 100 * (1 - abs(feedback - 200) / 200) <= 95.0   # seed 1: 90.92 %
-    assert 185.0 <= drifted <= 200.0                        # seed 1: 193 ug
-    assert 85.0 <= 100 * (1 - compensated / drifted) <= 90.0     # seed 1: 87.56 %
-
-
-def test_paper_experiment_without_error_sources_is_nearly_exact():
-    trials = paper_experiment(seed=0, trials=2, profile=ErrorProfile.ideal(), static_s=5.0)
-    for t in trials:
-        assert abs(t.forward_estimate_ppm + 200.0) < 0.2
-        assert abs(t.feedback_estimate_ppm - 200.0) < 12.0  # white noise over 10 s segments
-        assert abs(t.compensated_error_ug) < abs(t.drifted_error_ug) / 10
-
-
-def test_monte_carlo_is_reproducible_and_improved_schedule_is_no_slower():
-    one = monte_carlo(IMPROVED_SCHEDULE, draws=2, seed=7)
-    two = monte_carlo(IMPROVED_SCHEDULE, draws=2, seed=7)
-    for name in ('forward_truth', 'forward_estimate', 'feedback_truth', 'feedback_estimate',
-                 'output_error_before', 'output_error_after'):
-        assert np.array_equal(getattr(one, name), getattr(two, name)), name
-    assert one.metrics() == two.metrics()
-    assert np.all(np.abs(one.forward_truth) <= 1000.0 * 1.01)
-    other = monte_carlo(IMPROVED_SCHEDULE, draws=2, seed=8)
-    assert not np.array_equal(one.feedback_truth, other.feedback_truth)
-    assert schedule_sensor_time(IMPROVED_SCHEDULE) <= schedule_sensor_time(PAPER_SCHEDULE)

@@ -1,18 +1,26 @@
-"""Forward- and feedback-gain self-estimation and in-place compensation (seed 1 §III-IV)."""
+"""
+Forward- and feedback-gain self-estimation and in-place compensation (seed 1 §III-IV).
+
+Every schedule here sees the sensor through a :class:`SensorPort` only (its words,
+output, flags and on-board temperature reading); every coefficient it uses was measured
+by a schedule and lives in the :class:`CalibrationState`. The I_ref temperature
+coefficient comes from :func:`reference_tc_schedule` (I_ref steps against gravity at
+several chamber plateaus).
+
+One module over ~500 lines because it is one cohesive thing: the three schedules that
+switch the loop words (forward sweep, I_ref switching, I_ref against gravity) share the
+segment, switching and motion primitives and the result type.
+"""
 
 from dataclasses import asdict, dataclass
 import math
 
 import numpy as np
 
-from qfa_ros.calibration.schedule import (
-    EstimationError,
-    require_closed,
-    samples_for,
-    sensor_time_ns,
-)
-from qfa_ros.model.noise import flicker_component_variance, gauss_markov_allan_variance, MICRO_G
+from qfa_ros.calibration.schedule import EstimationError, SensorPort
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED
+
+MICRO_G = 9.80665e-6
 
 PPM = 1e-6
 FORWARD_ORDERS = ('ascending', 'bidirectional', 'interleaved')
@@ -84,11 +92,15 @@ class FeedbackSettings:
         segments it also bounds how far a segment mean may depart from the on/off
         model with a linear drift (beyond six standard deviations of the noise), which
         catches a move between segments.
-    reference_tc_ppm : float
-        Temperature coefficient of I_ref [ppm/degC] known from the temperature
-        calibration. Non-zero enables the co-regression on the temperature channel:
-        the reference step is moved to the present temperature,
-        ``step0 (1 + tc (T - T0))``, before the comparison. 0 = the paper's schedule.
+    temperature_correction : bool
+        Move the reference step to the present on-board temperature reading,
+        ``step0 (1 + c (T - T0))``, with the coefficient ``c`` per axis that
+        :func:`reference_tc_schedule` stored in ``state.reference_tc_ppm``; refused
+        without one. False = the paper's schedule.
+    bias_instability : float
+        Datasheet bias instability (Allan floor) [m/s^2]; adds to the standard error of
+        the two-segment (paper) schedule, whose segments the white scatter alone does
+        not describe. A specification the user sets, not the model's noise.
     """
 
     cycles: int = 1
@@ -96,7 +108,8 @@ class FeedbackSettings:
     average_s: float = 10.0
     order: str = 'single'
     motion_limit: float = 200.0 * MICRO_G
-    reference_tc_ppm: float = 0.0
+    temperature_correction: bool = False
+    bias_instability: float = 3.0 * MICRO_G
 
     def __post_init__(self):
         _check_int('cycles', self.cycles, 1, 10000)
@@ -104,10 +117,13 @@ class FeedbackSettings:
         _check_time('average_s', self.average_s)
         if self.order not in FEEDBACK_ORDERS:
             raise ValueError(f'order must be one of {FEEDBACK_ORDERS}, got {self.order!r}')
+        if not math.isfinite(self.bias_instability) or self.bias_instability < 0:
+            raise ValueError(f'bias_instability must be >= 0, got {self.bias_instability!r}')
         if not math.isfinite(self.motion_limit) or self.motion_limit <= 0:
             raise ValueError(f'motion_limit must be positive, got {self.motion_limit!r}')
-        if not math.isfinite(self.reference_tc_ppm):
-            raise ValueError(f'reference_tc_ppm must be finite, got {self.reference_tc_ppm!r}')
+        if not isinstance(self.temperature_correction, bool):
+            raise ValueError('temperature_correction must be a bool, got '
+                             f'{self.temperature_correction!r}')
 
     def sequence(self):
         """Return the switch states (True = I_ref on) of the segments in time order."""
@@ -183,6 +199,12 @@ class EstimationResult:
 
     def summary(self):
         """Return a one-line human summary."""
+        if self.kind == 'reference_tc':
+            axes = ', '.join(f'{a} {e:+.2f}±{s:.2f}' for a, e, s in
+                             zip(AXES, self.estimate_ppm, self.std_error_ppm))
+            action = 'stored' if self.applied else 'not stored'
+            return (f'I_ref step temperature coefficient [ppm/degC] {axes}; {action}; '
+                    f'{self.duration_s:.2f} s')
         if self.captured:
             what = 'k_pre-eq0 (dN_out/dN_FPGA)' if self.kind == 'forward' \
                 else 'N_on - N_off [count]'
@@ -212,14 +234,25 @@ def _check_time(name, value, allow_zero=False):
                          f'number of seconds, got {value!r}')
 
 
-def _segment(triad, settle_s, average_s):
+def _segment(port, settle_s, average_s):
     """Yield the discard and averaging requests of one segment; return the averaged output."""
     if settle_s > 0:
-        yield samples_for(triad, settle_s)
-    return (yield samples_for(triad, average_s))
+        yield port.samples_for(settle_s)
+    return port.view((yield port.samples_for(average_s)))
 
 
-def forward_schedule(triad, state, settings=ForwardSettings(), apply=True, capture=False):
+def _require_closed(port):
+    if not port.loops_closed():
+        raise EstimationError('a loop is open: another schedule is running')
+
+
+def _record_words(port, state):
+    state.controller_gain = [port.controller_gain(axis) for axis in range(port.n_axes)]
+    state.n_vref = [port.n_vref(axis) for axis in range(port.n_axes)]
+    state.updated_at_ns = port.sensor_time_ns()
+
+
+def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capture=False):
     """
     Run the forward-gain schedule as a generator (see :func:`run_schedule`).
 
@@ -228,33 +261,36 @@ def forward_schedule(triad, state, settings=ForwardSettings(), apply=True, captu
     fits the least-squares slope of eq. 19, compares it with the reference slope
     ``k_pre-eq0`` (``1 + dk_pre = slope / slope0``) and divides k(D(z)) by
     ``1 + dk_pre`` (eq. 22); then re-closes the loops. With ``capture`` the slope
-    becomes the reference instead.
+    becomes the reference instead. ``sensor`` is a :class:`SensorPort` or a sensor
+    model (wrapped in one).
     """
+    port = SensorPort.of(sensor)
     if not capture and any(r.forward_slope is None for r in state.references):
         raise EstimationError('no forward reference captured: call capture_reference first')
-    require_closed(triad)
-    start_ns = sensor_time_ns(triad)
-    base = [loop.n_fpga for loop in triad.axes]
+    _require_closed(port)
+    start_ns = port.sensor_time_ns()
+    axes = range(port.n_axes)
+    base = [port.n_fpga(axis) for axis in axes]
     indices = settings.sequence()
     means, stds, times = [], [], []
     try:
-        for axis in range(len(AXES)):
-            triad.set_open_loop(axis, True)
+        for axis in axes:
+            port.set_open_loop(axis, True)
         for i in indices:
-            for axis in range(len(AXES)):
-                triad.set_n_fpga(axis, base[axis] + i * settings.step)
-            out = yield from _segment(triad, settings.settle_s, settings.average_s)
+            for axis in axes:
+                port.set_n_fpga(axis, base[axis] + i * settings.step)
+            out = yield from _segment(port, settings.settle_s, settings.average_s)
             if np.any(out.flags & FLAG_ADC_CLIPPED):
                 raise EstimationError('ADC clipped during the forward sweep: reduce step')
             means.append(out.counts.mean(axis=0))
             stds.append(out.counts.std(axis=0))
             times.append(int(out.stamps_ns[-1]))
     finally:
-        for axis in range(len(AXES)):
-            triad.set_n_fpga(axis, base[axis])
-            triad.set_open_loop(axis, False)
+        for axis in axes:
+            port.set_n_fpga(axis, base[axis])
+            port.set_open_loop(axis, False)
     # Wait for the loops to settle so that the schedule ends with valid output.
-    yield from _segment(triad, 0.0, triad.config.settle_time)
+    yield from _segment(port, 0.0, port.settle_time_s)
     delta_n = np.asarray(indices, dtype=float) * settings.step
     means = np.asarray(means)
     design = np.column_stack([delta_n, np.ones_like(delta_n)])
@@ -264,7 +300,7 @@ def forward_schedule(triad, state, settings=ForwardSettings(), apply=True, captu
     dof = max(1, len(delta_n) - 2)
     slope_se = np.sqrt((residuals ** 2).sum(axis=0) / dof
                        / ((delta_n - delta_n.mean()) ** 2).sum())
-    gains_before = np.array([loop.controller.gain for loop in triad.axes])
+    gains_before = np.array([port.controller_gain(axis) for axis in axes])
     points = {'time_ns': np.asarray(times, dtype=np.int64),
               'index': np.asarray(indices, dtype=float), 'delta_n': delta_n}
     for axis, name in enumerate(AXES):
@@ -283,20 +319,89 @@ def forward_schedule(triad, state, settings=ForwardSettings(), apply=True, captu
         for axis, ref in enumerate(state.references):
             ref.forward_slope = float(slope[axis])
     elif apply:
-        for axis in range(len(AXES)):
-            triad.set_controller_gain(axis, gains_before[axis] / ratio[axis])
+        for axis in axes:
+            port.set_controller_gain(axis, gains_before[axis] / ratio[axis])
         applied = True
-    gains_after = np.array([loop.controller.gain for loop in triad.axes])
-    state.record_words(triad)
-    state.updated_at_ns = sensor_time_ns(triad)
+    gains_after = np.array([port.controller_gain(axis) for axis in axes])
+    _record_words(port, state)
     if not capture:
         state.last_estimates['forward'] = estimate.tolist()
     return EstimationResult('forward', asdict(settings), estimate, std_error, points, residuals,
                             slope, reference, gains_before, gains_after, applied, capture,
-                            start_ns, sensor_time_ns(triad))
+                            start_ns, port.sensor_time_ns())
 
 
-def feedback_schedule(triad, state, settings=FeedbackSettings(), apply=True, capture=False):
+def _switching(port, sequence, settings, check_motion=True):
+    """
+    Switch I_ref in ``sequence`` order; return segment means, stds, times, readings.
+
+    Generator (sub-schedule). Also returns the per-segment Allan variance at the
+    segment length estimated from the data (see :func:`_segment_allan_variance`) and
+    the on-board temperature reading of each segment [degC].
+    """
+    axes = range(port.n_axes)
+    means, stds, times, readings, allan = [], [], [], [], []
+    block = max(1, int(round(0.01 * port.sample_rate_hz)))
+    try:
+        for on in sequence:
+            for axis in axes:
+                port.set_reference_current(axis, on)
+            out = yield from _segment(port, settings.settle_s, settings.average_s)
+            if np.any(out.saturated):
+                # Any flag: DA2 or ADC clipped, or beyond the rated range.
+                raise EstimationError('output saturated: the input must be in range')
+            if check_motion:
+                _check_motion(out.accel, block, settings.motion_limit)
+            means.append(out.counts.mean(axis=0))
+            stds.append(out.counts.std(axis=0))
+            times.append(int(out.stamps_ns[-1]))
+            readings.append(float(np.mean(port.temperature_c(out.v_temp))))
+            allan.append(_segment_allan_variance(out.counts, port.sample_rate_hz))
+    finally:
+        for axis in axes:
+            port.set_reference_current(axis, False)
+    # Let the loops settle from the last switching so that the schedule ends valid.
+    yield from _segment(port, 0.0, settings.settle_s + port.settle_time_s)
+    return (np.asarray(means), np.asarray(stds), np.asarray(times), np.asarray(readings),
+            np.asarray(allan))
+
+
+def _check_motion(accel, block, limit):
+    """Refuse a segment whose 10 ms means scatter beyond the noise the data itself shows."""
+    usable = len(accel) // block * block
+    if usable < 2 * block:
+        return
+    block_means = accel[:usable].reshape(-1, block, 3).mean(axis=1)
+    # The white noise of a block mean, from sample-to-sample differences (a slow move
+    # barely changes them): std(diff) / sqrt(2) / sqrt(block).
+    noise_std = np.std(np.diff(accel[:usable], axis=0), axis=0) / math.sqrt(2.0 * block)
+    excess = block_means.std(axis=0) - noise_std
+    if np.any(excess > limit):
+        worst = float(np.max(excess) / MICRO_G)
+        raise EstimationError(
+            f'input is moving: 10 ms means scatter {worst:.0f} ug beyond the '
+            f'noise (limit {limit / MICRO_G:.0f} ug); hold the sensor still')
+
+
+def _segment_allan_variance(counts, rate_hz):
+    """
+    Return the Allan variance of the output at the segment length, from the segment [count^2].
+
+    The segment is cut into halves: ``(m_2 - m_1)^2 / 2`` estimates the Allan variance at
+    ``tau = T/2``, ``2 W / T + F`` (white density ``W`` from sample differences, ``F``
+    the flicker floor); at ``tau = T`` it is ``W / T + F``, never below the white part.
+    """
+    n = len(counts) // 2 * 2
+    if n < 8:
+        return np.var(counts, axis=0) / max(1, len(counts))
+    duration = n / rate_hz
+    halves = counts[:n].reshape(2, -1, counts.shape[1]).mean(axis=1)
+    avar_half = 0.5 * (halves[1] - halves[0]) ** 2
+    white = np.var(np.diff(counts[:n], axis=0), axis=0) / 2.0 / rate_hz   # count^2 s
+    return np.maximum(avar_half - white / duration, white / duration)
+
+
+def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, capture=False):
     """
     Run the feedback-gain schedule as a generator (see :func:`run_schedule`).
 
@@ -305,46 +410,30 @@ def feedback_schedule(triad, state, settings=FeedbackSettings(), apply=True, cap
     segment. ``N_on - N_off = -I_ref / (k_VI k_DA (1 + dk_fb))`` (eq. 26-28), so
     ``1 + dk_fb = step0 / step``; the compensation writes
     ``N_VREF <- N_VREF / (1 + dk_fb)`` (eq. 29-30). With ``capture`` the step
-    becomes the reference instead. The input must be static and in range.
+    becomes the reference instead, stored with the on-board temperature reading.
+    With ``settings.temperature_correction`` the reference step is first moved to the
+    present reading with the coefficient of :func:`reference_tc_schedule`. The input
+    must be static and in range.
     """
+    port = SensorPort.of(sensor)
     if not capture and any(r.feedback_step is None for r in state.references):
         raise EstimationError('no feedback reference captured: call capture_reference first')
-    require_closed(triad)
-    start_ns = sensor_time_ns(triad)
+    correct = settings.temperature_correction and not capture
+    if correct:
+        if not state.reference_tc_ppm:
+            raise EstimationError('temperature correction needs the I_ref temperature '
+                                  'coefficient: run the reference_tc schedule first')
+        if any(r is None for r in state.reference_readings_c()) \
+                or not port.has_temperature_sensor:
+            raise EstimationError('temperature correction needs the on-board temperature '
+                                  'reading at the reference and now')
+    _require_closed(port)
+    start_ns = port.sensor_time_ns()
     sequence = settings.sequence()
-    means, stds, times = [], [], []
-    block = max(1, int(round(0.01 * triad.config.sample_rate_hz)))
-    noise_std = _block_noise_std(triad, block)
-    try:
-        for on in sequence:
-            for axis in range(len(AXES)):
-                triad.set_reference_current(axis, on)
-            out = yield from _segment(triad, settings.settle_s, settings.average_s)
-            if np.any(out.saturated):
-                # Any flag: DA2 or ADC clipped, or beyond the rated range.
-                raise EstimationError('output saturated: the input must be in range')
-            usable = len(out.accel) // block * block
-            if usable >= 2 * block:
-                block_means = out.accel[:usable].reshape(-1, block, 3).mean(axis=1)
-                excess = block_means.std(axis=0) - noise_std
-                if np.any(excess > settings.motion_limit):
-                    worst = float(np.max(excess) / MICRO_G)
-                    raise EstimationError(
-                        f'input is moving: 10 ms means scatter {worst:.0f} ug beyond the '
-                        f'noise (limit {settings.motion_limit / MICRO_G:.0f} ug); '
-                        'hold the sensor still')
-            means.append(out.counts.mean(axis=0))
-            stds.append(out.counts.std(axis=0))
-            times.append(int(out.stamps_ns[-1]))
-    finally:
-        for axis in range(len(AXES)):
-            triad.set_reference_current(axis, False)
-    # Let the loops settle from the last switching so that the schedule ends valid.
-    yield from _segment(triad, 0.0, settings.settle_s + triad.config.settle_time)
-    means = np.asarray(means)
+    means, stds, times, readings, allan = yield from _switching(port, sequence, settings)
     on = np.asarray(sequence)
     if len(on) >= 4:
-        _check_between_segments(triad, settings, on, np.asarray(times), means)
+        _check_between_segments(port, settings, on, times, means, allan)
     # Least squares of the segment means on [switch state, 1]: the step is the on/off
     # difference, and for the ABBA order the linear drift cancels by symmetry.
     design = np.column_stack([on.astype(float), np.ones(len(on))])
@@ -357,77 +446,66 @@ def feedback_schedule(triad, state, settings=FeedbackSettings(), apply=True, cap
                           / ((on - on.mean()) ** 2).sum())
     else:
         # The sample scatter measures the white noise of each segment mean; the bias
-        # instability, correlated over a segment, adds the Allan variance of the
-        # configured Gauss-Markov sum at tau = average_s, twice for the difference.
-        per_segment = np.asarray(stds) / math.sqrt(samples_for(triad, settings.average_s))
-        flicker = 2.0 * _flicker_allan_variance(triad, settings.average_s) / triad.scale ** 2
-        step_se = np.sqrt((per_segment ** 2).sum(axis=0) + flicker)
-    words_before = np.array([loop.n_vref for loop in triad.axes], dtype=float)
+        # instability, correlated over a segment, adds its Allan floor (the datasheet
+        # figure of the settings), twice for the difference.
+        per_segment = np.asarray(stds) / math.sqrt(port.samples_for(settings.average_s))
+        floor = 2.0 * (settings.bias_instability / port.count_scale) ** 2
+        step_se = np.sqrt((per_segment ** 2).sum(axis=0) + floor)
+    reading = float(np.mean(readings))
+    words_before = np.array([port.n_vref(axis) for axis in range(port.n_axes)], dtype=float)
     points = {'time_ns': np.asarray(times, dtype=np.int64),
-              'segment': np.arange(len(on), dtype=float), 'reference_on': on.astype(float)}
+              'segment': np.arange(len(on), dtype=float), 'reference_on': on.astype(float),
+              'temperature_c': readings}
     for axis, name in enumerate(AXES):
         points[f'mean_{name}'] = means[:, axis]
         points[f'std_{name}'] = np.asarray(stds)[:, axis]
     if capture:
         reference = np.full(len(AXES), np.nan)
         ratio = np.ones(len(AXES))
-        std_error = np.abs(step_se / step) / PPM
     else:
         reference = np.array([r.feedback_step for r in state.references])
-        if settings.reference_tc_ppm:
-            # Co-regression on the temperature channel: I_ref has moved with temperature.
-            shift = np.array([triad.temperature - (r.temperature if r.temperature is not None
-                                                   else triad.temperature)
-                              for r in state.references])
-            reference = reference * (1.0 + settings.reference_tc_ppm * PPM * shift)
+        if correct:
+            shift = reading - np.asarray(state.reference_readings_c(), dtype=float)
+            reference = reference * (1.0 + np.asarray(state.reference_tc_ppm) * PPM * shift)
         ratio = reference / step
-        std_error = np.abs(step_se / step) / PPM
+    std_error = np.abs(step_se / step) / PPM
     estimate = (ratio - 1.0) / PPM
     applied = False
     if capture:
         for axis, ref in enumerate(state.references):
             ref.feedback_step = float(step[axis])
-            ref.temperature = float(triad.temperature)
+            state.set_reference_reading(axis, reading if math.isfinite(reading) else None)
     elif apply:
-        for axis in range(len(AXES)):
-            triad.set_n_vref(axis, int(round(words_before[axis] / ratio[axis])))
+        for axis in range(port.n_axes):
+            port.set_n_vref(axis, int(round(words_before[axis] / ratio[axis])))
         applied = True
-    words_after = np.array([loop.n_vref for loop in triad.axes], dtype=float)
-    state.record_words(triad)
-    state.updated_at_ns = sensor_time_ns(triad)
+    words_after = np.array([port.n_vref(axis) for axis in range(port.n_axes)], dtype=float)
+    _record_words(port, state)
     if not capture:
         state.last_estimates['feedback'] = estimate.tolist()
     return EstimationResult('feedback', asdict(settings), estimate, std_error, points,
                             residuals, step, reference, words_before, words_after, applied,
-                            capture, start_ns, sensor_time_ns(triad))
+                            capture, start_ns, port.sensor_time_ns())
 
 
-def capture_reference(triad, state, forward=ForwardSettings(), feedback=FeedbackSettings()):
+def capture_reference(sensor, state, forward=ForwardSettings(), feedback=FeedbackSettings()):
     """Measure both references (seed 1 §IV-A step 1); return the two results."""
-    forward_result = yield from forward_schedule(triad, state, forward, capture=True)
-    feedback_result = yield from feedback_schedule(triad, state, feedback, capture=True)
-    state.captured_at_ns = sensor_time_ns(triad)
+    port = SensorPort.of(sensor)
+    forward_result = yield from forward_schedule(port, state, forward, capture=True)
+    feedback_result = yield from feedback_schedule(port, state, feedback, capture=True)
+    state.captured_at_ns = port.sensor_time_ns()
     return forward_result, feedback_result
 
 
-def self_calibrate(triad, state, forward=ForwardSettings(), feedback=FeedbackSettings()):
+def self_calibrate(sensor, state, forward=ForwardSettings(), feedback=FeedbackSettings()):
     """Run the forward schedule, then the feedback schedule; return the two results."""
-    forward_result = yield from forward_schedule(triad, state, forward)
-    feedback_result = yield from feedback_schedule(triad, state, feedback)
+    port = SensorPort.of(sensor)
+    forward_result = yield from forward_schedule(port, state, forward)
+    feedback_result = yield from feedback_schedule(port, state, feedback)
     return forward_result, feedback_result
 
 
-def _flicker_allan_variance(triad, tau):
-    """Return the Allan variance of the configured bias instability at ``tau`` [(m/s^2)^2]."""
-    noise = triad.config.noise
-    variance = flicker_component_variance(noise)
-    if variance == 0:
-        return 0.0
-    return float(sum(gauss_markov_allan_variance(tau, variance, t)
-                     for t in noise.correlation_times))
-
-
-def _check_between_segments(triad, settings, on, times_ns, means):
+def _check_between_segments(port, settings, on, times_ns, means, allan):
     """
     Refuse a switching sequence whose segment means betray a move between segments.
 
@@ -435,15 +513,14 @@ def _check_between_segments(triad, settings, on, times_ns, means):
     window (the sensor tilted between two segments) leaves each segment static but
     shifts the level. With four or more segments the means must follow
     ``step * on + offset + slope * t`` (a linear drift allowed); a residual beyond
-    ``motion_limit`` plus six standard deviations of a segment mean is refused.
+    ``motion_limit`` plus six standard deviations of a segment mean (from the Allan
+    variance the segments themselves show) is refused.
     """
     t = (times_ns - times_ns[0]) * 1e-9
     design = np.column_stack([on.astype(float), np.ones(len(on)), t])
     coef, *_ = np.linalg.lstsq(design, means, rcond=None)
-    worst = np.max(np.abs(means - design @ coef), axis=0) * triad.scale
-    noise = triad.config.noise
-    segment_std = math.sqrt(noise.noise_density ** 2 / settings.average_s
-                            + _flicker_allan_variance(triad, settings.average_s))
+    worst = np.max(np.abs(means - design @ coef), axis=0) * port.count_scale
+    segment_std = math.sqrt(float(np.max(np.median(allan, axis=0)))) * port.count_scale
     limit = settings.motion_limit + 6.0 * segment_std
     if np.any(worst > limit):
         raise EstimationError(
@@ -452,7 +529,137 @@ def _check_between_segments(triad, settings, on, times_ns, means):
             f'{limit / MICRO_G:.0f} ug); hold the sensor still')
 
 
-def _block_noise_std(triad, block):
-    """Return the expected std of ``block``-sample means from the white noise [m/s^2]."""
-    density = triad.config.noise.noise_density
-    return density * math.sqrt(triad.config.sample_rate_hz / block)
+@dataclass(frozen=True)
+class ReferenceTcSettings:
+    """
+    I_ref temperature-coefficient schedule (chamber plateaus, two-position fixture).
+
+    Attributes
+    ----------
+    plateaus_c : tuple of float
+        Chamber plateaus [degC], at least two.
+    soak_s : float
+        Soak at each plateau before measuring [s] (several body time constants).
+    position_s : float
+        Averaged time per fixture position [s].
+    switching : FeedbackSettings
+        I_ref switching at each position.
+    """
+
+    plateaus_c: tuple = (15.0, 25.0, 35.0)
+    soak_s: float = 2400.0
+    position_s: float = 2.0
+    switching: FeedbackSettings = FeedbackSettings(cycles=4, settle_s=0.02, average_s=0.28,
+                                                   order='chopped')
+
+    def __post_init__(self):
+        temps = np.asarray(self.plateaus_c, dtype=float)
+        if temps.ndim != 1 or len(temps) < 2 or not np.all(np.isfinite(temps)) \
+                or np.ptp(temps) < 1.0:
+            raise ValueError('plateaus_c must be at least two finite temperatures spanning '
+                             f'1 degC or more, got {self.plateaus_c!r}')
+        _check_time('soak_s', self.soak_s, allow_zero=True)
+        _check_time('position_s', self.position_s)
+        if not isinstance(self.switching, FeedbackSettings):
+            raise ValueError('switching must be FeedbackSettings')
+
+
+def fit_reference_tc(readings_c, ratios):
+    """
+    Fit the relative temperature coefficient of the I_ref step against gravity.
+
+    Parameters
+    ----------
+    readings_c : float64[m]
+        On-board temperature reading per plateau [degC].
+    ratios : float64[m, 3]
+        I_ref step divided by the output change of a known input per plateau and axis
+        (the step in units of true specific force).
+
+    Returns
+    -------
+    tc_ppm, std_error_ppm : float64[3]
+        ``d ln(ratio) / dT`` [ppm/degC] and its standard error (NaN with two plateaus).
+    """
+    t = np.asarray(readings_c, dtype=float)
+    y = np.log(np.abs(np.asarray(ratios, dtype=float)))
+    design = np.column_stack([t - t.mean(), np.ones_like(t)])
+    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+    dof = len(t) - 2
+    if dof > 0:
+        residuals = y - design @ coef
+        se = np.sqrt((residuals ** 2).sum(axis=0) / dof / ((t - t.mean()) ** 2).sum())
+    else:
+        se = np.full(y.shape[1], np.nan)
+    return coef[0] / PPM, se / PPM
+
+
+def reference_tc_schedule(sensor, bench, state, settings=ReferenceTcSettings(), apply=True):
+    r"""
+    Estimate the temperature coefficient of the I_ref step against gravity (generator).
+
+    At each chamber plateau (``bench.set_chamber_c``, ``bench.soak``) and in the two
+    fixture positions ``+u`` and ``-u`` (``bench.set_position(+1 / -1)``, known
+    specific force ``bench.known_input(sign)``, every axis carrying a share of g):
+    the static output ``N_+`` and ``N_-`` and the I_ref step ``S`` (chopped).
+    ``ratio = S (f_+ - f_-) / (N_+ - N_-)`` is the step expressed in true specific
+    force, ``-k_t I_ref (1 + e(T)) / K0``-like: it moves with the I_ref, torquer and
+    lumped scale-factor temperature coefficients but not with ``k_VI k_DA`` (which
+    cancels) nor the zero bias (the two positions cancel it). Its relative slope
+    against the on-board temperature reading, ``c = a_Iref + a_kt - e``, is the
+    coefficient the feedback schedule needs: with ``step0 (1 + c dT)`` as reference
+    it restores the output scale at the reference temperature to first order.
+    With ``apply`` the coefficient goes into ``state.reference_tc_ppm``. The bench is
+    the calibration set-up (chamber and fixture), not the sensor; the estimator reads
+    the sensor through a :class:`SensorPort` only. Returns an :class:`EstimationResult`
+    of kind ``reference_tc`` (``estimate_ppm`` in ppm/degC).
+    """
+    port = SensorPort.of(sensor)
+    _require_closed(port)
+    start_ns = port.sensor_time_ns()
+    readings, ratios, times = [], [], []
+    try:
+        for plateau in settings.plateaus_c:
+            bench.set_chamber_c(plateau)
+            bench.soak(settings.soak_s)
+            levels, steps, temps = {}, [], []
+            for sign in (1, -1):
+                bench.set_position(sign)
+                out = yield from _segment(port, 0.1, settings.position_s)
+                if np.any(out.saturated):
+                    raise EstimationError('output saturated in the fixture position')
+                levels[sign] = out.counts.mean(axis=0)
+                temps.append(float(np.mean(port.temperature_c(out.v_temp))))
+                means, _, seg_times, seg_temps, _ = yield from _switching(
+                    port, settings.switching.sequence(), settings.switching, check_motion=False)
+                on = np.asarray(settings.switching.sequence(), dtype=float)
+                design = np.column_stack([on, np.ones(len(on))])
+                steps.append(np.linalg.lstsq(design, means, rcond=None)[0][0])
+                temps.extend(seg_temps.tolist())
+                times.append(int(seg_times[-1]))
+            known = np.asarray(bench.known_input(1), float) - np.asarray(bench.known_input(-1),
+                                                                          float)
+            if np.any(np.abs(known) < 1.0):
+                raise EstimationError('every axis needs a known input of at least 1 m/s^2 '
+                                      'between the two fixture positions')
+            ratios.append(np.mean(steps, axis=0) * known / (levels[1] - levels[-1]))
+            readings.append(float(np.mean(temps)))
+    finally:
+        bench.restore()
+    readings = np.asarray(readings)
+    if not np.all(np.isfinite(readings)):
+        raise EstimationError('the sensor has no on-board temperature reading')
+    if np.ptp(readings) < 1.0:
+        raise EstimationError('the plateaus differ by less than 1 degC on the on-board sensor')
+    ratios = np.asarray(ratios)
+    tc, se = fit_reference_tc(readings, ratios)
+    if apply:
+        state.reference_tc_ppm = [float(v) for v in tc]
+        state.updated_at_ns = port.sensor_time_ns()
+    points = {'time_ns': np.asarray(times[1::2], dtype=np.int64), 'temperature_c': readings}
+    for axis, name in enumerate(AXES):
+        points[f'ratio_{name}'] = ratios[:, axis]
+    empty = np.full(len(AXES), np.nan)
+    return EstimationResult('reference_tc', asdict(settings), tc, se, points,
+                            ratios / ratios.mean(axis=0) - 1.0, tc, empty, empty, empty,
+                            apply, False, start_ns, port.sensor_time_ns())

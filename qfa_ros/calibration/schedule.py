@@ -1,17 +1,180 @@
 """
-What every schedule shares: its error, the sensor time, and the offline driver.
+What every schedule shares: its error, the sensor port, the sensor time, the driver.
 
-A schedule is a generator that drives the loop words of a :class:`QfaTriad`, yields how
-many samples it needs next, and receives them as one :class:`TriadOutput`; it returns
-its result. :func:`run_schedule` drives one offline as fast as the CPU allows; the node
-drives the same generators paced by the ROS clock.
+A schedule is a generator that drives the loop words of a sensor, yields how many
+samples it needs next, and receives them as one block; it returns its result.
+:func:`run_schedule` drives one offline as fast as the CPU allows; the node drives the
+same generators paced by the ROS clock.
+
+Estimators see the sensor only through a :class:`SensorPort`: the words the FPGA can
+write, the decimated output with its flags, and the on-board temperature sensor read
+through its ADC. Nothing of the model's truth (true input, body temperature, drift,
+noise configuration) passes through it; ``test_estimation_sees_no_truth`` audits that.
 """
 
-from qfa_ros.model.triad import concatenate
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+from qfa_ros.model.triad import AXES, concatenate
 
 
 class EstimationError(ValueError):
     """A schedule cannot run or its data cannot give an estimate; nothing was applied."""
+
+
+@dataclass(frozen=True)
+class SensorSamples:
+    """
+    What the sensor outputs over a block of samples (no truth).
+
+    Attributes
+    ----------
+    stamps_ns : int64[n]
+        Sample instants [ns].
+    accel : float64[n, 3]
+        Output through the nominal scale factor [m/s^2].
+    counts : float64[n, 3]
+        Mean output word per sample [count].
+    flags : int8[n, 3]
+        Saturation bits.
+    valid : bool[n, 3]
+        False while an axis is open or settling.
+    v_temp : float64[n]
+        On-board temperature-sensor ADC reading [V] (NaN without one).
+    """
+
+    stamps_ns: np.ndarray
+    accel: np.ndarray
+    counts: np.ndarray
+    flags: np.ndarray
+    valid: np.ndarray
+    v_temp: np.ndarray
+
+    @property
+    def saturated(self):
+        """Return bool[n, 3]: any saturation bit set."""
+        return self.flags != 0
+
+
+class SensorPort:
+    """
+    The sensor as its own firmware knows it: output, flags, words, temperature reading.
+
+    Wraps a :class:`qfa_ros.model.triad.QfaTriad` and exposes only what the real
+    FPGA reads or writes: per axis k(D(z)), N_FPGA, N_VREF, the I_ref switch and the
+    open/closed state; the published output and flags (:meth:`view`); the on-board
+    temperature sensor through its ADC and nominal transfer function
+    (:meth:`temperature_c`); and design constants (sample rate, nominal scale,
+    settle time). The wrapped model is private.
+
+    Parameters
+    ----------
+    triad : QfaTriad
+        The sensor model.
+    """
+
+    __slots__ = ('_triad',)
+
+    def __init__(self, triad):
+        if isinstance(triad, SensorPort):
+            raise ValueError('triad must be a sensor model, not a SensorPort')
+        self._triad = triad
+
+    @classmethod
+    def of(cls, sensor):
+        """Return ``sensor`` if it is a port, else a port over the sensor model."""
+        return sensor if isinstance(sensor, SensorPort) else cls(sensor)
+
+    # Design constants ----------------------------------------------------------------
+    @property
+    def n_axes(self):
+        """Number of axes."""
+        return len(AXES)
+
+    @property
+    def sample_rate_hz(self):
+        """Published sample rate [Hz]."""
+        return self._triad.config.sample_rate_hz
+
+    @property
+    def settle_time_s(self):
+        """Time the output stays flagged invalid after re-closing a loop [s]."""
+        return self._triad.config.settle_time
+
+    @property
+    def count_scale(self):
+        """Nominal scale factor of the output word [(m/s^2)/count]."""
+        return self._triad.scale
+
+    def samples_for(self, seconds):
+        """Return how many samples (at least one) span ``seconds``."""
+        return max(1, int(round(seconds * self.sample_rate_hz)))
+
+    def sensor_time_ns(self):
+        """Return the sensor time of the next sample [ns]."""
+        return sensor_time_ns(self._triad)
+
+    # Words ---------------------------------------------------------------------------
+    def loops_closed(self):
+        """Return True when every loop is closed."""
+        return not any(loop.open_loop for loop in self._triad.axes)
+
+    def set_open_loop(self, axis, open_loop):
+        """Open (True) or re-close (False) the loop of ``axis``."""
+        self._triad.set_open_loop(axis, open_loop)
+
+    def n_fpga(self, axis):
+        """Return the modulation word N_FPGA of ``axis``."""
+        return self._triad.axes[axis].n_fpga
+
+    def set_n_fpga(self, axis, word):
+        """Write N_FPGA of ``axis``."""
+        self._triad.set_n_fpga(axis, word)
+
+    def n_vref(self, axis):
+        """Return the DA0 reference word N_VREF of ``axis``."""
+        return self._triad.axes[axis].n_vref
+
+    def set_n_vref(self, axis, word):
+        """Write N_VREF of ``axis``."""
+        self._triad.set_n_vref(axis, word)
+
+    def controller_gain(self, axis):
+        """Return k(D(z)) of ``axis``."""
+        return self._triad.axes[axis].controller.gain
+
+    def set_controller_gain(self, axis, gain):
+        """Write k(D(z)) of ``axis``."""
+        self._triad.set_controller_gain(axis, gain)
+
+    def set_reference_current(self, axis, on):
+        """Close (True) or open (False) the I_ref switch M1 of ``axis``."""
+        self._triad.set_reference_current(axis, on)
+
+    # Output --------------------------------------------------------------------------
+    @property
+    def has_temperature_sensor(self):
+        """Return True when the sensor has an on-board temperature sensor."""
+        return self._triad.thermal is not None
+
+    def temperature_c(self, v_temp):
+        """Return the temperature [degC] the on-board sensor reports for ``v_temp`` [V].
+
+        The nominal transfer function of the sensor chip (its datasheet), NaN without one.
+        """
+        if self._triad.thermal is None:
+            return np.full(np.shape(v_temp), math.nan)
+        return self._triad.thermal.reading_c(v_temp)
+
+    def view(self, output):
+        """Return the :class:`SensorSamples` of a model output block (drops the truth)."""
+        if isinstance(output, SensorSamples):
+            return output
+        return SensorSamples(stamps_ns=output.stamps_ns, accel=output.accel,
+                             counts=output.counts, flags=output.flags, valid=output.valid,
+                             v_temp=output.v_temp)
 
 
 def samples_for(triad, seconds):
@@ -24,9 +187,9 @@ def sensor_time_ns(triad):
     return int(triad.sample_index * 1e9 / triad.config.sample_rate_hz)
 
 
-def require_closed(triad):
+def require_closed(sensor):
     """Raise :class:`EstimationError` if a loop is open (another schedule runs)."""
-    if any(loop.open_loop for loop in triad.axes):
+    if not SensorPort.of(sensor).loops_closed():
         raise EstimationError('a loop is open: another schedule is running')
 
 

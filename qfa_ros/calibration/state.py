@@ -19,7 +19,7 @@ class AxisReference:
     feedback_step : float or None
         N_out-on - N_out-off [count] (eq. 27), i.e. -I_ref / (k_VI0 k_DA0).
     temperature : float or None
-        Sensor temperature when the feedback reference was captured [degC].
+        On-board temperature reading when the feedback reference was captured [degC].
     """
 
     forward_slope: float = None
@@ -46,6 +46,10 @@ class CalibrationState:
         Sensor times [ns].
     temperature : dict
         Temperature-compensation coefficients (filled by the temperature schedule).
+    reference_tc_ppm : list of float
+        Temperature coefficient of the I_ref step against gravity per axis [ppm/degC]
+        (:func:`qfa_ros.calibration.estimation.reference_tc_schedule`); empty until
+        measured. The feedback schedule's temperature correction uses it.
     """
 
     references: list = field(default_factory=lambda: [AxisReference() for _ in AXES])
@@ -55,6 +59,7 @@ class CalibrationState:
     captured_at_ns: int = 0
     updated_at_ns: int = 0
     temperature: dict = field(default_factory=dict)
+    reference_tc_ppm: list = field(default_factory=list)
 
     @property
     def has_reference(self):
@@ -81,12 +86,16 @@ class CalibrationState:
                         last_estimates=dict(data.get('last_estimates', {})),
                         captured_at_ns=int(data.get('captured_at_ns', 0)),
                         updated_at_ns=int(data.get('updated_at_ns', 0)),
-                        temperature=dict(data.get('temperature', {})))
+                        temperature=dict(data.get('temperature', {})),
+                        reference_tc_ppm=[float(v) for v in data.get('reference_tc_ppm', [])])
         except (KeyError, TypeError, ValueError) as error:
             raise ValueError(f'calibration state: malformed ({error})') from error
         if len(refs) != len(AXES) or len(state.controller_gain) not in (0, len(AXES)) \
-                or len(state.n_vref) not in (0, len(AXES)):
+                or len(state.n_vref) not in (0, len(AXES)) \
+                or len(state.reference_tc_ppm) not in (0, len(AXES)):
             raise ValueError('calibration state: expected three axes')
+        if not all(math.isfinite(v) for v in state.reference_tc_ppm):
+            raise ValueError('calibration state: non-finite reference_tc_ppm')
         for value in [v for r in refs for v in (r.forward_slope, r.feedback_step)
                       if v is not None] + state.controller_gain:
             if not math.isfinite(value) or value == 0:
@@ -102,6 +111,14 @@ class CalibrationState:
                 triad.set_n_vref(axis, self.n_vref[axis])
         if self.temperature:
             install_compensation(triad, self.temperature)
+
+    def reference_readings_c(self):
+        """Return the on-board temperature reading of each feedback reference [degC]."""
+        return [r.temperature for r in self.references]
+
+    def set_reference_reading(self, axis, reading_c):
+        """Store the on-board temperature reading [degC] of the feedback reference."""
+        self.references[axis].temperature = reading_c
 
     def record_words(self, triad):
         """Store the words currently in ``triad``."""

@@ -210,9 +210,10 @@ PARAMETERS = (
     ParameterSpec('estimation.feedback.motion_limit_ug', _FEEDBACK.motion_limit / MICRO_G,
                   'Scatter of 10 ms means beyond the noise that counts as a moving input '
                   '[ug]', False, 1.0e-3, 1.0e6),
-    ParameterSpec('estimation.feedback.reference_tc_ppm', _FEEDBACK.reference_tc_ppm,
-                  'Temperature coefficient of I_ref for the co-regression [ppm/degC] '
-                  '(0: the paper schedule)', False, -1.0e4, 1.0e4),
+    ParameterSpec('estimation.feedback.temperature_correction',
+                  _FEEDBACK.temperature_correction,
+                  'Move the I_ref reference step to the present on-board temperature with the '
+                  'coefficient the reference_tc schedule stored (false: the paper schedule)'),
     ParameterSpec('temperature_calibration.low_c', _CHAMBER.low_c,
                   'Chamber cycle low limit of calibrate_temperature [degC]', False,
                   -60.0, 125.0),
@@ -386,7 +387,7 @@ def feedback_settings(values):
             average_s=values['estimation.feedback.average_s'],
             order=values['estimation.feedback.order'],
             motion_limit=values['estimation.feedback.motion_limit_ug'] * MICRO_G,
-            reference_tc_ppm=values['estimation.feedback.reference_tc_ppm'])
+            temperature_correction=values['estimation.feedback.temperature_correction'])
 
 
 def static_profile(values):
