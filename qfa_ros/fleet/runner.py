@@ -11,6 +11,7 @@ whatever the number of workers.
 """
 
 import json
+import logging
 import os
 from pathlib import Path
 import time
@@ -106,7 +107,8 @@ def run_study(study, out_path, *, workers=None, scheduler=None, progress=True, l
         else:
             # One single-threaded process per core: the model holds the GIL per task.
             cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1,
-                                   processes=True, dashboard_address=None)
+                                   processes=True, dashboard_address=None,
+                                   silence_logs=logging.ERROR)
             client = Client(cluster)
         try:
             futures = [client.submit(batch_table, study, start, stop, pure=False,
