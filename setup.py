@@ -28,6 +28,7 @@ setup(
             'qfa_node = qfa_ros.cli.node:main',
             'qfa-replay = qfa_ros.cli.replay:main',
             'qfa-report = qfa_ros.cli.report:main',
+            'qfa-fleet = qfa_ros.cli.fleet:main',
         ],
     },
 )

@@ -10,6 +10,7 @@ layer              what                                                       ma
 ``cli``            thin command-line entry points (qfa-node, qfa-sim, ...)    everything
 ``ros``            the node and its parts, replay publisher; the only rclpy   bag and below
 ``report``         figures drawn from bags (matplotlib)                       bag and below
+``fleet``          Monte Carlo fleet studies on Dask, Parquet results         calibration, model
 ``bag``            MCAP / rosbag2 writing and reading, CDR, traces            calibration, model
 ``calibration``    self-estimation schedules, calibration state, seed 2 fit   model
 ``model``          the sensor physics: loops, noise, drift, thermal, triad    numpy/scipy/numba

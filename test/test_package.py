@@ -56,7 +56,7 @@ def test_make_targets_and_ci_entry_point():
             assert not line or '==' in line, f'{requirement.name}: unpinned {line!r}'
 
 
-ROS_FREE_LAYERS = ('model', 'calibration', 'bag', 'report')
+ROS_FREE_LAYERS = ('model', 'calibration', 'bag', 'report', 'fleet')
 """Layers that must run without ROS 2; only qfa_ros.ros and qfa_ros.cli map onto it."""
 
 ROS_PACKAGES = ('rclpy', 'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'std_srvs',

@@ -1,0 +1,61 @@
+"""``qfa-fleet STUDY.yaml``: run a fleet study on Dask and summarize it."""
+
+import argparse
+from pathlib import Path
+import sys
+
+from qfa_ros.fleet.runner import run_study
+from qfa_ros.fleet.study import Study, StudyError
+from qfa_ros.fleet.summary import draw_figures, format_summary
+
+
+def build_parser():
+    """Return the command-line parser."""
+    parser = argparse.ArgumentParser(
+        prog='qfa-fleet',
+        description='Monte Carlo over units, schedules and years: units drawn per seed, '
+                    'aged and self-calibrated, scored against the truth (Dask, Parquet).')
+    parser.add_argument('study', help='study file (YAML; see qfa_ros.fleet.study)')
+    parser.add_argument('--out', metavar='FILE.parquet',
+                        help='results (default: STUDY.parquet beside the study file); '
+                             'finished batches are kept in FILE.parquet.parts to resume')
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument('--workers', type=int, metavar='N',
+                       help='worker processes of the local cluster (default: every core)')
+    where.add_argument('--scheduler', metavar='tcp://HOST:PORT',
+                       help='run on an existing Dask cluster instead')
+    parser.add_argument('--figures', metavar='DIR', help='also write PNG figures to DIR')
+    parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    return parser
+
+
+def main(argv=None):
+    """Run the fleet command line; return the exit status."""
+    args = build_parser().parse_args(argv)
+    if args.workers is not None and args.workers < 1:
+        print('qfa-fleet: --workers must be at least 1', file=sys.stderr)
+        return 2
+    try:
+        study = Study.load(args.study)
+    except StudyError as error:
+        print(f'qfa-fleet: {args.study}: {error}', file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else Path(args.study).with_suffix('.parquet')
+    try:
+        table = run_study(study, out, workers=args.workers, scheduler=args.scheduler,
+                          progress=not args.no_progress and sys.stderr.isatty())
+    except StudyError as error:
+        print(f'qfa-fleet: {error}', file=sys.stderr)
+        return 2
+    except OSError as error:
+        print(f'qfa-fleet: {error}', file=sys.stderr)
+        return 1
+    print(format_summary(table))
+    if args.figures:
+        for path in draw_figures(table, Path(args.figures), study.name):
+            print(path)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

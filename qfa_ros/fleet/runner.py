@@ -1,0 +1,139 @@
+"""
+Run a fleet study on Dask, resumably, into Parquet.
+
+Each batch of units is one Dask task (:func:`~qfa_ros.fleet.unit.simulate_batch`). The
+client writes every finished batch to ``OUT.parts/batch-START-STOP.parquet`` at once
+(temporary file, then rename), so an interrupted run keeps what it finished and a
+restart computes only the missing batches. When all are there the parts are joined,
+sorted by unit and calibration, into ``OUT`` (again written aside, then renamed). Unit
+results depend only on the study and the unit's seed, so the table is identical
+whatever the number of workers.
+"""
+
+import json
+import logging
+import os
+from pathlib import Path
+import time
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from qfa_ros.fleet.study import StudyError
+from qfa_ros.fleet.unit import simulate_batch
+
+STUDY_FILE = 'study.json'
+
+
+def parts_directory(out_path):
+    """Return where the finished batches of ``out_path`` are kept."""
+    out_path = Path(out_path)
+    return out_path.with_name(out_path.name + '.parts')
+
+
+def _part_path(parts, start, stop):
+    return parts / f'batch-{start:07d}-{stop:07d}.parquet'
+
+
+def _write_atomically(table, path):
+    temporary = path.with_name(f'.{path.name}.tmp{os.getpid()}')
+    pq.write_table(table, temporary)
+    os.replace(temporary, path)
+
+
+def _prepare(study, parts):
+    """Create or check the parts directory; return the batches still to compute."""
+    identity = {'digest': study.digest(), 'study': study.to_dict()}
+    marker = parts / STUDY_FILE
+    if marker.exists():
+        try:
+            recorded = json.loads(marker.read_text()).get('digest')
+        except (OSError, ValueError):
+            recorded = None
+        if recorded != identity['digest']:
+            raise StudyError(f'{parts} holds results of another study (digest {recorded}, '
+                             f'this one {identity["digest"]}): remove it or choose --out')
+    else:
+        parts.mkdir(parents=True, exist_ok=True)
+        marker.write_text(json.dumps(identity, indent=1, default=str))
+    return [(start, stop) for start, stop in study.batches
+            if not _part_path(parts, start, stop).exists()]
+
+
+def batch_table(study, start, stop):
+    """Simulate units ``start`` to ``stop - 1`` and return them as an Arrow table."""
+    return pa.Table.from_pylist(simulate_batch(study, start, stop))
+
+
+def run_study(study, out_path, *, workers=None, scheduler=None, progress=True, log=print):
+    """
+    Run ``study`` (resuming a previous run of it) and write the joined table to ``out_path``.
+
+    Parameters
+    ----------
+    study : qfa_ros.fleet.study.Study
+        The validated study.
+    out_path : str or os.PathLike
+        The Parquet file to write; finished batches are kept beside it in ``OUT.parts``.
+    workers : int, optional
+        Worker processes of the local cluster (default: every core).
+    scheduler : str, optional
+        Address of an existing Dask scheduler (``tcp://HOST:PORT``) instead.
+    progress : bool
+        Show a progress bar (tqdm) on the terminal.
+    log : callable
+        Where one-line status messages go.
+
+    Returns
+    -------
+    pyarrow.Table
+        The whole study, one row per unit and calibration.
+    """
+    from dask.distributed import as_completed, Client, LocalCluster
+    from tqdm import tqdm
+
+    out_path = Path(out_path)
+    parts = parts_directory(out_path)
+    pending = _prepare(study, parts)
+    done = len(study.batches) - len(pending)
+    if done:
+        log(f'{done} of {len(study.batches)} batches already done in {parts}; '
+            f'computing {len(pending)}')
+    started = time.perf_counter()
+    if pending:
+        if scheduler:
+            cluster = None
+            client = Client(scheduler)
+        else:
+            # One single-threaded process per core: the model holds the GIL per task.
+            cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1,
+                                   processes=True, dashboard_address=None,
+                                   silence_logs=logging.ERROR)
+            client = Client(cluster)
+        try:
+            futures = [client.submit(batch_table, study, start, stop, pure=False,
+                                     key=f'qfa-fleet-{study.digest()}-{start}-{stop}')
+                       for start, stop in pending]
+            bounds = {future.key: (start, stop) for future, (start, stop)
+                      in zip(futures, pending)}
+            bar = tqdm(total=sum(stop - start for start, stop in pending), unit='unit',
+                       desc=study.name, disable=not progress)
+            with bar:
+                for future in as_completed(futures):
+                    start, stop = bounds[future.key]
+                    _write_atomically(future.result(), _part_path(parts, start, stop))
+                    bar.update(stop - start)
+                    future.release()
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    table = pa.concat_tables(pq.read_table(_part_path(parts, start, stop))
+                             for start, stop in study.batches)
+    table = table.sort_by([('unit', 'ascending'), ('calibration', 'ascending')])
+    table = table.replace_schema_metadata({'qfa_ros.study': json.dumps(study.to_dict(),
+                                                                        default=str)})
+    _write_atomically(table, out_path)
+    log(f'{study.units} units x {study.calibrations} calibrations -> {out_path} '
+        f'({time.perf_counter() - started:.1f} s for {len(pending)} batches)')
+    return table

@@ -1,0 +1,215 @@
+"""
+A fleet study file: what to simulate, validated before any work starts.
+
+A study is YAML with these keys (every one optional but ``units``)::
+
+    name: monthly-improved        # label in summaries and figures
+    units: 2000                   # units drawn, unit i from seed (seed, i)
+    seed: 0
+    batch_units: 10               # units per Dask task
+    schedule:
+      name: improved              # paper | improved
+      forward: {points: 10}       # overrides of ForwardSettings fields
+      feedback: {cycles: 16}      # overrides of FeedbackSettings fields
+    horizon_years: 1.0
+    calibration_interval_days: 30.0
+    aging:                        # per-unit linear aging rates, drawn N(0, sigma)
+      forward_ppm_per_year: 100.0
+      feedback_ppm_per_year: 100.0
+      torquer_ppm_per_year: 0.0   # k_t (magnet, coil): unobservable by the schedule
+    environment:
+      room_c: 22.0                # mean room temperature
+      seasonal_amplitude_c: 3.0   # annual sinusoid, phase drawn per unit
+      wander_c: 1.0               # room at a calibration uniform within +-wander
+      error_profile: paper        # paper | ideal: seed 1's temperature coefficients
+"""
+
+from dataclasses import asdict, dataclass, field, fields, replace
+import hashlib
+import json
+import math
+from pathlib import Path
+
+import yaml
+
+from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
+from qfa_ros.calibration.experiments import IMPROVED_SCHEDULE, PAPER_SCHEDULE
+
+SCHEDULES = {'paper': PAPER_SCHEDULE, 'improved': IMPROVED_SCHEDULE}
+ERROR_PROFILES = ('paper', 'ideal')
+MAX_UNITS = 1_000_000
+MAX_HORIZON_YEARS = 30.0
+
+
+class StudyError(ValueError):
+    """The study file is invalid; the message names the key."""
+
+
+def _number(where, value, low, high, integer=False, allow_low=True):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(value) or (integer and int(value) != value):
+        kind = 'an integer' if integer else 'a finite number'
+        raise StudyError(f'{where} must be {kind}, got {value!r}')
+    if value < low or value > high or (value == low and not allow_low):
+        bound = '>=' if allow_low else '>'
+        raise StudyError(f'{where} must be {bound} {low:g} and <= {high:g}, got {value!r}')
+    return int(value) if integer else float(value)
+
+
+def _mapping(where, value, known):
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise StudyError(f'{where} must be a mapping, got {type(value).__name__}')
+    unknown = sorted(set(value) - set(known))
+    if unknown:
+        raise StudyError(f'unknown key {where + "." if where else ""}{unknown[0]} '
+                         f'(known: {", ".join(sorted(known))})')
+    return value
+
+
+@dataclass(frozen=True)
+class Aging:
+    """Standard deviations of the per-unit linear aging rates [ppm/year]."""
+
+    forward_ppm_per_year: float = 100.0
+    feedback_ppm_per_year: float = 100.0
+    torquer_ppm_per_year: float = 0.0
+
+
+@dataclass(frozen=True)
+class Environment:
+    """Room temperature model [degC] and the paper's error sources."""
+
+    room_c: float = 22.0
+    seasonal_amplitude_c: float = 3.0
+    wander_c: float = 1.0
+    error_profile: str = 'paper'
+
+
+@dataclass(frozen=True)
+class Study:
+    """
+    One fleet study (see the module docstring for the file format).
+
+    Attributes
+    ----------
+    units : int
+        Number of units; unit ``i`` draws its randomness from ``SeedSequence([seed, i])``.
+    schedule : str
+        ``'paper'`` or ``'improved'`` (see :mod:`qfa_ros.calibration.experiments`).
+    forward, feedback : dict
+        Overrides of :class:`ForwardSettings` / :class:`FeedbackSettings` fields.
+    horizon_years, calibration_interval_days : float
+        Study length and time between self-calibrations.
+    """
+
+    units: int
+    name: str = 'study'
+    seed: int = 0
+    batch_units: int = 10
+    schedule: str = 'improved'
+    forward: dict = field(default_factory=dict)
+    feedback: dict = field(default_factory=dict)
+    horizon_years: float = 1.0
+    calibration_interval_days: float = 30.0
+    aging: Aging = field(default_factory=Aging)
+    environment: Environment = field(default_factory=Environment)
+
+    @property
+    def calibrations(self):
+        """Return the number of self-calibrations within the horizon."""
+        return int(math.floor(self.horizon_years * 365.25 / self.calibration_interval_days
+                              + 1e-9))
+
+    @property
+    def batches(self):
+        """Return the unit index ranges of the Dask tasks, in order."""
+        return [(start, min(start + self.batch_units, self.units))
+                for start in range(0, self.units, self.batch_units)]
+
+    def schedule_settings(self):
+        """Return the :class:`~qfa_ros.calibration.experiments.Schedule` with overrides."""
+        base = SCHEDULES[self.schedule]
+        forward = replace(base.forward, **self.forward)
+        feedback = replace(base.feedback, **self.feedback)
+        capture = replace(base.reference_feedback, **self.feedback)
+        return replace(base, forward=forward, feedback=feedback, capture_feedback=capture)
+
+    def to_dict(self):
+        """Return the study as plain data (the resumable run's identity)."""
+        return asdict(self)
+
+    def digest(self):
+        """Return a short hash of everything that changes the results."""
+        data = self.to_dict()
+        data.pop('batch_units')
+        data.pop('name')
+        text = json.dumps(data, sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    @classmethod
+    def from_dict(cls, data):
+        """Validate ``data`` (the parsed study file); raise :class:`StudyError` naming a key."""
+        data = _mapping('', data, {f.name for f in fields(cls)})
+        if 'units' not in data:
+            raise StudyError('units is required (how many units to simulate)')
+        schedule = data.get('schedule', 'improved')
+        overrides = {}
+        if isinstance(schedule, dict):
+            schedule = _mapping('schedule', schedule, {'name', 'forward', 'feedback'})
+            for key, settings in (('forward', ForwardSettings), ('feedback', FeedbackSettings)):
+                overrides[key] = dict(_mapping(f'schedule.{key}', schedule.get(key),
+                                               {f.name for f in fields(settings)}))
+            schedule = schedule.get('name', 'improved')
+        if schedule not in SCHEDULES:
+            raise StudyError(f'schedule.name must be one of {", ".join(SCHEDULES)}, '
+                             f'got {schedule!r}')
+        aging = _mapping('aging', data.get('aging'), {f.name for f in fields(Aging)})
+        environment = _mapping('environment', data.get('environment'),
+                               {f.name for f in fields(Environment)})
+        name = data.get('name', 'study')
+        if not isinstance(name, str) or not name:
+            raise StudyError(f'name must be a non-empty string, got {name!r}')
+        profile = environment.get('error_profile', 'paper')
+        if profile not in ERROR_PROFILES:
+            raise StudyError(f'environment.error_profile must be one of '
+                             f'{", ".join(ERROR_PROFILES)}, got {profile!r}')
+        study = cls(
+            units=_number('units', data['units'], 1, MAX_UNITS, integer=True),
+            name=name,
+            seed=_number('seed', data.get('seed', 0), 0, 2 ** 63 - 1, integer=True),
+            batch_units=_number('batch_units', data.get('batch_units', 10), 1, 10000,
+                                integer=True),
+            schedule=schedule,
+            forward=overrides.get('forward', {}),
+            feedback=overrides.get('feedback', {}),
+            horizon_years=_number('horizon_years', data.get('horizon_years', 1.0), 0.0,
+                                  MAX_HORIZON_YEARS, allow_low=False),
+            calibration_interval_days=_number(
+                'calibration_interval_days', data.get('calibration_interval_days', 30.0),
+                0.0, 3650.0, allow_low=False),
+            aging=Aging(**{k: _number(f'aging.{k}', v, 0.0, 1e5) for k, v in aging.items()}),
+            environment=Environment(**{
+                k: (v if k == 'error_profile' else _number(f'environment.{k}', v,
+                                                           -1e3 if k == 'room_c' else 0.0,
+                                                           1e3))
+                for k, v in environment.items()}))
+        try:
+            study.schedule_settings()
+        except (TypeError, ValueError) as error:
+            raise StudyError(f'schedule settings: {error}') from None
+        if study.calibrations < 1:
+            raise StudyError('horizon_years must hold at least one calibration_interval_days')
+        return study
+
+    @classmethod
+    def load(cls, path):
+        """Read and validate a study file."""
+        try:
+            data = yaml.safe_load(Path(path).read_text())
+        except OSError as error:
+            raise StudyError(f'cannot read the study file: {error}') from None
+        except yaml.YAMLError as error:
+            raise StudyError(f'the study file is not YAML: {error}') from None
+        return cls.from_dict(data)

@@ -1,0 +1,147 @@
+"""
+One unit of a fleet study: drawn from its seed, aged, recalibrated, scored.
+
+The unit is a fresh default triad with seed 1's error sources (component temperature
+coefficients) and per-unit linear aging rates drawn from the study's spreads. The
+reference is captured at time zero; at every calibration the aging so far is applied,
+the room is at that day's temperature, and the schedule runs through
+:func:`~qfa_ros.calibration.schedule.run_schedule` exactly as in the node.
+
+Scoring uses the model's truth, never given to the estimator: the scale-factor error
+is ``k_fb,ref / k_fb - 1`` [ppm] (the loop's DC relation ``N k_fb = K0 a`` holds to
+< 1 ppm, ``test_feedback_step_changes_scale_by_its_inverse``), the bias error the mean
+static output minus the known specific force [ug].
+"""
+
+from dataclasses import replace
+import math
+
+import numpy as np
+
+from qfa_ros.calibration.estimation import capture_reference, PPM, self_calibrate
+from qfa_ros.calibration.experiments import ErrorProfile, OBSERVABLE_FEEDBACK, OBSERVABLE_FORWARD
+from qfa_ros.calibration.schedule import run_schedule
+from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.model.noise import MICRO_G
+from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+
+DAYS_PER_YEAR = 365.25
+BIAS_WINDOW_S = 0.5
+"""Static window that scores the bias before and after each calibration [s]."""
+
+TORQUER_COMPONENT = 'l_coil'
+
+
+def _profile(environment):
+    profile = ErrorProfile() if environment.error_profile == 'paper' else ErrorProfile.ideal()
+    # The study ages k_t itself; the profile keeps only its temperature coefficients.
+    return replace(profile, torquer_drift_ppm=0.0)
+
+
+def _split(rng, total, components):
+    """Split ``total`` over ``components`` with Dirichlet weights (sign per component)."""
+    weights = rng.dirichlet(np.ones(len(components)))
+    # k_AD = 1 / V_AD_ref: a rise of the reference lowers the gain.
+    return {c: (-1.0 if c == 'v_ad_ref' else 1.0) * w * total
+            for c, w in zip(components, weights)}
+
+
+def _static_error_ug(triad):
+    out = triad.run_for(BIAS_WINDOW_S)
+    return (out.accel.mean(axis=0) - out.truth.mean(axis=0)) / MICRO_G
+
+
+def simulate_unit(study, index):
+    """
+    Simulate unit ``index`` of ``study``; return one row (a dict) per calibration.
+
+    Parameters
+    ----------
+    study : qfa_ros.fleet.study.Study
+        The validated study.
+    index : int
+        Unit index; its randomness comes from ``SeedSequence([study.seed, index])`` only,
+        so a unit's rows do not depend on which worker ran it or in which batch.
+
+    Returns
+    -------
+    list of dict
+        Columns ``unit, calibration, time_days, room_c`` and per axis ``a`` in x, y, z:
+        ``sf_before_ppm_a, sf_after_ppm_a, bias_before_ug_a, bias_after_ug_a,
+        forward_estimate_ppm_a, forward_std_ppm_a, feedback_estimate_ppm_a,
+        feedback_std_ppm_a, forward_truth_ppm_a, feedback_truth_ppm_a``, plus
+        ``schedule_s`` (sensor time of the self-calibration).
+    """
+    model_seed, draw_seed = np.random.SeedSequence([study.seed, index]).spawn(2)
+    rng = np.random.default_rng(draw_seed)
+    triad = QfaTriad(TriadConfig(), rng=np.random.default_rng(model_seed))
+    _profile(study.environment).apply(triad)
+    schedule = study.schedule_settings()
+    aging = study.aging
+    rates = []
+    for _ in AXES:
+        rates.append({
+            **_split(rng, rng.normal(0.0, aging.forward_ppm_per_year), OBSERVABLE_FORWARD),
+            **_split(rng, rng.normal(0.0, aging.feedback_ppm_per_year), OBSERVABLE_FEEDBACK),
+            TORQUER_COMPONENT: rng.normal(0.0, aging.torquer_ppm_per_year)})
+    environment = study.environment
+    phase = rng.uniform(0.0, 2.0 * math.pi)
+
+    def room(days):
+        return (environment.room_c + environment.seasonal_amplitude_c
+                * math.sin(2.0 * math.pi * days / DAYS_PER_YEAR + phase)
+                + rng.uniform(-environment.wander_c, environment.wander_c))
+
+    triad.set_temperature(room(0.0))
+    triad.run_for(0.2)
+    state = CalibrationState()
+    run_schedule(triad, capture_reference(triad, state, schedule.forward,
+                                          schedule.reference_feedback))
+    reference = [loop.gains for loop in triad.axes]
+    # The open-loop readout dN_out/dN_FPGA includes k(D(z)) (seed 1 eq. 19-22), so the
+    # forward truth is the chain times the controller gain, relative to the reference.
+    reference_gain = [loop.controller.gain for loop in triad.axes]
+    rows = []
+    for calibration in range(1, study.calibrations + 1):
+        days = calibration * study.calibration_interval_days
+        years = days / DAYS_PER_YEAR
+        for axis, axis_rates in enumerate(rates):
+            for component, rate in axis_rates.items():
+                triad.drift.set_step(axis, component, rate * years * PPM)
+        temperature = room(days)
+        triad.set_temperature(temperature)
+        triad.run_for(0.1)
+        drifted = [loop.gains for loop in triad.axes]
+        controller_gain = [loop.controller.gain for loop in triad.axes]
+        bias_before = _static_error_ug(triad)
+        forward, feedback = run_schedule(
+            triad, self_calibrate(triad, state, schedule.forward, schedule.feedback))
+        after = [loop.gains for loop in triad.axes]
+        bias_after = _static_error_ug(triad)
+        row = {'unit': index, 'calibration': calibration, 'time_days': days,
+               'room_c': temperature,
+               'schedule_s': forward.duration_s + feedback.duration_s}
+        for axis, name in enumerate(AXES):
+            ref, now, fixed = reference[axis], drifted[axis], after[axis]
+            row[f'sf_before_ppm_{name}'] = (ref.feedback_gain / now.feedback_gain - 1) / PPM
+            row[f'sf_after_ppm_{name}'] = (ref.feedback_gain / fixed.feedback_gain - 1) / PPM
+            row[f'bias_before_ug_{name}'] = float(bias_before[axis])
+            row[f'bias_after_ug_{name}'] = float(bias_after[axis])
+            row[f'forward_truth_ppm_{name}'] = (
+                now.open_loop_counts_per_fpga * controller_gain[axis]
+                / (ref.open_loop_counts_per_fpga * reference_gain[axis]) - 1) / PPM
+            row[f'feedback_truth_ppm_{name}'] = (now.k_da2_vi / ref.k_da2_vi - 1) / PPM
+            row[f'forward_estimate_ppm_{name}'] = float(forward.estimate_ppm[axis])
+            row[f'forward_std_ppm_{name}'] = float(forward.std_error_ppm[axis])
+            row[f'feedback_estimate_ppm_{name}'] = float(feedback.estimate_ppm[axis])
+            row[f'feedback_std_ppm_{name}'] = float(feedback.std_error_ppm[axis])
+        rows.append(row)
+    return rows
+
+
+def simulate_batch(study, start, stop):
+    """Return the rows of units ``start`` to ``stop - 1`` in unit order."""
+    rows = []
+    for index in range(start, stop):
+        rows.extend(simulate_unit(study, index))
+    return rows

@@ -1,0 +1,106 @@
+"""Fleet studies: validation before work, identical results whatever the workers, resume."""
+
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+import pyarrow.parquet as pq
+import pytest
+
+from qfa_ros.cli.fleet import main as fleet_main
+from qfa_ros.fleet.runner import parts_directory, run_study
+from qfa_ros.fleet.study import Study, StudyError
+from qfa_ros.fleet.unit import simulate_unit
+
+ROOT = Path(__file__).resolve().parents[1]
+# A short schedule keeps a unit at about a second of CPU.
+CHEAP = {'units': 3, 'batch_units': 1, 'horizon_years': 0.05,
+         'calibration_interval_days': 18.0,
+         'schedule': {'name': 'improved',
+                      'forward': {'points': 3, 'average_s': 0.05},
+                      'feedback': {'cycles': 2, 'average_s': 0.1}}}
+
+
+def write_study(path, data):
+    import yaml
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+@pytest.mark.parametrize('change, key', [
+    ({'unitz': 3}, 'unitz'),
+    ({'horizon_years': -1.0}, 'horizon_years'),
+    ({'schedule': {'name': 'weekly-magic'}}, 'schedule.name'),
+    ({'schedule': {'name': 'paper', 'feedback': {'cycle': 3}}}, 'schedule.feedback.cycle'),
+    ({'aging': {'feedback_ppm_per_year': 'lots'}}, 'aging.feedback_ppm_per_year'),
+    ({'environment': {'error_profile': 'mars'}}, 'environment.error_profile'),
+])
+def test_bad_study_fails_before_starting_and_names_the_key(tmp_path, capsys, change, key):
+    study = write_study(tmp_path / 'bad.yaml', {**CHEAP, **change})
+    with pytest.raises(StudyError, match=key.replace('.', r'\.')):
+        Study.load(study)
+    assert fleet_main([str(study), '--workers', '1', '--no-progress']) == 2
+    assert key in capsys.readouterr().err
+    assert not list(tmp_path.glob('*.parquet*')), 'nothing may start for a bad study'
+
+
+def test_study_validation_keeps_good_values():
+    study = Study.from_dict(CHEAP)
+    assert study.calibrations == 1
+    assert study.batches == [(0, 1), (1, 2), (2, 3)]
+    assert study.schedule_settings().feedback.cycles == 2
+    assert study.digest() == Study.from_dict({**CHEAP, 'name': 'other'}).digest()
+    assert study.digest() != Study.from_dict({**CHEAP, 'seed': 1}).digest()
+
+
+def test_one_and_two_workers_give_identical_tables(tmp_path):
+    study = Study.from_dict(CHEAP)
+    one = run_study(study, tmp_path / 'one.parquet', workers=1, progress=False,
+                    log=lambda line: None)
+    two = run_study(study, tmp_path / 'two.parquet', workers=2, progress=False,
+                    log=lambda line: None)
+    assert one.num_rows == study.units * study.calibrations
+    assert one.equals(two)
+    assert pq.read_table(tmp_path / 'one.parquet').equals(pq.read_table(tmp_path / 'two.parquet'))
+    # A unit's rows depend on its own seed only, not on the batch it ran in.
+    alone = simulate_unit(study, 2)
+    assert one.slice(2, 1).to_pylist() == alone
+
+
+def test_killed_study_restarts_with_only_the_missing_units(tmp_path):
+    study_file = write_study(tmp_path / 'study.yaml', {**CHEAP, 'units': 4})
+    out = tmp_path / 'study.parquet'
+    env = {**os.environ, 'PYTHONPATH': str(ROOT)}
+    process = subprocess.Popen(
+        [sys.executable, '-m', 'qfa_ros.cli.fleet', str(study_file), '--workers', '1',
+         '--no-progress'], cwd=tmp_path, env=env, start_new_session=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    parts = parts_directory(out)
+    deadline = time.monotonic() + 240
+    try:
+        while time.monotonic() < deadline and len(list(parts.glob('batch-*.parquet'))) < 2:
+            assert process.poll() is None, 'the study ended before it could be killed'
+            time.sleep(0.05)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=30)
+    kept = {path.name: path.stat().st_mtime_ns for path in parts.glob('batch-*.parquet')}
+    assert 2 <= len(kept) < 4, kept
+    lines = []
+    table = run_study(Study.load(study_file), out, workers=1, progress=False,
+                      log=lines.append)
+    assert lines[0].startswith(f'{len(kept)} of 4 batches already done'), lines
+    assert {p.name: p.stat().st_mtime_ns for p in parts.glob('batch-*.parquet')
+            if p.name in kept} == kept, 'finished batches must not be recomputed'
+    assert sorted(set(table.column('unit').to_pylist())) == [0, 1, 2, 3]
+
+
+def test_results_of_another_study_are_not_mixed_in(tmp_path):
+    out = tmp_path / 'mixed.parquet'
+    parts_directory(out).mkdir()
+    (parts_directory(out) / 'study.json').write_text('{"digest": "0000"}')
+    with pytest.raises(StudyError, match='another study'):
+        run_study(Study.from_dict(CHEAP), out, workers=1, progress=False)
