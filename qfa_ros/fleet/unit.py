@@ -1,16 +1,22 @@
 """
 One unit of a fleet study: drawn from its seed, aged, recalibrated, scored.
 
-The unit is a fresh default triad with seed 1's error sources (component temperature
-coefficients) and per-unit linear aging rates drawn from the study's spreads. The
-reference is captured at time zero; at every calibration the aging so far is applied,
-the room is at that day's temperature, and the schedule runs through
-:func:`~qfa_ros.calibration.schedule.run_schedule` exactly as in the node.
+The unit is a default triad with the thermal model in a room (seasonal mean, wander with
+a 12 h correlation, self-heating, :class:`~qfa_ros.calibration.experiments.PaperRoom`),
+seed 1's component temperature coefficients, and per-unit linear aging rates drawn from
+the study's spreads. As a lab would, the I_ref temperature coefficient is measured once
+in the chamber (when the schedule corrects for temperature), then the reference is
+captured in the room; at every calibration the aging so far acts, the room has its
+season, and the schedule runs through :func:`~qfa_ros.calibration.schedule.run_schedule`
+exactly as in the node. The months between calibrations pass for the thermal model only
+(:func:`~qfa_ros.calibration.chamber.idle`).
 
-Scoring uses the model's truth, never given to the estimator: the scale-factor error
-is ``k_fb,ref / k_fb - 1`` [ppm] (the loop's DC relation ``N k_fb = K0 a`` holds to
-< 1 ppm, ``test_feedback_step_changes_scale_by_its_inverse``), the bias error the mean
-static output minus the known specific force [ug].
+Scoring uses the model's truth, never given to the estimator: the scale-factor error is
+the output scale measured with a known input on a noiseless twin
+(:func:`~qfa_ros.calibration.experiments.measure_scale`, the one truth of every report)
+relative to the reference capture [ppm]; the bias error is the mean static output minus
+the known specific force [ug]; the forward and feedback truths are the observable channel
+drifts the schedules estimate.
 """
 
 from dataclasses import replace
@@ -18,16 +24,33 @@ import math
 
 import numpy as np
 
-from qfa_ros.calibration.estimation import capture_reference, PPM, self_calibrate
-from qfa_ros.calibration.experiments import ErrorProfile, OBSERVABLE_FEEDBACK, OBSERVABLE_FORWARD
+from qfa_ros.calibration.chamber import ChamberBench, idle
+from qfa_ros.calibration.estimation import (
+    capture_reference,
+    PPM,
+    reference_tc_schedule,
+    self_calibrate,
+)
+from qfa_ros.calibration.experiments import (
+    ErrorProfile,
+    measure_scale,
+    OBSERVABLE_FEEDBACK,
+    OBSERVABLE_FORWARD,
+    PaperRoom,
+)
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model.noise import MICRO_G
+from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 
 DAYS_PER_YEAR = 365.25
+SECONDS_PER_DAY = 86400.0
 BIAS_WINDOW_S = 0.5
 """Static window that scores the bias before and after each calibration [s]."""
+
+IDLE_STEP_S = 600.0
+"""Thermal step while months pass between calibrations [s] (the room correlates over 12 h)."""
 
 TORQUER_COMPONENT = 'l_coil'
 
@@ -66,7 +89,7 @@ def simulate_unit(study, index):
     Returns
     -------
     list of dict
-        Columns ``unit, calibration, time_days, room_c`` and per axis ``a`` in x, y, z:
+        Columns ``unit, calibration, time_days, body_c`` (sensor body temperature [degC]) and per axis ``a`` in x, y, z:
         ``sf_before_ppm_a, sf_after_ppm_a, bias_before_ug_a, bias_after_ug_a,
         forward_estimate_ppm_a, forward_std_ppm_a, feedback_estimate_ppm_a,
         feedback_std_ppm_a, forward_truth_ppm_a, feedback_truth_ppm_a``, plus
@@ -74,8 +97,20 @@ def simulate_unit(study, index):
     """
     model_seed, draw_seed = np.random.SeedSequence([study.seed, index]).spawn(2)
     rng = np.random.default_rng(draw_seed)
-    triad = QfaTriad(TriadConfig(), rng=np.random.default_rng(model_seed))
-    _profile(study.environment).apply(triad)
+    environment = study.environment
+    room = PaperRoom()
+    phase = rng.uniform(0.0, 2.0 * math.pi)
+
+    def season_c(days):
+        return environment.room_c + environment.seasonal_amplitude_c * math.sin(
+            2.0 * math.pi * days / DAYS_PER_YEAR + phase)
+
+    config = TriadConfig(thermal=ThermalConfig(
+        ambient_profile='room', ambient_c=season_c(0.0) + room.self_heating_c,
+        room_amplitude_c=environment.wander_c, room_correlation_s=room.room_correlation_s,
+        initial_sensor_c=season_c(0.0)))
+    triad = QfaTriad(config, rng=np.random.default_rng(model_seed))
+    _profile(environment).apply(triad)
     schedule = study.schedule_settings()
     aging = study.aging
     rates = []
@@ -84,19 +119,18 @@ def simulate_unit(study, index):
             **_split(rng, rng.normal(0.0, aging.forward_ppm_per_year), OBSERVABLE_FORWARD),
             **_split(rng, rng.normal(0.0, aging.feedback_ppm_per_year), OBSERVABLE_FEEDBACK),
             TORQUER_COMPONENT: rng.normal(0.0, aging.torquer_ppm_per_year)})
-    environment = study.environment
-    phase = rng.uniform(0.0, 2.0 * math.pi)
 
-    def room(days):
-        return (environment.room_c + environment.seasonal_amplitude_c
-                * math.sin(2.0 * math.pi * days / DAYS_PER_YEAR + phase)
-                + rng.uniform(-environment.wander_c, environment.wander_c))
-
-    triad.set_temperature(room(0.0))
-    triad.run_for(0.2)
     state = CalibrationState()
+    if schedule.feedback.temperature_correction:
+        # Production: the I_ref temperature coefficient, measured once in the chamber.
+        run_schedule(triad, reference_tc_schedule(triad, ChamberBench(triad), state))
+    triad.thermal.set_ambient(ambient_profile='room',
+                              ambient_c=season_c(0.0) + room.self_heating_c)
+    idle(triad, room.warm_up_s)
+    triad.run_for(0.2)
     run_schedule(triad, capture_reference(triad, state, schedule.forward,
                                           schedule.reference_feedback))
+    scale_reference = measure_scale(triad)
     reference = [loop.gains for loop in triad.axes]
     # The open-loop readout dN_out/dN_FPGA includes k(D(z)) (seed 1 eq. 19-22), so the
     # forward truth is the chain times the controller gain, relative to the reference.
@@ -104,27 +138,28 @@ def simulate_unit(study, index):
     rows = []
     for calibration in range(1, study.calibrations + 1):
         days = calibration * study.calibration_interval_days
-        years = days / DAYS_PER_YEAR
+        triad.thermal.set_ambient(ambient_profile='room',
+                                  ambient_c=season_c(days) + room.self_heating_c)
+        idle(triad, study.calibration_interval_days * SECONDS_PER_DAY, IDLE_STEP_S)
         for axis, axis_rates in enumerate(rates):
             for component, rate in axis_rates.items():
-                triad.drift.set_step(axis, component, rate * years * PPM)
-        temperature = room(days)
-        triad.set_temperature(temperature)
-        triad.run_for(0.1)
+                triad.drift.set_step(axis, component, rate * days / DAYS_PER_YEAR * PPM)
+        triad.run_for(0.2)
         drifted = [loop.gains for loop in triad.axes]
         controller_gain = [loop.controller.gain for loop in triad.axes]
         bias_before = _static_error_ug(triad)
+        scale_before = measure_scale(triad) / scale_reference - 1
         forward, feedback = run_schedule(
             triad, self_calibrate(triad, state, schedule.forward, schedule.feedback))
-        after = [loop.gains for loop in triad.axes]
+        scale_after = measure_scale(triad) / scale_reference - 1
         bias_after = _static_error_ug(triad)
         row = {'unit': index, 'calibration': calibration, 'time_days': days,
-               'room_c': temperature,
+               'body_c': float(triad.thermal.sensor_c),
                'schedule_s': forward.duration_s + feedback.duration_s}
         for axis, name in enumerate(AXES):
-            ref, now, fixed = reference[axis], drifted[axis], after[axis]
-            row[f'sf_before_ppm_{name}'] = (ref.feedback_gain / now.feedback_gain - 1) / PPM
-            row[f'sf_after_ppm_{name}'] = (ref.feedback_gain / fixed.feedback_gain - 1) / PPM
+            ref, now = reference[axis], drifted[axis]
+            row[f'sf_before_ppm_{name}'] = float(scale_before[axis]) / PPM
+            row[f'sf_after_ppm_{name}'] = float(scale_after[axis]) / PPM
             row[f'bias_before_ug_{name}'] = float(bias_before[axis])
             row[f'bias_after_ug_{name}'] = float(bias_after[axis])
             row[f'forward_truth_ppm_{name}'] = (
