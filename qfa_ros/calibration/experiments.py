@@ -19,7 +19,7 @@ from qfa_ros.calibration.estimation import (
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model.hardware import STANDARD_GRAVITY
-from qfa_ros.model.noise import MICRO_G, NoiseSource
+from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 
@@ -152,8 +152,7 @@ def measure_scale(triad, seconds=0.5, settle_s=0.05):
     """
     twin = copy.deepcopy(triad)
     quiet = replace(twin.config.noise, noise_density=0.0, bias_instability=0.0)
-    twin.noise = NoiseSource(quiet, len(AXES), twin.config.loop_rate_hz,
-                             twin.config.sample_rate_hz, np.random.default_rng(0))
+    twin.set_noise(quiet, 0)
     n_settle = int(round(settle_s * twin.config.sample_rate_hz))
     n = int(round(seconds * twin.config.sample_rate_hz))
     levels = []

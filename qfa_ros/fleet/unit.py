@@ -89,7 +89,8 @@ def simulate_unit(study, index):
     Returns
     -------
     list of dict
-        Columns ``unit, calibration, time_days, body_c`` (sensor body temperature [degC]) and per axis ``a`` in x, y, z:
+        Columns ``unit, calibration, time_days, body_c`` (body temperature [degC]) and
+        per axis ``a`` in x, y, z:
         ``sf_before_ppm_a, sf_after_ppm_a, bias_before_ug_a, bias_after_ug_a,
         forward_estimate_ppm_a, forward_std_ppm_a, feedback_estimate_ppm_a,
         feedback_std_ppm_a, forward_truth_ppm_a, feedback_truth_ppm_a``, plus

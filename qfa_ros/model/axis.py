@@ -50,6 +50,10 @@ class AxisLoop:
         self.params_i[kernel.Q_ADC_FULL_SCALE] = hw.adc_full_scale
         self.params_i[kernel.Q_RANGE_COUNTS] = int(
             hw.input_range_g * STANDARD_GRAVITY / counts_to_accel(hw))
+        self.attach_noise(noise, axis)
+
+    def attach_noise(self, noise, axis):
+        """Draw this axis's noise from ``noise`` (a :class:`NoiseSource`), stream ``axis``."""
         self.params_f[kernel.P_WHITE_STD] = noise.white_std
         self.params_f[kernel.P_ADC_STD] = noise.adc_std
         self.rng = noise.streams[axis]

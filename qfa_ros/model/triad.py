@@ -286,6 +286,22 @@ class QfaTriad:
             self.settle_until[axis] = self.sample_index + settle
         self.invalidate()
 
+    def set_noise(self, config, rng):
+        """
+        Replace the acceleration noise by ``config`` drawn from ``rng`` from now on.
+
+        Parameters
+        ----------
+        config : NoiseConfig
+            The new noise (e.g. white and bias instability off for a noiseless twin).
+        rng : numpy.random.Generator or int
+            Source of the new streams.
+        """
+        self.noise = NoiseSource(config, len(AXES), self.config.loop_rate_hz,
+                                 self.config.sample_rate_hz, np.random.default_rng(rng))
+        for axis, loop in enumerate(self.axes):
+            loop.attach_noise(self.noise, axis)
+
     def set_temperature(self, temperature):
         """Set the sensor temperature [degC] that drives the temperature coefficients."""
         if not math.isfinite(temperature):
