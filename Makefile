@@ -8,7 +8,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.qfa-installed
 DURATION ?= 10
 
-.PHONY: setup run sim test lint bench bags figures clean
+.PHONY: setup run sim test lint bench reproducibility bags figures clean
 
 BAGS := bags/static_10s.mcap bags/paper_2019.mcap bags/temperature_cycle.mcap
 
@@ -44,6 +44,10 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(PY) bench/loop_throughput.py
 	$(PY) bench/sim_limit.py
+
+# The reproducibility contract's tolerances, measured (README, Reproducibility; ~6 min).
+reproducibility: $(STAMP)
+	$(PY) bench/reproducibility.py
 
 # Example bags, deterministic for the seeds given here (see bags/README.md).
 bags: $(STAMP)

@@ -136,12 +136,23 @@ class Client:
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
 
-    def spin_until(self, predicate, timeout, what='condition'):
-        """Spin until ``predicate()`` is true; fail after ``timeout`` seconds."""
-        deadline = time.monotonic() + timeout
+    def spin_until(self, predicate, timeout, what='condition', progress=None, limit=600.0):
+        """
+        Spin until ``predicate()`` is true; fail after ``timeout`` seconds.
+
+        With ``progress`` (a callable), fail only after ``timeout`` seconds in which its
+        value did not change, or after ``limit`` seconds: a test process starved by a busy
+        machine may drain a backlog slower than it was published, yet get there.
+        """
+        started = time.monotonic()
+        deadline = started + timeout
+        last = progress() if progress else None
         while not predicate():
-            if time.monotonic() > deadline:
-                raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
+            now = time.monotonic()
+            if progress is not None and progress() != last:
+                last, deadline = progress(), now + timeout
+            if now > deadline or now > started + limit:
+                raise TimeoutError(f'timed out after {now - started:.0f} s waiting for {what}')
             self.executor.spin_once(timeout_sec=0.05)
 
     def spin_for(self, seconds):
@@ -196,12 +207,14 @@ class ImuCollector:
         from sensor_msgs.msg import Imu
         self.samples = []
         self.after_ns = 0
+        self.latest_ns = 0  # the stamp of the last sample received, kept or not
         self.last_message = None
         self.subscription = client.subscribe(Imu, topic, self.callback, depth)
 
     def callback(self, message):
         stamp = message.header.stamp
         stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        self.latest_ns = stamp_ns
         if stamp_ns < self.after_ns:
             return
         vector = message.linear_acceleration
@@ -223,6 +236,7 @@ def mean_accel(client, collector, count, timeout=30.0, settle_s=0.0):
     step response count, however late this process reads them.
     """
     collector.clear(time.time_ns() + int(settle_s * 1e9))
-    client.spin_until(lambda: len(collector.samples) >= count, timeout, f'{count} samples')
+    client.spin_until(lambda: len(collector.samples) >= count, timeout, f'{count} samples',
+                      progress=lambda: (collector.latest_ns, len(collector.samples)))
     samples = collector.samples[:count]
     return tuple(sum(s[k] for s in samples) / count for k in (1, 2, 3))

@@ -25,6 +25,10 @@ BIAS_UG = (20.0, -30.0, 50.0)
 ZERO_BIAS = np.asarray(BIAS_UG) * 9.80665e-6 + thermal_zero_bias()
 
 
+def stamp_ns(message):
+    return message.header.stamp.sec * 10**9 + message.header.stamp.nanosec
+
+
 @pytest.fixture(scope='module')
 def setup(tmp_path_factory):
     directory = tmp_path_factory.mktemp('stream')
@@ -51,12 +55,12 @@ def test_stream_delivers_every_sample_evenly_spaced(setup):
     client.subscribe(Bool, '/qfa_node/is_calibrated', calibrated.append, latched=True)
     client.spin_until(lambda: len(imu.samples) > 100, 60, 'the first samples')
     imu.clear()
-    client.spin_for(10.0)
+    # 10 s of stream by its stamps: a busy machine may deliver them slower than that.
+    client.spin_until(lambda: len(imu.samples) >= 10 * RATE, 60, '10 s of samples',
+                      progress=lambda: len(imu.samples))
     stamps = np.array([s[0] for s in imu.samples], dtype=np.int64)
     accel = np.array([s[1:] for s in imu.samples])
     expected = (stamps[-1] - stamps[0]) * RATE / 1e9 + 1
-    # The window is wall time: a subscriber running late drains a backlog into it.
-    assert len(stamps) == pytest.approx(10.0 * RATE, rel=0.2)
     assert abs(len(stamps) - expected) <= 1, 'samples lost between the first and the last'
     spacing = np.diff(stamps)
     assert np.max(np.abs(spacing - 1e9 / RATE)) <= 1000, 'stamps not evenly spaced'
@@ -77,15 +81,17 @@ def test_stream_delivers_every_sample_evenly_spaced(setup):
     assert np.all(np.abs(mean - (bias + [0.0, 0.0, G])) < margin)
     assert abs(np.linalg.norm(mean) - G) < abs(bias[2]) + margin
 
-    assert 80 <= len(temperatures) <= 120
+    assert len(temperatures) >= 20
     assert temperatures[-1].header.frame_id == 'qfa_imu'
     readings = np.array([t.temperature for t in temperatures])
     # The on-board sensor's reading: 0.02 degC rms noise, 0.004 degC steps.
     assert readings.mean() == pytest.approx(25.0, abs=0.01)
     assert readings.std() == pytest.approx(math.sqrt(temperatures[-1].variance), rel=0.3)
-    assert np.diff(np.array([t.header.stamp.sec * 10**9 + t.header.stamp.nanosec
-                             for t in temperatures])).min() == 100_000_000
-    assert 8 <= len(diagnostics) <= 12, 'diagnostics not at about 1 Hz'
+    # 10 Hz on the sample grid, none lost; diagnostics at 1 Hz by their stamps.
+    assert set(np.diff([stamp_ns(t) for t in temperatures])) == {100_000_000}
+    assert len(diagnostics) >= 3
+    assert np.median(np.diff([stamp_ns(d) for d in diagnostics])) == \
+        pytest.approx(1e9, rel=0.1), 'diagnostics not at about 1 Hz'
     statuses = {s.name.split(': ')[-1]: s for s in diagnostics[-1].status}
     assert set(statuses) == {'stream', 'calibration', 'temperature', 'input'}
     stream = statuses['stream']

@@ -1,0 +1,51 @@
+"""Suite-wide options: ``--busy-cores N`` keeps N cores busy for the whole session.
+
+A shared CI machine is often busy. ``--busy-cores 1`` (or ``QFA_TEST_BUSY_CORES=1``)
+starts one pure-Python busy loop per core in its own process before the first test and
+kills it at the end of the session, so that the timing and DDS tests can be checked
+under that load on any machine.
+"""
+
+import os
+import subprocess
+import sys
+
+_BUSY_LOOPS = []
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        '--busy-cores', type=int, default=None, metavar='N',
+        help='keep N cores busy with busy-loop processes during the session '
+             '(default: $QFA_TEST_BUSY_CORES or 0)')
+
+
+def busy_cores(config):
+    """Return the number of busy loops asked for by option or environment."""
+    value = config.getoption('busy_cores')
+    if value is None:
+        value = int(os.environ.get('QFA_TEST_BUSY_CORES', '0') or 0)
+    if value < 0:
+        raise ValueError(f'--busy-cores must be >= 0, not {value}')
+    return value
+
+
+def pytest_configure(config):
+    for _ in range(busy_cores(config)):
+        _BUSY_LOOPS.append(subprocess.Popen(
+            [sys.executable, '-c', 'while True: pass'],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+
+
+def pytest_report_header(config):
+    if _BUSY_LOOPS:
+        pids = ', '.join(str(p.pid) for p in _BUSY_LOOPS)
+        return f'busy cores: {len(_BUSY_LOOPS)} (busy-loop processes {pids})'
+    return None
+
+
+def pytest_unconfigure(config):
+    while _BUSY_LOOPS:
+        process = _BUSY_LOOPS.pop()
+        process.kill()
+        process.wait()
