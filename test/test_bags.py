@@ -24,8 +24,8 @@ import pytest
 from rosbags.highlevel import AnyReader
 import yaml
 
-from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.bag.trace import key_values_to_dict
+from qfa_ros.cli.sim import main as sim_main
 
 
 def read_all(path):
