@@ -127,7 +127,7 @@ def test_orientation_changes_the_running_sensor_at_once(setup):
 def test_sigterm_closes_the_recording_cleanly(setup):
     status = setup['node'].stop(signal.SIGTERM)
     assert status == 0, setup['node'].log()
-    files = sorted((setup['directory'] / 'recordings').glob('*.mcap'))
+    files = sorted((setup['directory'] / 'recordings').glob('*/*.mcap'))
     assert files, setup['node'].log()
     with AnyReader(files) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
@@ -138,7 +138,9 @@ def test_sigterm_closes_the_recording_cleanly(setup):
         _, _, raw = next(reader.messages(connections=[connection]))
         message = reader.deserialize(raw, connection.msgtype)
         assert message.header.frame_id == 'qfa_imu'
-    assert not list((setup['directory'] / 'recordings').glob('*.part'))
+    assert not list((setup['directory'] / 'recordings').glob('**/*.part'))
+    bag, = files[0].parent.parent.iterdir()
+    assert (bag / 'metadata.yaml').exists()
 
 
 @pytest.mark.parametrize('parameters, words', [

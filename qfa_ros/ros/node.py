@@ -311,13 +311,26 @@ class QfaNode(Node):
                                     DIAGNOSTICS_TYPE)
 
     # Shutdown -------------------------------------------------------------------------
-    def close(self):
-        """Stop the sensor thread and a running schedule, save the state, close the recording."""
-        self._stream.stop()
-        with self._lock:
+    def close(self, timeout_s=10.0):
+        """
+        Stop the sensor thread and a running schedule, save the state, close the recording.
+
+        Idempotent. Bounded: if the sensor thread does not stop within ``timeout_s`` (stuck
+        in the middleware, holding the lock), the state and the recording are written
+        without the lock; nothing else touches them once the stream has stopped ticking.
+        """
+        self._stream.stop(timeout_s)
+        locked = self._lock.acquire(timeout=timeout_s)
+        if not locked:
+            self.get_logger().error(
+                f'sensor thread still busy after {timeout_s:g} s; saving without the lock')
+        try:
             if self._stream.schedule is not None:
                 self._stream.schedule.abort()
                 self._stream.end_schedule()
             if self._keeper.unsaved:
                 self._keeper.save()
             self._recording.close()
+        finally:
+            if locked:
+                self._lock.release()

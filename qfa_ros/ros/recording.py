@@ -15,7 +15,7 @@ RECORDER_PARAMETERS = frozenset({'recorder.enabled', 'recorder.directory', 'reco
 
 class StreamRecording:
     """
-    Record the node's own output (``recorder.*`` parameters) into split MCAP files.
+    Record the node's own output (``recorder.*`` parameters) into a rosbag2 bag directory.
 
     A failed write stops the recording, never the stream; :attr:`problem` says why.
     The caller holds the node lock around every method.
@@ -73,7 +73,8 @@ class StreamRecording:
                 self.problem = f'recording not closed cleanly: {error}'
                 return
             if files:
-                self._node.get_logger().info(f'recorded {", ".join(str(f) for f in files)}')
+                self._node.get_logger().info(
+                    f'recorded bag {recorder.bag_directory} ({len(files)} file(s))')
 
     def record(self, topic, msgtype, data, now_ns):
         """Record serialized ``data``; on failure stop recording and say why."""
