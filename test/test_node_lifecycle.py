@@ -112,10 +112,10 @@ def test_sigterm_during_a_realtime_schedule_stops_within_seconds(tmp_path):
     try:
         diagnostics = []
         client.subscribe(DiagnosticArray, '/diagnostics', diagnostics.append, depth=10)
-        future = client.call_async(Trigger, f'{NODE}/self_calibrate', Trigger.Request())
+        future = client.call_async(Trigger, f'{NODE}/capture_reference', Trigger.Request())
 
         def schedule_running():
-            return any(kv.key == 'schedule running' and kv.value == 'self_calibrate'
+            return any(kv.key == 'schedule running' and kv.value == 'reference'
                        for array in diagnostics[-1:] for status in array.status
                        for kv in status.values)
         client.spin_until(schedule_running, 30, 'the schedule running')

@@ -10,6 +10,7 @@ log line saying so.
 import faulthandler
 import os
 import signal
+import socket
 import sys
 import threading
 
@@ -40,10 +41,6 @@ EXIT_HARD = 3
 def main(args=None):
     """Run the node until SIGINT or SIGTERM; return the exit status."""
     use_shipped_fastdds_profile()
-    # Signals are taken by a thread of their own (StopSignals), never by the main thread:
-    # a signal cannot interrupt a state-file or recorder write half way, and it is still
-    # seen while the main thread is stuck in a DDS call. Blocked before rclpy.init, so
-    # that no DDS thread takes them either.
     signals = StopSignals()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
@@ -67,19 +64,27 @@ def main(args=None):
 
 class StopSignals:
     """
-    Take SIGINT and SIGTERM in a thread of their own and make sure the process ends.
+    See SIGINT and SIGTERM from a thread of their own and make sure the process ends.
 
-    The first signal sets :attr:`stop`, which ends the spin loop. If the main thread
-    does not start :func:`shut_down` within :data:`SPIN_EXIT_TIMEOUT_S` (a callback hung
-    in the middleware), this thread closes the node itself (state, recording) and exits
-    with :data:`EXIT_HARD`.
+    Any thread may receive a signal (numpy's and Fast DDS's threads too); Python's C-level
+    handler writes its number to a wakeup socket (``signal.set_wakeup_fd``), which this
+    class's thread reads, so it learns of the signal even while the main thread is stuck
+    in a middleware call. The first signal sets :attr:`stop`, which ends the spin loop;
+    the Python-level handlers do nothing else, so a signal never interrupts a state-file
+    or recorder write half way. If the main thread has not started :func:`shut_down`
+    within :data:`SPIN_EXIT_TIMEOUT_S` (a callback hung in the middleware), this thread
+    closes the node itself (state, recording) and exits with :data:`EXIT_HARD`.
     """
 
     def __init__(self):
         self.stop = threading.Event()
         self.stopping = threading.Event()
         self._node = None
-        signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        self._reader, self._writer = socket.socketpair()
+        self._writer.setblocking(False)
+        for signum in STOP_SIGNALS:
+            signal.signal(signum, lambda signum, frame: self.stop.set())
+        signal.set_wakeup_fd(self._writer.fileno(), warn_on_full_buffer=False)
         threading.Thread(target=self._wait, name='qfa_signals', daemon=True).start()
 
     def watch(self, node):
@@ -87,15 +92,18 @@ class StopSignals:
         self._node = node
 
     def _wait(self):
-        signum = signal.sigwait(STOP_SIGNALS)
+        while True:
+            data = self._reader.recv(1)
+            if not data or data[0] in STOP_SIGNALS:
+                break
         self.stop.set()
         # The last resort, in C: fires even if a hung call holds the interpreter lock.
         faulthandler.dump_traceback_later(
             SPIN_EXIT_TIMEOUT_S + CLOSE_TIMEOUT_S + MIDDLEWARE_TIMEOUT_S + 2.0, exit=True)
         if self.stopping.wait(SPIN_EXIT_TIMEOUT_S) or self._node is None:
             return
-        print(f'[qfa_node] {signal.Signals(signum).name}: the executor is stuck; closing the '
-              'node from the signal thread and exiting hard', file=sys.stderr, flush=True)
+        print('[qfa_node] stop signal: the executor is stuck; closing the node from the '
+              'signal thread and exiting hard', file=sys.stderr, flush=True)
         self._node.close(timeout_s=CLOSE_TIMEOUT_S)
         os._exit(EXIT_HARD)
 

@@ -34,6 +34,7 @@ from qfa_ros.ros.diagnostics import Diagnostics, DIAGNOSTICS_TYPE, temperature_s
 from qfa_ros.ros.ground_truth import GroundTruthInput
 from qfa_ros.ros.params import (
     ambient_settings,
+    as_declared_type,
     check_all,
     descriptor,
     FEEDBACK_COMPONENT,
@@ -77,6 +78,13 @@ class QfaNode(Node):
 
     def __init__(self, node_name='qfa_node', **kwargs):
         super().__init__(node_name, **kwargs)
+        # Integers typed for doubles ([1, 2, 3], 2000) become doubles: in the start-up
+        # overrides here (declaration runs no pre-set callback) and in every later change.
+        overrides = self._parameter_overrides
+        for name, parameter in list(overrides.items()):
+            overrides[name] = as_declared_type(parameter)
+        self.add_pre_set_parameters_callback(
+            lambda parameters: [as_declared_type(p) for p in parameters])
         for spec in PARAMETERS:
             try:
                 self.declare_parameter(spec.name, spec.default, descriptor(spec))
