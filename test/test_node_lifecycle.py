@@ -134,7 +134,7 @@ def test_sigterm_during_a_realtime_schedule_stops_within_seconds(tmp_path):
     assert not list(recordings.glob('**/*.part'))
 
 
-HUNG_TEARDOWN = textwrap.dedent('''
+HUNG_TEARDOWN = textwrap.dedent("""
     import ctypes, sys, time
     from pathlib import Path
     import rclpy
@@ -157,7 +157,7 @@ HUNG_TEARDOWN = textwrap.dedent('''
 
     shut_down(Node(), Executor(), middleware_timeout_s=0.5)
     print('returned')
-''')
+""")
 
 
 @pytest.mark.parametrize('hang, expected_status, words', [

@@ -5,11 +5,10 @@ import math
 from pathlib import Path
 
 import pytest
+from rclpy.parameter import Parameter
 import yaml
 
 from qfa_ros.calibration.state import AxisReference, CalibrationState
-from rclpy.parameter import Parameter
-
 from qfa_ros.ros.params import (
     as_declared_type,
     check_all,
@@ -32,7 +31,7 @@ def defaults():
 def test_config_file_holds_every_parameter_with_its_default():
     text = (ROOT / 'config' / 'qfa.yaml').read_text()
     assert text == config_yaml(), 'regenerate: python -m qfa_ros.ros.params yaml'
-    values = yaml.safe_load(text)['qfa_node']['ros__parameters']
+    values = yaml.safe_load(text)['/**']['ros__parameters']
     assert set(values) == set(SPECS)
     for name, value in values.items():
         assert value == pytest.approx(SPECS[name].default), name

@@ -39,7 +39,7 @@ EXIT_HARD = 3
 
 
 def main(args=None):
-    """Run the node until SIGINT or SIGTERM; return the exit status."""
+    """Run the node until SIGINT or SIGTERM; exit with the status (2: invalid parameters)."""
     use_shipped_fastdds_profile()
     signals = StopSignals()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
@@ -59,7 +59,13 @@ def main(args=None):
     except ExternalShutdownException:
         pass
     signals.stopping.set()
-    return shut_down(node, executor)
+    status = shut_down(node, executor)
+    # Skip the interpreter's finalization: nothing is left to write, and under `ros2
+    # launch` with two units it was seen to hang after a complete teardown (until the
+    # launcher's SIGTERM). Standard streams are flushed first.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)
 
 
 class StopSignals:

@@ -1,7 +1,7 @@
 """
 ROS 2 node of the emulated QFA triad: maps parameters, topics and services onto the model.
 
-Run it with ``qfa-node`` (``ros2 run qfa_ros qfa_node``) or
+Run it with ``qfa_node`` (``ros2 run qfa_ros qfa_node``) or
 ``python -m qfa_ros.cli.node --ros-args --params-file config/qfa.yaml``. The interface is
 described in ``docs/node.md``.
 """
