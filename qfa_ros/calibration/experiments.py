@@ -97,7 +97,7 @@ class PaperTrial:
 
 def paper_experiment(seed=0, trials=6, forward_ppm=-200.0, feedback_ppm=200.0,
                      profile=ErrorProfile(), static_s=10.0, forward=ForwardSettings(),
-                     feedback=FeedbackSettings(), recorder=None):
+                     feedback=FeedbackSettings(), recorder=None, start_ns=0):
     """
     Run seed 1 §IV-A steps 1-5 ``trials`` times and return the list of :class:`PaperTrial`.
 
@@ -109,13 +109,15 @@ def paper_experiment(seed=0, trials=6, forward_ppm=-200.0, feedback_ppm=200.0,
     compensation; (4) self-estimation and compensation, static output N_out(1). Each
     trial starts from a fresh sensor of the same design (seeded per trial). A
     ``recorder`` (:class:`qfa_ros.bag.scenario_bag.ScenarioBag`) receives the first
-    trial: its phases, static outputs and estimation traces.
+    trial: its phases, static outputs and estimation traces, stamped from ``start_ns``
+    (the triads' stamp origin [ns], default 0).
     """
     results = []
     root = np.random.SeedSequence(seed)
     for number, trial_seed in enumerate(root.spawn(trials)):
         record = recorder if number == 0 else None
-        triad = QfaTriad(TriadConfig(), rng=np.random.default_rng(trial_seed))
+        triad = QfaTriad(TriadConfig(), rng=np.random.default_rng(trial_seed),
+                         start_ns=start_ns)
         profile.apply(triad)
         state = CalibrationState()
         triad.run_for(1.0)

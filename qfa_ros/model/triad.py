@@ -279,9 +279,12 @@ class QfaTriad:
         Source of every random number (an int is a seed).
     profile : object with ``evaluate(t) -> (n, 3)``, optional
         Input specific force [m/s^2] as a function of sensor time [s]; default level.
+    start_ns : int, optional
+        Origin of the sample stamps and of :attr:`time_ns` [ns] (default 0), e.g. a
+        wall-clock epoch for a recording; the physics runs on :attr:`time` from 0.
     """
 
-    def __init__(self, config=None, rng=None, profile=None):
+    def __init__(self, config=None, rng=None, profile=None, start_ns=0):
         self.config = TriadConfig() if config is None else config
         if not isinstance(rng, np.random.Generator):
             rng = np.random.default_rng(rng)
@@ -290,7 +293,9 @@ class QfaTriad:
         self.decimation = self.config.decimation
         self.dt = 1.0 / self.config.loop_rate_hz
         self.sample_period = 1.0 / self.config.sample_rate_hz
-        self._grid = SampleGrid(self.config.sample_rate_hz, start_ns=0)
+        if isinstance(start_ns, (bool, float)) or int(start_ns) != start_ns:
+            raise ValueError(f'start_ns must be an integer number of ns, got {start_ns!r}')
+        self._grid = SampleGrid(self.config.sample_rate_hz, start_ns=int(start_ns))
         self.axes = [AxisLoop(self.config) for _ in AXES]
         self.drift = DriftModel(len(AXES))
         self.drift.clock = lambda: self.time
@@ -319,6 +324,11 @@ class QfaTriad:
     def time(self):
         """Sensor time of the next sample's start [s]."""
         return self.sample_index * self.sample_period
+
+    @property
+    def time_ns(self):
+        """Instant the next sample starts [ns]: ``start_ns`` + exact sensor time."""
+        return int(self._grid.stamp_ns(self.sample_index - 1))
 
     def stamp_ns(self, sample_index):
         """Return the data-ready instant (end of the averaging block) of samples [ns]."""
