@@ -21,7 +21,7 @@ def samples_for(triad, seconds):
 
 def sensor_time_ns(triad):
     """Return the instant the next sample starts [ns] (the triad's stamp origin + time)."""
-    return triad.time_ns
+    return int(triad.stamp_ns(triad.sample_index - 1))
 
 
 def require_closed(triad):

@@ -16,7 +16,7 @@ import numpy as np
 
 from qfa_ros.bag.scenario_bag import ScenarioBag, SIM_START_NS
 from qfa_ros.calibration.experiments import format_paper_tables, paper_experiment
-from qfa_ros.calibration.schedule import run_schedule
+from qfa_ros.calibration.schedule import run_schedule, sensor_time_ns
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
 from qfa_ros.model.allan import allan_deviation
@@ -48,7 +48,7 @@ def run_static(args, out=None):
     done = 0
     with scenario_bag(args, config) as bag:
         if bag:
-            bag.write_phase('static', triad.time_ns)
+            bag.write_phase('static', sensor_time_ns(triad))
         while done < total:
             part = triad.run(min(chunk, total - done))
             n = len(part.stamps_ns)

@@ -280,8 +280,8 @@ class QfaTriad:
     profile : object with ``evaluate(t) -> (n, 3)``, optional
         Input specific force [m/s^2] as a function of sensor time [s]; default level.
     start_ns : int, optional
-        Origin of the sample stamps and of :attr:`time_ns` [ns] (default 0), e.g. a
-        wall-clock epoch for a recording; the physics runs on :attr:`time` from 0.
+        Origin of the sample stamps [ns] (default 0), e.g. an epoch for a recording;
+        the physics runs on :attr:`time` from 0.
     """
 
     def __init__(self, config=None, rng=None, profile=None, start_ns=0):
@@ -324,11 +324,6 @@ class QfaTriad:
     def time(self):
         """Sensor time of the next sample's start [s]."""
         return self.sample_index * self.sample_period
-
-    @property
-    def time_ns(self):
-        """Instant the next sample starts [ns]: ``start_ns`` + exact sensor time."""
-        return int(self._grid.stamp_ns(self.sample_index - 1))
 
     def stamp_ns(self, sample_index):
         """Return the data-ready instant (end of the averaging block) of samples [ns]."""

@@ -1,4 +1,10 @@
-"""Parameters of the QFA node: declarations, validation and mapping onto the model."""
+"""
+Parameters of the QFA node: declarations, validation and mapping onto the model.
+
+One cohesive thing: the parameter table and what is derived from it (descriptors,
+type conversion, validation, model settings, ``config/qfa.yaml`` and the docs table);
+splitting it would scatter one table over several modules.
+"""
 
 from contextlib import contextmanager
 from dataclasses import dataclass
