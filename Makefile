@@ -29,7 +29,7 @@ $(STAMP): requirements/ros.txt requirements/base.txt requirements/test.txt setup
 
 # The emulated sensor on DDS until Ctrl-C (the node finds config/fastdds_discovery.xml).
 run: $(STAMP)
-	$(VENV)/bin/qfa-node --ros-args --params-file config/qfa.yaml
+	$(VENV)/bin/qfa_node --ros-args --params-file config/qfa.yaml
 
 # The offline simulator, no DDS: a static run summarized with its Allan deviation.
 sim: $(STAMP)

@@ -12,6 +12,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -20,11 +21,12 @@ setup(
     description='Emulated self-calibrating IMU of digital closed-loop quartz flexible '
                 'accelerometers (QFA) for ROS 2.',
     license='Apache-2.0',
-    extras_require={'test': ['pytest']},
+    extras_require={'test': ['pytest', 'pytest-timeout', 'ruff', 'rosbags', 'import-linter']},
     entry_points={
         'console_scripts': [
             'qfa-sim = qfa_ros.cli.sim:main',
-            'qfa-node = qfa_ros.cli.node:main',
+            # One name per program in lib/qfa_ros: the node with ROS's underscore
+            # (ros2 run qfa_ros qfa_node), the offline tools with their documented names.
             'qfa_node = qfa_ros.cli.node:main',
             'qfa-replay = qfa_ros.cli.replay:main',
             'qfa-report = qfa_ros.cli.report:main',

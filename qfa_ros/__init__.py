@@ -7,7 +7,7 @@ import-linter in the test suite, see ``.importlinter``):
 =================  =========================================================  ===========
 layer              what                                                       may import
 =================  =========================================================  ===========
-``cli``            thin command-line entry points (qfa-node, qfa-sim, ...)    everything
+``cli``            thin command-line entry points (qfa_node, qfa-sim, ...)    everything
 ``ros``            the node and its parts, replay publisher; the only rclpy   bag and below
 ``report``         figures drawn from bags (matplotlib)                       bag and below
 ``fleet``          Monte Carlo fleet studies on Dask, Parquet results         calibration, model

@@ -24,6 +24,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 import yaml
 
+from qfa_ros.bag.scenario_bag import SIM_START_NS
 from qfa_ros.bag.trace import key_values_to_dict
 from qfa_ros.cli.sim import main as sim_main
 
@@ -106,6 +107,21 @@ def test_static_bag_is_reproduced_by_its_command(tmp_path):
     stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in imu])
     assert np.all(np.diff(stamps) == 1_000_000)
     assert stamps.tolist() == [t for t, _ in imu]
+    # A documented start on the timeline, not 1970: 2026-01-01T00:00:00Z + one sample.
+    assert stamps[0] == SIM_START_NS + 1_000_000
+    phase_time, phase = read_all(regenerated)['/qfa/scenario/phase'][0]
+    assert (phase_time, phase.data) == (SIM_START_NS, 'static')
+
+
+def test_sim_start_time_option_moves_every_time_in_the_bag(tmp_path):
+    out = tmp_path / 'moved.mcap'
+    assert sim_main(['paper-2019', '--trials', '1', '--seed', '2', '--out', str(out),
+                     '--start-time', '2027-03-04T05:06:07+01:00']) == 0
+    start = 1_804_133_167_000_000_000  # 2027-03-04T04:06:07Z
+    times = [t for messages in read_all(out).values() for t, _ in messages]
+    # The first trial's first record comes a little after the start (reference capture).
+    assert start <= min(times) < start + 60 * 10**9
+    assert max(times) < start + 3600 * 10**9
 
 
 def regenerate(name, directory, env=None):

@@ -5,10 +5,12 @@ import math
 from pathlib import Path
 
 import pytest
+from rclpy.parameter import Parameter
 import yaml
 
 from qfa_ros.calibration.state import AxisReference, CalibrationState
 from qfa_ros.ros.params import (
+    as_declared_type,
     check_all,
     check_value,
     config_yaml,
@@ -29,7 +31,7 @@ def defaults():
 def test_config_file_holds_every_parameter_with_its_default():
     text = (ROOT / 'config' / 'qfa.yaml').read_text()
     assert text == config_yaml(), 'regenerate: python -m qfa_ros.ros.params yaml'
-    values = yaml.safe_load(text)['qfa_node']['ros__parameters']
+    values = yaml.safe_load(text)['/**']['ros__parameters']
     assert set(values) == set(SPECS)
     for name, value in values.items():
         assert value == pytest.approx(SPECS[name].default), name
@@ -121,3 +123,26 @@ def test_state_store_without_path_keeps_nothing():
     store = StateStore('')
     assert store.save(calibrated_state(), True) is None
     assert store.load() == (None, True)
+
+
+def test_integers_typed_for_doubles_become_doubles():
+    converted = as_declared_type(Parameter('drift.feedback_ppm', value=[1, 2, 3]))
+    assert converted.type_ == Parameter.Type.DOUBLE_ARRAY
+    assert converted.value == [1.0, 2.0, 3.0]
+    converted = as_declared_type(Parameter('sample_rate_hz', value=2000))
+    assert converted.type_ == Parameter.Type.DOUBLE and converted.value == 2000.0
+    for unchanged in (Parameter('seed', value=3), Parameter('frame_id', value='x'),
+                      Parameter('qos.depth', value=10)):
+        assert as_declared_type(unchanged) is unchanged
+
+
+def test_array_descriptors_show_length_and_element_range():
+    for spec in PARAMETERS:
+        if not isinstance(spec.default, list):
+            continue
+        result = descriptor(spec)
+        assert spec.low is not None, spec.name
+        assert result.floating_point_range[0].from_value == spec.low
+        assert f'[{spec.low:g}, {spec.high:g}]' in result.additional_constraints
+        assert check_value(spec.name, [spec.high * 2] * len(spec.default)) is not None
+        assert check_value(spec.name, spec.default) is None

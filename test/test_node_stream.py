@@ -20,7 +20,7 @@ from std_msgs.msg import Bool
 
 RATE = 1000.0
 G = 9.80665
-BIAS_UG = (20.0, -30.0, 50.0)
+BIAS_UG = (20.0, -30.0, 50.0)  # integral: typed as integers below
 # Configured IEEE 1293 bias plus the thermal zero bias at the constant 25 degC ambient.
 ZERO_BIAS = np.asarray(BIAS_UG) * 9.80665e-6 + thermal_zero_bias()
 
@@ -34,7 +34,8 @@ def setup(tmp_path_factory):
     directory = tmp_path_factory.mktemp('stream')
     domain = domain_id('stream')
     node = NodeProcess(domain, directory, {
-        'sample_rate_hz': RATE, 'qos.depth': 10000, 'model.bias_ug': list(BIAS_UG),
+        # Integers, as users type them: converted to doubles at start-up.
+        'sample_rate_hz': RATE, 'qos.depth': 10000, 'model.bias_ug': [int(b) for b in BIAS_UG],
         'state_file': str(directory / 'state.json'), 'output_dir': str(directory),
         'trace_dir': str(directory / 'traces'),
         'recorder.enabled': True, 'recorder.directory': str(directory / 'recordings'),
@@ -119,6 +120,19 @@ def test_invalid_parameter_changes_are_rejected_with_the_reason(setup, name, val
     assert words in result.reason
 
 
+def test_integer_arrays_are_accepted_as_doubles_and_validated(setup):
+    client = setup['client']
+    assert client.get_parameters(['model.bias_ug']) == [list(BIAS_UG)]
+    result, = client.set_parameters({'drift.feedback_ppm': [1, 2, 3]})
+    assert result.successful, result.reason
+    value, = client.get_parameters(['drift.feedback_ppm'])
+    assert value == [1.0, 2.0, 3.0] and all(type(v) is float for v in value)
+    result, = client.set_parameters({'drift.feedback_ppm': [1, 2, 10 ** 9]})
+    assert not result.successful and 'must be in' in result.reason
+    result, = client.set_parameters({'drift.feedback_ppm': [0, 0, 0]})
+    assert result.successful, result.reason
+
+
 def test_orientation_changes_the_running_sensor_at_once(setup):
     client, imu = setup['client'], setup['imu']
     result, = client.set_parameters({'input.roll': math.pi / 2})
@@ -134,7 +148,7 @@ def test_orientation_changes_the_running_sensor_at_once(setup):
 def test_sigterm_closes_the_recording_cleanly(setup):
     status = setup['node'].stop(signal.SIGTERM)
     assert status == 0, setup['node'].log()
-    files = sorted((setup['directory'] / 'recordings').glob('*.mcap'))
+    files = sorted((setup['directory'] / 'recordings').glob('*/*.mcap'))
     assert files, setup['node'].log()
     with AnyReader(files) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
@@ -145,7 +159,9 @@ def test_sigterm_closes_the_recording_cleanly(setup):
         _, _, raw = next(reader.messages(connections=[connection]))
         message = reader.deserialize(raw, connection.msgtype)
         assert message.header.frame_id == 'qfa_imu'
-    assert not list((setup['directory'] / 'recordings').glob('*.part'))
+    assert not list((setup['directory'] / 'recordings').glob('**/*.part'))
+    bag, = files[0].parent.parent.iterdir()
+    assert (bag / 'metadata.yaml').exists()
 
 
 @pytest.mark.parametrize('parameters, words', [
@@ -157,3 +173,4 @@ def test_invalid_start_parameters_stop_the_node_with_the_reason(tmp_path, parame
     status = node.wait(60)
     assert status == 2
     assert words in node.log()
+    assert '[FATAL]' in node.log(), 'not through the ROS logger'

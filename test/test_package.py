@@ -9,16 +9,61 @@ import xml.etree.ElementTree as ET
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_package_xml_is_format_3_ament_python_with_the_runtime_dependencies():
+# The import name of every third-party module qfa_ros/ imports, and the rosdep key of
+# package.xml that provides it. Keys checked in ros/rosdistro (rosdep/python.yaml,
+# rosdep/base.yaml, kilted/distribution.yaml): `mcap` has no key of its own and comes
+# with mcap-ros2-support; numba has a system key (python3-numba).
+ROSDEP_KEYS = {
+    'rclpy': 'rclpy', 'rcl_interfaces': 'rcl_interfaces',
+    'ament_index_python': 'ament_index_python', 'sensor_msgs': 'sensor_msgs',
+    'std_msgs': 'std_msgs', 'std_srvs': 'std_srvs', 'geometry_msgs': 'geometry_msgs',
+    'diagnostic_msgs': 'diagnostic_msgs', 'rosgraph_msgs': 'rosgraph_msgs',
+    'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml',
+    'matplotlib': 'python3-matplotlib', 'numba': 'python3-numba',
+    'mcap': 'mcap-ros2-support', 'mcap_ros2': 'mcap-ros2-support',
+    'launch': 'launch', 'launch_ros': 'launch_ros',
+}
+TEST_KEYS = {'pytest': 'python3-pytest', 'pytest-timeout': 'python3-pytest-timeout',
+             'ruff': 'python3-ruff-pip', 'rosbags': 'python3-rosbags-pip'}
+
+
+def imported_modules(paths):
+    """Return the top-level names of every module imported by the files in ``paths``."""
+    names = set()
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names.update(alias.name.split('.')[0] for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                names.add(node.module.split('.')[0])
+    return names
+
+
+def test_package_xml_declares_every_import_by_an_existing_rosdep_key():
     root = ET.parse(ROOT / 'package.xml').getroot()
     assert root.tag == 'package' and root.get('format') == '3'
     assert root.findtext('name') == 'qfa_ros'
     assert root.findtext('export/build_type') == 'ament_python'
     exec_depends = {e.text for e in root.findall('exec_depend')}
-    assert {'rclpy', 'sensor_msgs', 'std_srvs', 'std_msgs', 'diagnostic_msgs',
-            'python3-numpy', 'python3-scipy'} <= exec_depends
-    # Packages without a system rosdep key use pip keys.
-    assert {'python3-numba-pip', 'python3-mcap-pip'} <= exec_depends
+    sources = [*(ROOT / 'qfa_ros').rglob('*.py'), *(ROOT / 'launch').glob('*.launch.py')]
+    third_party = {name for name in imported_modules(sources)
+                   if name not in sys.stdlib_module_names and name != 'qfa_ros'}
+    unknown = third_party - set(ROSDEP_KEYS)
+    assert not unknown, f'no rosdep key known for {unknown}'
+    missing = {ROSDEP_KEYS[name] for name in third_party} - exec_depends
+    assert not missing, f'package.xml does not declare {missing}'
+    # The keys that turned out not to exist in rosdep are gone.
+    assert not {'python3-numba-pip', 'python3-mcap-pip'} & exec_depends
+
+
+def test_test_dependencies_are_declared_as_the_tests_use_them():
+    root = ET.parse(ROOT / 'package.xml').getroot()
+    test_depends = {e.text for e in root.findall('test_depend')}
+    assert set(TEST_KEYS.values()) <= test_depends
+    assert not {'ament_flake8', 'ament_pep257'} & test_depends, 'declared but not used'
+    assert 'timeout' in (ROOT / 'pytest.ini').read_text()  # pytest-timeout
+    assert 'ruff' in (ROOT / 'test' / 'test_lint.py').read_text()
+    assert 'rosbags' in imported_modules((ROOT / 'test').glob('test_*.py'))
 
 
 def test_card_top_level_exists():
@@ -39,8 +84,13 @@ def test_console_scripts_install_where_ros2_run_finds_them():
     assert len(entry_points) == 1
     scripts = entry_points[0]['console_scripts']
     names = {entry.split('=')[0].strip() for entry in scripts}
-    assert {'qfa-sim', 'qfa-node', 'qfa_node', 'qfa-replay', 'qfa-report'} <= names
+    assert names == {'qfa-sim', 'qfa_node', 'qfa-replay', 'qfa-report'}
+    targets = [entry.split('=')[1].strip() for entry in scripts]
+    assert len(set(targets)) == len(targets), 'one executable name per program'
     assert 'qfa-sim = qfa_ros.cli.sim:main' in scripts
+    assert 'qfa_node = qfa_ros.cli.node:main' in scripts
+    assert "glob('launch/*.launch.py')" in (ROOT / 'setup.py').read_text()
+    assert '/launch' in (ROOT / 'setup.py').read_text()
 
 
 def test_make_targets_and_ci_entry_point():

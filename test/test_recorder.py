@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosDurability, QosReliability
+from rosbags.rosbag2 import Reader as Rosbag2Reader
 import yaml
 
 from qfa_ros.bag.files import iter_part_messages, RecorderError
@@ -530,6 +531,20 @@ def test_unwritable_directory_raises_at_creation(tmp_path, kind):
         FlightRecorder(directory)
 
 
+def test_flight_recorder_never_reuses_a_bag_directory(tmp_path):
+    session = 1_767_225_600_000_000_000
+    bags = []
+    for _ in range(2):
+        with FlightRecorder(tmp_path, 'same', session_time_ns=session) as flight:
+            flight.record('/c', 'std_msgs/msg/String', _string_cdr('x'), T0)
+        bags.append(flight.bag_directory.name)
+    assert bags == ['same_2026_01_01-00_00_00', 'same_2026_01_01-00_00_00_2']
+    with FlightRecorder(tmp_path, 'empty') as flight:
+        pass
+    assert flight.bag_directory is None
+    assert not list(tmp_path.glob('empty*'))
+
+
 def test_existing_file_is_never_replaced(tmp_path):
     path = tmp_path / 'keep.mcap'
     path.write_bytes(b'precious')
@@ -612,9 +627,21 @@ def test_flight_recorder_splits_without_losing_messages(tmp_path, limits, seed):
     files = flight.files
     assert flight.close() == files  # idempotent
     assert len(files) >= 3
-    assert [f.name for f in files] == [f'flight_20260101T000000_{i:04d}.mcap'
-                                       for i in range(len(files))]
-    assert sorted(p.name for p in tmp_path.iterdir()) == [f.name for f in files]
+    bag = tmp_path / 'flight_2026_01_01-00_00_00'
+    assert flight.bag_directory == bag
+    assert [f.name for f in files] == [f'{bag.name}_{i}.mcap' for i in range(len(files))]
+    assert sorted(p.name for p in bag.iterdir()) == sorted(
+        [f.name for f in files] + ['metadata.yaml'])
+    # A rosbag2 bag directory: rosbags' own rosbag2 reader opens it, counts agree.
+    with Rosbag2Reader(bag) as reader:
+        assert reader.message_count == len(written)
+        assert {c.topic: c.msgcount for c in reader.connections} == {
+            topic: sum(w[0] == topic for w in written) for topic in ('/a', '/b')}
+        assert reader.start_time == written[0][1]
+        assert reader.end_time == written[-1][1] + 1
+        assert [(c.topic, t, bytes(d)) for c, t, d in reader.messages()] == written
+        qos, = next(c for c in reader.connections if c.topic == '/a').ext.offered_qos_profiles
+        assert qos.reliability.name.lower() == 'best_effort'
 
     recovered = []
     for path in files:

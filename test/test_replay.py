@@ -34,6 +34,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_typestore, Stores
 from rosgraph_msgs.msg import Clock
 
+from qfa_ros.bag.flight_recorder import FlightRecorder
 from qfa_ros.bag.qos import QOS_LATCHED, QOS_SENSOR_DATA
 from qfa_ros.bag.reader import BagError, BagSource
 from qfa_ros.bag.types import register_message_definition, stamp
@@ -366,6 +367,23 @@ def test_rosbag2_directory_bag(ros_domain, tmp_path):
     assert errors[-1] < TIMING_TOLERANCE_S
     assert_same_messages(listener.received[f'{namespace}/vector'],
                          expected[f'{namespace}/vector'])
+
+
+def test_flight_recorder_directory_plays_across_its_splits(ros_domain, tmp_path):
+    context, env = ros_domain
+    topic = f'/replay_{os.getpid()}_flight/imu/data_raw'
+    source = tmp_path / 'source.mcap'
+    write_project_bag(source, topic.rsplit('/imu', 1)[0], seconds=1.0, seed=6)
+    expected = read_messages(source, topic)
+    with FlightRecorder(tmp_path, 'flight', max_bytes=8000,
+                        qos={topic: QOS_SENSOR_DATA}) as flight:
+        for time_ns, data in expected:
+            flight.record(topic, 'sensor_msgs/msg/Imu', data, time_ns)
+    assert len(flight.files) >= 3
+    listener, completed = replay(context, env, flight.bag_directory, [
+        (topic, import_message_type('sensor_msgs/msg/Imu'), SENSOR_QOS)])
+    assert_same_messages(listener.received[topic], expected)
+    assert f'{len(expected)}' in completed.stdout
 
 
 def test_sigint_stops_a_looping_replay_cleanly(ros_domain, tmp_path):

@@ -135,3 +135,31 @@ def iter_part_messages(path):
                 channels[record.id] = record
             elif isinstance(record, Message):
                 yield channels[record.channel_id], record
+
+
+def write_text_atomically(path, text):
+    """
+    Replace ``path`` with ``text`` atomically and durably (temporary file, fsync, rename).
+
+    A reader sees the old content or the new one, never a mix; after a crash one of the
+    two is on disk.
+    """
+    temporary = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
+    try:
+        descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC,
+                             0o644)
+        try:
+            data = memoryview(text.encode('utf-8'))
+            while data.nbytes:
+                data = data[os.write(descriptor, data):]
+            os.fsync(descriptor)
+        finally:
+            os.close(descriptor)
+        os.replace(temporary, path)
+    except OSError as error:
+        try:
+            os.unlink(temporary)
+        except OSError:
+            pass
+        raise os_error_with_context(error, f'cannot write {path.name}', path) from None
+    fsync_directory(path.parent)

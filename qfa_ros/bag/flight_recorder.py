@@ -1,6 +1,5 @@
-"""Record serialized messages continuously into MCAP files split by size or duration."""
+"""Record serialized messages continuously into a rosbag2 bag directory split by size or time."""
 
-import datetime
 import errno
 import os
 from pathlib import Path
@@ -8,26 +7,39 @@ import re
 import threading
 import time
 
-from qfa_ros.bag.files import os_error_with_context, RecorderError
+from qfa_ros.bag.bag_directory import (
+    default_bag_name,
+    merge_bag_metadata,
+    split_file_name,
+    write_bag_metadata,
+)
+from qfa_ros.bag.files import fsync_directory, os_error_with_context, RecorderError
 from qfa_ros.bag.types import as_time_ns, canonical_type, definition_of
 from qfa_ros.bag.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE, McapBagWriter
 
 
 class FlightRecorder:
-    """Record serialized messages continuously into MCAP files split by size or duration.
+    """Record serialized messages continuously into a rosbag2 bag directory, split.
 
-    Files are named ``PREFIX_YYYYmmddTHHMMSS_NNNN.mcap`` with the session start
-    (UTC wall clock) and a running index, so that a session's files sort in
-    recording order. Each file is a complete, standalone rosbag2 MCAP file,
-    written and published like ``McapBagWriter`` writes them. A file is opened
-    on the first message after the previous one closed, so no empty files.
+    The bag is a directory ``DIRECTORY/PREFIX_YYYY_MM_DD-HH_MM_SS`` (rosbag2's default
+    name pattern, session start in UTC; ``_2``, ``_3``... if taken) holding
+    ``NAME_0.mcap``, ``NAME_1.mcap``... and rosbag2's ``metadata.yaml`` (version 9), as
+    ``ros2 bag record -s mcap --max-bag-size/--max-bag-duration`` writes it; ``ros2 bag
+    play/info``, ``rosbags.rosbag2.Reader`` and ``qfa-replay`` open it. Each file is a
+    complete, standalone rosbag2 MCAP file, written and published like ``McapBagWriter``
+    writes them (``NAME_i.mcap.part`` until finished). Every time a file is finished,
+    ``metadata.yaml`` is replaced atomically by one listing every finished file, so the
+    directory is a valid bag of all finished files at any moment (after a crash too; the
+    ``.part`` of the file in progress can be salvaged with ``iter_part_messages``). A
+    file is opened on the first message after the previous one closed, so no empty
+    files; a session without messages leaves no directory.
 
     Parameters
     ----------
     directory : str or os.PathLike
         Existing, writable directory.
     prefix : str
-        File name prefix.
+        Bag name prefix.
     max_bytes : int, optional
         Start a new file before a message would take the finished file past
         this size (estimated from the bytes on disk, the chunk in progress
@@ -47,7 +59,9 @@ class FlightRecorder:
     storage_metadata : mapping of str to str, optional
         rosbag2 ``custom_data`` written into every file.
     session_time_ns : int, optional
-        Wall-clock time used in the file names; default now.
+        Wall-clock time used in the bag name; default now.
+    bag_name : str, optional
+        The bag (directory) name instead of ``PREFIX_YYYY_MM_DD-HH_MM_SS``.
 
     Raises
     ------
@@ -57,7 +71,7 @@ class FlightRecorder:
 
     def __init__(self, directory, prefix='qfa', *, max_bytes=None, max_duration_ns=None,
                  compression='zstd', chunk_size=None, qos=None, storage_metadata=None,
-                 session_time_ns=None):
+                 session_time_ns=None, bag_name=None):
         self.directory = Path(directory)
         if max_bytes is not None and int(max_bytes) < 1024:
             raise ValueError(f'max_bytes must be at least 1024, got {max_bytes!r}')
@@ -78,11 +92,13 @@ class FlightRecorder:
         self._qos = dict(qos or {})
         self._storage_metadata = dict(storage_metadata or {})
         session_ns = time.time_ns() if session_time_ns is None else session_time_ns
-        session = datetime.datetime.fromtimestamp(
-            as_time_ns(session_ns, 'session_time_ns') / 1e9, tz=datetime.timezone.utc
-        )
-        self._base_name = f'{prefix}_{session:%Y%m%dT%H%M%S}'
+        base = bag_name or default_bag_name(prefix, as_time_ns(session_ns, 'session_time_ns'))
+        if not re.match(r'^[A-Za-z0-9_.-]+$', base) or base.startswith('.'):
+            raise ValueError(f'bag_name must be a plain directory name, got {base!r}')
+        self._base_name = base
         self._check_directory()
+        self.bag_directory = None
+        self._file_metadata = []
         self._index = 0
         self._writer = None
         self._file_start_ns = None
@@ -158,8 +174,26 @@ class FlightRecorder:
             return estimate > self._max_bytes
         return False
 
+    def _create_bag_directory(self):
+        for attempt in range(1, 1000):
+            name = self._base_name if attempt == 1 else f'{self._base_name}_{attempt}'
+            path = self.directory / name
+            try:
+                path.mkdir()
+            except FileExistsError:
+                continue
+            except OSError as error:
+                raise os_error_with_context(error, 'cannot create bag directory', path) from None
+            fsync_directory(self.directory)
+            self.bag_directory = path
+            return
+        raise FileExistsError(errno.EEXIST, 'no free bag directory name',
+                              str(self.directory / self._base_name))
+
     def _open_next(self, time_ns):
-        path = self.directory / f'{self._base_name}_{self._index:04d}.mcap'
+        if self.bag_directory is None:
+            self._create_bag_directory()
+        path = self.bag_directory / split_file_name(self.bag_directory.name, self._index)
         self._writer = McapBagWriter(
             path, compression=self._compression, chunk_size=self._chunk_size,
             storage_metadata=self._storage_metadata,
@@ -170,14 +204,17 @@ class FlightRecorder:
     def _finish_current(self):
         writer, self._writer = self._writer, None
         self.files.append(writer.finish())
+        self._file_metadata.append(writer.bag_metadata())
+        write_bag_metadata(self.bag_directory, merge_bag_metadata(
+            self._file_metadata, self._storage_metadata))
 
     def close(self):
-        """Finish the current file; idempotent.
+        """Finish the current file and the bag's ``metadata.yaml``; idempotent.
 
         Returns
         -------
         list of pathlib.Path
-            Every file this recorder published, in order.
+            Every file this recorder published, in order (in :attr:`bag_directory`).
         """
         with self._lock:
             if not self._closed:

@@ -14,13 +14,21 @@ IMU_TOPIC = '/imu/data_raw'
 TEMPERATURE_TOPIC = '/imu/temperature'
 PHASE_TOPIC = '/qfa/scenario/phase'
 
+SIM_START_NS = 1_767_225_600_000_000_000
+"""Default start of simulated recordings: 2026-01-01T00:00:00Z [ns since the epoch].
+
+A fixed, documented instant rather than 0 (1970 on Foxglove's and ``ros2 bag info``'s
+timelines) or the wall clock (a bag would differ from run to run): same seed, same bag.
+"""
+
 
 class ScenarioBag:
     """
     The output of a ``qfa-sim`` scenario: IMU stream, temperature, phases and traces.
 
     Topics: ``/imu/data_raw`` (sensor_msgs/Imu, REP-145, log time = header stamp =
-    sensor time [ns]), ``/imu/temperature`` (sensor_msgs/Temperature [degC]),
+    the triad's stamps [ns]: :data:`SIM_START_NS` + sensor time in ``qfa-sim``),
+    ``/imu/temperature`` (sensor_msgs/Temperature [degC]),
     ``/qfa/scenario/phase`` (std_msgs/String naming the phase that starts at its log
     time) and estimation traces under ``/qfa/trace/<run>/...`` (see
     :mod:`qfa_ros.bag.traces`). A context manager with an idempotent ``finish()``.

@@ -166,7 +166,7 @@ def measure_scale(triad, seconds=0.5, settle_s=0.05):
 def paper_experiment(seed=0, trials=6, forward_ppm=-200.0, feedback_ppm=200.0,
                      profile=ErrorProfile(), room=PaperRoom(), static_s=10.0,
                      forward=ForwardSettings(), feedback=FeedbackSettings(), recorder=None,
-                     progress=False):
+                     progress=False, start_ns=0):
     """
     Run seed 1 §IV-A steps 1-5 ``trials`` times and return the list of :class:`PaperTrial`.
 
@@ -180,7 +180,8 @@ def paper_experiment(seed=0, trials=6, forward_ppm=-200.0, feedback_ppm=200.0,
     on the body temperature the room and the warm-up give. Each trial also records
     the output scale (:func:`measure_scale`) at the reference, drifted and after
     compensation. A ``recorder`` (:class:`qfa_ros.bag.scenario_bag.ScenarioBag`)
-    receives the first trial: its phases, static outputs and estimation traces.
+    receives the first trial: its phases, static outputs and estimation traces, stamped
+    from ``start_ns`` (the triads' stamp origin [ns], default 0).
     """
     results = []
     root = np.random.SeedSequence(seed)
@@ -188,7 +189,7 @@ def paper_experiment(seed=0, trials=6, forward_ppm=-200.0, feedback_ppm=200.0,
                                              disable=not progress)):
         record = recorder if number == 0 else None
         triad = QfaTriad(TriadConfig(thermal=room.thermal_config()),
-                         rng=np.random.default_rng(trial_seed))
+                         rng=np.random.default_rng(trial_seed), start_ns=start_ns)
         profile.apply(triad)
         state = CalibrationState()
         idle(triad, room.warm_up_s)

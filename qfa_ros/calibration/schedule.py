@@ -183,8 +183,8 @@ def samples_for(triad, seconds):
 
 
 def sensor_time_ns(triad):
-    """Return the sensor time of the next sample [ns]."""
-    return int(triad.sample_index * 1e9 / triad.config.sample_rate_hz)
+    """Return the instant the next sample starts [ns] (the triad's stamp origin + time)."""
+    return int(triad.stamp_ns(triad.sample_index - 1))
 
 
 def require_closed(sensor):

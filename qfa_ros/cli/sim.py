@@ -1,10 +1,14 @@
-"""Offline simulator: ``qfa-sim SCENARIO [--duration S] [--seed N] [--out FILE.mcap]``.
+"""
+Offline simulator: ``qfa-sim SCENARIO [--duration S] [--seed N] [--out FILE.mcap]``.
 
-Runs without ROS or DDS, as fast as it can.
+Runs without ROS or DDS, as fast as it can. Bags start at ``--start-time`` (default
+2026-01-01T00:00:00Z, :data:`qfa_ros.bag.scenario_bag.SIM_START_NS`): a realistic date on
+a timeline, the same for every run.
 """
 
 import argparse
 import contextlib
+import datetime
 import functools
 import sys
 import time
@@ -12,6 +16,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
+from qfa_ros.calibration.schedule import sensor_time_ns
 from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.noise import MICRO_G
@@ -50,7 +55,7 @@ def run_static(args, out=None):
     """Run the default sensor, level and static, for ``args.duration`` s and summarize it."""
     out = out or sys.stdout
     config, profile = static_sensor()
-    triad = QfaTriad(config, rng=args.seed, profile=profile)
+    triad = QfaTriad(config, rng=args.seed, profile=profile, start_ns=args.start_ns)
     rate = int(round(config.sample_rate_hz))
     chunk = int(round(STATIC_CHUNK_SECONDS * config.sample_rate_hz))
     total = int(round(args.duration * config.sample_rate_hz))
@@ -67,7 +72,7 @@ def run_static(args, out=None):
             tqdm(total=args.duration, unit='s', desc='qfa-sim static', disable=None,
                  leave=False) as progress:
         if bag:
-            bag.write_phase('static', 0)
+            bag.write_phase('static', sensor_time_ns(triad))
         while done < total:
             part = triad.run(min(chunk, total - done))
             n = len(part.stamps_ns)
@@ -102,7 +107,8 @@ def run_paper_2019(args, out=None):
     from qfa_ros.calibration.experiments import format_paper_tables, paper_experiment
     out = out or sys.stdout
     with scenario_bag(args, TriadConfig()) as bag:
-        trials = paper_experiment(seed=args.seed, trials=args.trials, recorder=bag)
+        trials = paper_experiment(seed=args.seed, trials=args.trials, recorder=bag,
+                                  start_ns=args.start_ns)
     print(format_paper_tables(trials), file=out)
     return 0
 
@@ -176,7 +182,7 @@ def run_temperature_cycle(args, out=None):
     from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
     out = out or sys.stdout
     config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant'))
-    triad = QfaTriad(config, rng=args.seed)
+    triad = QfaTriad(config, rng=args.seed, start_ns=args.start_ns)
     settings = TemperatureSettings(period_s=args.duration)
     with scenario_bag(args, config) as bag:
         result = run_schedule(triad, temperature_schedule(triad, CalibrationState(), settings))
@@ -239,7 +245,24 @@ def build_parser():
                         help='paper-2019: number of trials (default 6, as seed 1)')
     parser.add_argument('--out', metavar='FILE.mcap',
                         help='write the scenario as a rosbag2-compatible MCAP file')
+    from qfa_ros.bag.scenario_bag import SIM_START_NS
+    parser.add_argument('--start-time', type=parse_start_time, default=SIM_START_NS,
+                        dest='start_ns', metavar='ISO8601',
+                        help='time of the first sample in the bag (default '
+                             '2026-01-01T00:00:00Z; UTC when no offset is given)')
     return parser
+
+
+def parse_start_time(text):
+    """Return ``text`` (ISO 8601; UTC unless it names an offset) in ns since the epoch."""
+    try:
+        moment = datetime.datetime.fromisoformat(text.replace('Z', '+00:00'))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not an ISO 8601 time: {text!r}') from None
+    if moment.tzinfo is None:
+        moment = moment.replace(tzinfo=datetime.timezone.utc)
+    delta = moment - datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
+    return (delta.days * 86_400 + delta.seconds) * 1_000_000_000 + delta.microseconds * 1000
 
 
 def main(argv=None):

@@ -208,6 +208,9 @@ class QfaTriad:
         Input specific force [m/s^2] as a function of sensor time [s]; default level.
         A :class:`StaticProfile` is applied as one value per chunk; other profiles are
         evaluated at every loop step.
+    start_ns : int, optional
+        Origin of the sample stamps [ns] (default 0), e.g. an epoch for a recording;
+        the physics runs on :attr:`time` from 0.
 
     Attributes
     ----------
@@ -218,7 +221,7 @@ class QfaTriad:
         stream, so the output does not depend on it.
     """
 
-    def __init__(self, config=None, rng=None, profile=None):
+    def __init__(self, config=None, rng=None, profile=None, start_ns=0):
         self.config = TriadConfig() if config is None else config
         if not isinstance(rng, np.random.Generator):
             rng = np.random.default_rng(rng)
@@ -227,7 +230,9 @@ class QfaTriad:
         self.decimation = self.config.decimation
         self.dt = 1.0 / self.config.loop_rate_hz
         self.sample_period = 1.0 / self.config.sample_rate_hz
-        self._grid = SampleGrid(self.config.sample_rate_hz, start_ns=0)
+        if isinstance(start_ns, (bool, float)) or int(start_ns) != start_ns:
+            raise ValueError(f'start_ns must be an integer number of ns, got {start_ns!r}')
+        self._grid = SampleGrid(self.config.sample_rate_hz, start_ns=int(start_ns))
         self.noise = NoiseSource(self.config.noise, len(AXES), self.config.loop_rate_hz,
                                  self.config.sample_rate_hz, rng)
         self.axes = [AxisLoop(self.config, self.noise, i) for i in range(len(AXES))]

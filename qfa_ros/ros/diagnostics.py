@@ -42,7 +42,9 @@ class Diagnostics:
         """Return a :class:`DiagnosticArray` of every status (call with the node lock held)."""
         array = DiagnosticArray()
         array.header.stamp = self._node.get_clock().now().to_msg()
-        prefix = self._node.get_fully_qualified_name()
+        # As diagnostic_updater names them: 'node_name: task', no namespace, no slash;
+        # hardware_id tells two units apart.
+        prefix = self._node.get_name()
         for topic, source in self._sources:
             level, message, values = source()
             array.status.append(DiagnosticStatus(

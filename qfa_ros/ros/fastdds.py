@@ -31,10 +31,11 @@ def use_shipped_fastdds_profile(environ=None):
     """
     Point ``FASTDDS_DEFAULT_PROFILES_FILE`` at the shipped profile unless it is set.
 
-    Fast DDS 3.2 drops a discovery reply that lands before a new participant's
-    receivers are up, delaying a match by the 3 s announcement period about one
-    start in three; the shipped profile announces every 250 ms. Call before
-    ``rclpy.init``.
+    Fast DDS 3.2 drops a running participant's discovery reply that lands before a
+    new participant's receivers are up and repeats it only with its next periodic
+    announcement (3 s by default). The shipped profile makes ten initial
+    announcements 100 ms apart and then announces every 1 s (measured in
+    ``bench/results/discovery.md``). Call before ``rclpy.init``.
 
     Returns
     -------

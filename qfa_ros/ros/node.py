@@ -1,7 +1,7 @@
 """
 ROS 2 node of the emulated QFA triad: maps parameters, topics and services onto the model.
 
-Run it with ``qfa-node`` (``ros2 run qfa_ros qfa_node``) or
+Run it with ``qfa_node`` (``ros2 run qfa_ros qfa_node``) or
 ``python -m qfa_ros.cli.node --ros-args --params-file config/qfa.yaml``. The interface is
 described in ``docs/node.md``.
 """
@@ -35,6 +35,7 @@ from qfa_ros.ros.diagnostics import Diagnostics, DIAGNOSTICS_TYPE, temperature_s
 from qfa_ros.ros.ground_truth import GroundTruthInput
 from qfa_ros.ros.params import (
     ambient_settings,
+    as_declared_type,
     check_all,
     descriptor,
     FEEDBACK_COMPONENT,
@@ -78,6 +79,13 @@ class QfaNode(Node):
 
     def __init__(self, node_name='qfa_node', **kwargs):
         super().__init__(node_name, **kwargs)
+        # Integers typed for doubles ([1, 2, 3], 2000) become doubles: in the start-up
+        # overrides here (declaration runs no pre-set callback) and in every later change.
+        overrides = self._parameter_overrides
+        for name, parameter in list(overrides.items()):
+            overrides[name] = as_declared_type(parameter)
+        self.add_pre_set_parameters_callback(
+            lambda parameters: [as_declared_type(p) for p in parameters])
         for spec in PARAMETERS:
             try:
                 self.declare_parameter(spec.name, spec.default, descriptor(spec))
@@ -325,13 +333,26 @@ class QfaNode(Node):
                                     DIAGNOSTICS_TYPE)
 
     # Shutdown -------------------------------------------------------------------------
-    def close(self):
-        """Stop the sensor thread and a running schedule, save the state, close the recording."""
-        self._stream.stop()
-        with self._lock:
+    def close(self, timeout_s=10.0):
+        """
+        Stop the sensor thread and a running schedule, save the state, close the recording.
+
+        Idempotent. Bounded: if the sensor thread does not stop within ``timeout_s`` (stuck
+        in the middleware, holding the lock), the state and the recording are written
+        without the lock; nothing else touches them once the stream has stopped ticking.
+        """
+        self._stream.stop(timeout_s)
+        locked = self._lock.acquire(timeout=timeout_s)
+        if not locked:
+            self.get_logger().error(
+                f'sensor thread still busy after {timeout_s:g} s; saving without the lock')
+        try:
             if self._stream.schedule is not None:
                 self._stream.schedule.abort()
                 self._stream.end_schedule()
             if self._keeper.unsaved:
                 self._keeper.save()
             self._recording.close()
+        finally:
+            if locked:
+                self._lock.release()

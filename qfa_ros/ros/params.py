@@ -1,4 +1,10 @@
-"""Parameters of the QFA node: declarations, validation and mapping onto the model."""
+"""
+Parameters of the QFA node: declarations, validation and mapping onto the model.
+
+One cohesive thing: the parameter table and what is derived from it (descriptors,
+type conversion, validation, model settings, ``config/qfa.yaml`` and the docs table);
+splitting it would scatter one table over several modules.
+"""
 
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -7,6 +13,7 @@ import sys
 import textwrap
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.parameter import Parameter
 
 from qfa_ros.calibration.estimation import (
     FEEDBACK_ORDERS,
@@ -79,8 +86,9 @@ class ParameterSpec:
     length: int = None
 
 
-def _vector(name, default, description, read_only=False):
-    return ParameterSpec(name, [float(v) for v in default], description, read_only, length=3)
+def _vector(name, default, description, read_only=False, low=-1.0e6, high=1.0e6):
+    return ParameterSpec(name, [float(v) for v in default], description, read_only, low, high,
+                         length=3)
 
 
 PARAMETERS = (
@@ -137,17 +145,22 @@ PARAMETERS = (
                   0.0, 100000.0),
     ParameterSpec('noise.adc_counts', _NOISE.adc_noise, 'ADC input noise [count rms]', True,
                   0.0, 10000.0),
-    _vector('model.bias_ug', (0.0, 0.0, 0.0), 'IEEE 1293 bias per axis x, y, z [ug]', True),
+    _vector('model.bias_ug', (0.0, 0.0, 0.0), 'IEEE 1293 bias per axis x, y, z [ug]', True,
+            -1.0e5, 1.0e5),
     _vector('model.k2_ug_per_g2', (0.0, 0.0, 0.0),
-            'IEEE 1293 second-order coefficient per axis [ug/g^2]', True),
+            'IEEE 1293 second-order coefficient per axis [ug/g^2]', True, -1.0e4, 1.0e4),
     _vector('drift.forward_ppm', (0.0, 0.0, 0.0),
-            'Step drift of the forward gain (in-amp gain resistor) per axis [ppm]'),
+            'Step drift of the forward gain (in-amp gain resistor) per axis [ppm]',
+            low=-1.0e5, high=1.0e5),
     _vector('drift.feedback_ppm', (0.0, 0.0, 0.0),
-            'Step drift of the feedback gain (V/I sense resistor) per axis [ppm]'),
+            'Step drift of the feedback gain (V/I sense resistor) per axis [ppm]',
+            low=-1.0e5, high=1.0e5),
     _vector('drift.aging_forward_ppm_per_year', (0.0, 0.0, 0.0),
-            'Linear aging of the forward gain per axis [ppm/year of sensor time]'),
+            'Linear aging of the forward gain per axis [ppm/year of sensor time]',
+            low=-1.0e5, high=1.0e5),
     _vector('drift.aging_feedback_ppm_per_year', (0.0, 0.0, 0.0),
-            'Linear aging of the feedback gain per axis [ppm/year of sensor time]'),
+            'Linear aging of the feedback gain per axis [ppm/year of sensor time]',
+            low=-1.0e5, high=1.0e5),
     ParameterSpec('drift.time_acceleration', 1.0,
                   'Aging time-acceleration factor (3.15e7: a year per second)', False,
                   0.0, 1.0e12),
@@ -163,16 +176,19 @@ PARAMETERS = (
     ParameterSpec('input.sine.frequency_hz', 5.0, 'Sine vibration frequency [Hz]', False,
                   1.0e-3, 5000.0),
     _vector('input.sine.amplitude', (0.0, 0.0, 0.1 * STANDARD_GRAVITY),
-            'Sine vibration amplitude per axis [m/s^2]'),
+            'Sine vibration amplitude per axis [m/s^2]', low=0.0, high=1000.0),
     _vector('input.sine.offset', (0.0, 0.0, STANDARD_GRAVITY),
-            'Static specific force under the sine vibration per axis [m/s^2]'),
+            'Static specific force under the sine vibration per axis [m/s^2]',
+            low=-1000.0, high=1000.0),
     ParameterSpec('input.tumble.dwell_s', 10.0, 'Dwell per tumble position [s]', False,
                   1.0e-3, 1.0e6),
     ParameterSpec('input.steps.times_s', [0.0, 10.0],
-                  'Start of each step level in sensor time [s], increasing'),
+                  'Start of each step level in sensor time [s], increasing', False, 0.0,
+                  1.0e9),
     ParameterSpec('input.steps.levels', [0.0, 0.0, STANDARD_GRAVITY,
                                          STANDARD_GRAVITY, 0.0, 0.0],
-                  'Step levels, x, y, z per entry of input.steps.times_s [m/s^2]'),
+                  'Step levels, x, y, z per entry of input.steps.times_s [m/s^2]', False,
+                  -1000.0, 1000.0),
     ParameterSpec('input.topic_type', 'imu',
                   'Ground-truth message: imu (sensor_msgs/Imu on input/imu) or accel '
                   '(geometry_msgs/AccelStamped on input/accel)', True,
@@ -267,7 +283,13 @@ THERMAL_RUNTIME_PARAMETERS = frozenset({'temperature_c', 'thermal.ambient_profil
 
 
 def descriptor(spec):
-    """Return the ``ParameterDescriptor`` of ``spec``."""
+    """
+    Return the ``ParameterDescriptor`` of ``spec``.
+
+    An array's element range goes into ``floating_point_range`` (rclpy enforces ranges
+    on scalars only; :func:`check_value` checks the elements) and, with its length, into
+    ``additional_constraints``: ``ros2 param describe`` shows both.
+    """
     text = spec.description
     if spec.choices:
         text += f' (one of: {", ".join(spec.choices)})'
@@ -278,7 +300,37 @@ def descriptor(spec):
     elif spec.low is not None:
         result.floating_point_range = [FloatingPointRange(
             from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
+    if isinstance(spec.default, list):
+        length = (f'exactly {spec.length} elements (x, y, z)' if spec.length
+                  else 'at least one element')
+        bounds = f' in [{spec.low:g}, {spec.high:g}]' if spec.low is not None else ''
+        result.additional_constraints = (f'{length}, each a finite number{bounds}; '
+                                         'integers are accepted and stored as doubles')
+    elif spec.choices:
+        result.additional_constraints = f'one of: {", ".join(spec.choices)}'
     return result
+
+
+def as_declared_type(parameter):
+    """
+    Return ``parameter`` with integers turned into doubles where the parameter is a double.
+
+    Users type ``[1, 2, 3]`` or ``2000`` on the command line and in YAML files; ROS 2
+    parameters are statically typed and would refuse them ("Wrong parameter type").
+    Used as the node's pre-set callback and on the start-up overrides, so the stored
+    value is always a double (array) and then validated like any other.
+
+    :param parameter: An :class:`rclpy.parameter.Parameter`.
+    """
+    spec = SPECS.get(parameter.name)
+    if spec is None or isinstance(spec.default, bool):
+        return parameter
+    if isinstance(spec.default, list) and parameter.type_ == Parameter.Type.INTEGER_ARRAY:
+        return Parameter(parameter.name, Parameter.Type.DOUBLE_ARRAY,
+                         [float(v) for v in parameter.value])
+    if isinstance(spec.default, float) and parameter.type_ == Parameter.Type.INTEGER:
+        return Parameter(parameter.name, Parameter.Type.DOUBLE, float(parameter.value))
+    return parameter
 
 
 def check_value(name, value):
@@ -298,6 +350,9 @@ def check_value(name, value):
             return f'{name} must not be empty'
         if not all(math.isfinite(v) for v in values):
             return f'{name} must be finite, got {list(value)!r}'
+        if spec.low is not None and not all(spec.low <= v <= spec.high for v in values):
+            return f'{name} elements must be in [{spec.low:g}, {spec.high:g}], ' \
+                   f'got {list(value)!r}'
         return None
     if isinstance(spec.default, float):
         if not isinstance(value, (int, float)) or isinstance(value, bool):
@@ -449,12 +504,18 @@ def _yaml_value(value):
     return repr(value)
 
 
-def config_yaml(node_name='qfa_node'):
-    """Return ``config/qfa.yaml``: every parameter with its default and description."""
+def config_yaml(node_name='/**'):
+    """
+    Return ``config/qfa.yaml``: every parameter with its default and description.
+
+    Keyed ``/**`` (every node given the file), so that it applies to the node under any
+    name and namespace (``ros2 launch qfa_ros qfa.launch.py namespace:=imu1``).
+    """
     lines = ['# Every parameter of qfa_ros/node.py with its default (see docs/node.md).',
-             '# Generated by `python -m qfa_ros.ros.params yaml`; doubles keep their decimal',
-             '# point because ROS 2 does not turn 1000 into 1000.0.',
-             f'{node_name}:', '  ros__parameters:']
+             '# Generated by `python -m qfa_ros.ros.params yaml`. Keyed /** so that it',
+             '# applies under any node name and namespace. Doubles keep their decimal point',
+             '# (the node also accepts 1000 for 1000.0; most ROS 2 nodes do not).',
+             f'{_yaml_value(node_name)}:', '  ros__parameters:']
     for spec in PARAMETERS:
         text = descriptor(spec).description + (' (read-only)' if spec.read_only else '')
         lines += textwrap.wrap(text, 95, initial_indent='    # ', subsequent_indent='    # ')

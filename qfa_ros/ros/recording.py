@@ -50,7 +50,7 @@ class FreeSpaceGuard:
 
 class StreamRecording:
     """
-    Record the node's own output (``recorder.*`` parameters) into split MCAP files.
+    Record the node's own output (``recorder.*`` parameters) into a rosbag2 bag directory.
 
     The recording goes to ``recorder.directory`` confined to ``output_dir``, split by
     the (finite, positive) ``recorder.max_bytes`` and ``recorder.max_duration_s``. The
@@ -130,7 +130,8 @@ class StreamRecording:
                 self.problem_level = DiagnosticStatus.WARN
                 return
             if files:
-                self._node.get_logger().info(f'recorded {", ".join(str(f) for f in files)}')
+                self._node.get_logger().info(
+                    f'recorded bag {recorder.bag_directory} ({len(files)} file(s))')
 
     def record(self, topic, msgtype, data, now_ns):
         """Record serialized ``data``; on failure or low free space stop recording and say why."""

@@ -1,0 +1,178 @@
+"""A node that always answers and always stops: churn, SIGINT/SIGTERM, a hung teardown."""
+
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from node_helpers import Client, domain_id, ImuCollector, NODE, NodeProcess, ROOT
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu
+from std_srvs.srv import Trigger
+
+# "Within a few seconds": the node's budget is 2 s to close, 2 s for the middleware;
+# the rest is slack for a loaded machine.
+STOP_DEADLINE_S = 10.0
+CHURN_PARTICIPANTS = 300
+CHURN_BUDGET_S = 45.0
+
+
+@pytest.fixture
+def busy_core():
+    """Keep one core busy for the duration of the test."""
+    spinner = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
+    yield
+    spinner.kill()
+    spinner.wait()
+
+
+def churn(domain, count, budget_s):
+    """
+    Create and destroy up to ``count`` participants, each subscribing to ``imu/data_raw``.
+
+    Each lives between 0 and 60 ms after its node is up, so that the node discovers some
+    fully, some half way and some not at all before they leave. Returns how many ran.
+    """
+    qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+    deadline = time.monotonic() + budget_s
+    done = 0
+    for index in range(count):
+        if time.monotonic() > deadline:
+            break
+        context = Context()
+        rclpy.init(context=context, domain_id=domain)
+        try:
+            node = Node(f'churn_{index}', context=context)
+            node.create_subscription(Imu, 'imu/data_raw', lambda message: None, qos)
+            executor = SingleThreadedExecutor(context=context)
+            executor.add_node(node)
+            until = time.monotonic() + (index % 4) * 0.02
+            while time.monotonic() < until:
+                executor.spin_once(timeout_sec=0.01)
+            executor.shutdown()
+            node.destroy_node()
+        finally:
+            rclpy.try_shutdown(context=context)
+        done += 1
+    return done
+
+
+def stop_and_time(node, signum):
+    """Send ``signum``; return (exit status, seconds until the process ended)."""
+    started = time.monotonic()
+    status = node.stop(signum, timeout=STOP_DEADLINE_S)
+    return status, time.monotonic() - started
+
+
+def test_node_answers_and_streams_after_hundreds_of_participants(tmp_path, busy_core):
+    domain = domain_id('churn')
+    node = NodeProcess(domain, tmp_path, {'qos.depth': 1000})
+    try:
+        client = Client(domain)
+        imu = ImuCollector(client)
+        client.spin_until(lambda: len(imu.samples) > 100, 60, 'the first samples')
+        client.close()
+        ran = churn(domain, CHURN_PARTICIPANTS, CHURN_BUDGET_S)
+        assert ran >= 150, f'only {ran} participants in {CHURN_BUDGET_S} s'
+        assert node.process.poll() is None, node.log()
+        # A newcomer after the churn finds the node, gets samples and a parameter answer.
+        client = Client(domain)
+        try:
+            client.spin_until(lambda: NODE in client.node.get_node_names(), 30,
+                              'the node in the graph')
+            imu = ImuCollector(client)
+            client.spin_until(lambda: len(imu.samples) > 500, 30, 'samples after the churn')
+            assert client.get_parameters(['sample_rate_hz']) == [1000.0]
+        finally:
+            client.close()
+        status, seconds = stop_and_time(node, signal.SIGINT)
+    except BaseException:
+        node.stop(signal.SIGKILL)
+        raise
+    assert status == 0, node.log()
+    assert seconds < STOP_DEADLINE_S
+    assert 'calibration state and recording closed' in node.log()
+
+
+def test_sigterm_during_a_realtime_schedule_stops_within_seconds(tmp_path):
+    domain = domain_id('stop-schedule')
+    node = NodeProcess(domain, tmp_path, {
+        'estimation.realtime': True, 'state_file': str(tmp_path / 'state.json'),
+        'recorder.enabled': True, 'recorder.directory': str(tmp_path / 'recordings')})
+    client = Client(domain)
+    try:
+        diagnostics = []
+        client.subscribe(DiagnosticArray, '/diagnostics', diagnostics.append, depth=10)
+        future = client.call_async(Trigger, f'{NODE}/capture_reference', Trigger.Request())
+
+        def schedule_running():
+            return any(kv.key == 'schedule running' and kv.value == 'reference'
+                       for array in diagnostics[-1:] for status in array.status
+                       for kv in status.values)
+        client.spin_until(schedule_running, 30, 'the schedule running')
+        status, seconds = stop_and_time(node, signal.SIGTERM)
+        assert not future.done() or not future.result().success
+    except BaseException:
+        node.stop(signal.SIGKILL)
+        raise
+    finally:
+        client.close()
+    assert status == 0, node.log()
+    assert seconds < STOP_DEADLINE_S
+    # The recording was finished: a rosbag2 bag directory, no half-written file.
+    recordings = tmp_path / 'recordings'
+    assert list(recordings.glob('*/metadata.yaml')), node.log()
+    assert not list(recordings.glob('**/*.part'))
+
+
+HUNG_TEARDOWN = textwrap.dedent("""
+    import ctypes, sys, time
+    from pathlib import Path
+    import rclpy
+    from qfa_ros.cli.node import shut_down
+
+    class Node:
+        def close(self, timeout_s):
+            Path(sys.argv[1]).write_text('closed')
+        def get_logger(self):
+            return rclpy.logging.get_logger('hung')
+        def destroy_node(self):
+            if sys.argv[2] == 'gil':
+                ctypes.PyDLL(None).sleep(60)  # blocks holding the interpreter lock
+            else:
+                time.sleep(60)
+
+    class Executor:
+        def shutdown(self, timeout_sec):
+            pass
+
+    shut_down(Node(), Executor(), middleware_timeout_s=0.5)
+    print('returned')
+""")
+
+
+@pytest.mark.parametrize('hang, expected_status, words', [
+    ('sleep', 3, 'middleware shutdown hung'),
+    ('gil', 1, 'Timeout'),
+])
+def test_a_hung_middleware_teardown_ends_in_a_hard_exit_after_the_writes(
+        tmp_path, hang, expected_status, words):
+    marker = tmp_path / 'closed'
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    started = time.monotonic()
+    completed = subprocess.run([sys.executable, '-c', HUNG_TEARDOWN, str(marker), hang],
+                               env=env, capture_output=True, text=True, timeout=30)
+    assert time.monotonic() - started < 25
+    assert completed.returncode == expected_status, completed.stderr
+    assert words in completed.stderr
+    assert 'returned' not in completed.stdout
+    assert Path(marker).read_text() == 'closed'
