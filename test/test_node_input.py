@@ -47,7 +47,7 @@ def setup(tmp_path_factory):
     directory = tmp_path_factory.mktemp('input')
     domain = domain_id('input')
     node = NodeProcess(domain, directory, {
-        'qos.depth': 1000, 'input.mode': 'topic', 'input.topic_type': 'accel',
+        'qos_overrides./imu/data_raw.publisher.depth': 1000, 'input.mode': 'topic', 'input.topic_type': 'accel',
         'input.timeout_s': 0.2, 'state_file': str(directory / 'state.json'),
         'trace_dir': str(directory / 'traces')})
     client = Client(domain)

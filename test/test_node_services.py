@@ -35,7 +35,7 @@ def set_compensation(client, on):
 def setup(tmp_path_factory):
     directory = tmp_path_factory.mktemp('services')
     domain = domain_id('services')
-    parameters = {'qos.depth': 1000, 'state_file': str(directory / 'state.json'),
+    parameters = {'qos_overrides./imu/data_raw.publisher.depth': 1000, 'state_file': str(directory / 'state.json'),
                   'trace_dir': str(directory / 'traces'), **FAST}
     node = NodeProcess(domain, directory, parameters)
     client = Client(domain)
@@ -232,7 +232,7 @@ def test_restart_restores_calibration_and_corrupt_state_is_set_aside(setup):
     restored_state.write_text(state.read_text())
     corrupt_state = directory / 'corrupt.json'
     corrupt_state.write_text('{"format": "qfa_ros.calibration/1", "references": [{')
-    common = {'qos.depth': 1000, 'trace_dir': str(directory / 'traces'), **FAST,
+    common = {'qos_overrides./imu/data_raw.publisher.depth': 1000, 'trace_dir': str(directory / 'traces'), **FAST,
               'drift.forward_ppm': FORWARD_PPM, 'drift.feedback_ppm': FEEDBACK_PPM}
     restored, restored_client = start_node(
         setup, 'restored', {**common, 'state_file': str(restored_state)})

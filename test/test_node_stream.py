@@ -30,7 +30,7 @@ def setup(tmp_path_factory):
     directory = tmp_path_factory.mktemp('stream')
     domain = domain_id('stream')
     node = NodeProcess(domain, directory, {
-        'sample_rate_hz': RATE, 'qos.depth': 10000, 'model.bias_ug': list(BIAS_UG),
+        'sample_rate_hz': RATE, 'qos_overrides./imu/data_raw.publisher.depth': 10000, 'model.bias_ug': list(BIAS_UG),
         'state_file': str(directory / 'state.json'), 'trace_dir': str(directory / 'traces'),
         'recorder.enabled': True, 'recorder.directory': str(directory / 'recordings'),
         'frame_id': 'qfa_imu'})

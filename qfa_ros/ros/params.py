@@ -24,7 +24,6 @@ from qfa_ros.model.triad import TriadConfig
 INPUT_MODES = ('static', 'profile', 'topic')
 INPUT_PROFILES = ('sine', 'tumble', 'steps')
 INPUT_TOPIC_TYPES = ('imu', 'accel')
-RELIABILITIES = ('reliable', 'best_effort')
 AMBIENT_PROFILES = ('constant', 'ramp', 'cycle', 'room')
 THERMAL_BIAS_MODELS = ('double_exp', 'none')
 
@@ -74,9 +73,16 @@ PARAMETERS = (
     ParameterSpec('loop_rate_hz', 10000.0,
                   'Digital loop rate [Hz]; an integer multiple of sample_rate_hz', True,
                   1.0, 1.0e6),
-    ParameterSpec('tick_rate_hz', 100.0,
-                  'Rate at which the sensor thread runs the model and publishes every sample '
-                  'due since its last tick [Hz]', True, 1.0, 10000.0),
+    ParameterSpec('stream.lead_s', 0.04,
+                  'How far ahead of the clock the sensor thread computes the model [s]; each '
+                  'sample is still published at its own instant. A parameter change reaches '
+                  'the samples stamped up to this much later; a stall shorter than this '
+                  'delays no sample', True, 0.002, 1.0),
+    ParameterSpec('stream.batch_s', 0.02,
+                  'How often the sensor thread wakes to compute the model up to '
+                  'stream.lead_s ahead [s] (shorter than stream.lead_s); also the longest '
+                  'wait for a ground-truth input before a sample holds the last one', True,
+                  0.001, 1.0),
     ParameterSpec('frame_id', 'imu_link', 'frame_id of imu/data_raw and imu/temperature'),
     ParameterSpec('seed', 1, 'Seed of every random number: same seed, same output', True,
                   0, 2 ** 31 - 1),
@@ -110,11 +116,6 @@ PARAMETERS = (
                   'Zero bias versus temperature: the double exponential of seed 2 eq. 1 or '
                   'none', True, choices=THERMAL_BIAS_MODELS),
     ParameterSpec('diagnostics_rate_hz', 1.0, 'Rate of /diagnostics [Hz]', True, 0.1, 10.0),
-    ParameterSpec('qos.reliability', 'reliable',
-                  'Reliability of imu/data_raw and imu/temperature', True,
-                  choices=RELIABILITIES),
-    ParameterSpec('qos.depth', 100, 'History depth of imu/data_raw and imu/temperature', True,
-                  1, 100000),
     ParameterSpec('noise.density_ug_per_rthz', _NOISE.noise_density / MICRO_G,
                   'White acceleration noise density (velocity random walk) [ug/sqrt(Hz)]',
                   True, 0.0, 10000.0),
@@ -388,6 +389,9 @@ def check_all(values):
         reason = check_value(name, value)
         if reason:
             return reason
+    if values['stream.batch_s'] >= values['stream.lead_s']:
+        return (f'stream.batch_s ({values["stream.batch_s"]:g}) must be shorter than '
+                f'stream.lead_s ({values["stream.lead_s"]:g})')
     try:
         triad_config(values)
         forward_settings(values)

@@ -1,0 +1,210 @@
+"""
+Publish each computed message at its own instant, and record it off the publishing path.
+
+The sensor thread (:mod:`qfa_ros.ros.stream`) computes the model ahead of the clock in
+batches and hands the serialized messages to a :class:`Pacer`; the pacer's thread sleeps
+until each message's stamp and publishes it then (never before), so a subscriber sees one
+sample per sample period instead of a burst per batch. What it published goes to a
+:class:`RecordingQueue` whose thread does the flight recorder's disk work (chunking,
+compression, fsync) away from the publishing thread.
+"""
+
+import collections
+import threading
+import time
+
+SIM_POLL_S = 0.001
+"""Wall-time poll period of the pacer while the node clock follows ``/clock`` [s]."""
+
+MAX_SLEEP_S = 0.1
+"""Longest single sleep of the pacer: it re-checks a stop or a cleared queue this often."""
+
+LATE_NS = 5_000_000
+"""A message published more than this after its stamp counts as late [ns]."""
+
+RECORD_PERIOD_S = 0.05
+"""How often the recording thread writes what was published meanwhile [s]."""
+
+
+class Pacer:
+    """
+    Publish serialized messages, each as soon as the node clock reaches its stamp.
+
+    :param node: The node (its clock: system time, or ``/clock`` with ``use_sim_time``).
+    :param on_published: Called on the pacer thread with ``(topic, msgtype, data, time_ns)``
+        after each publication (the recording hook), or None.
+    :param on_empty: Called on the pacer thread when it has published everything it was
+        given (it asks the sensor thread for more), or None.
+    """
+
+    def __init__(self, node, on_published=None, on_empty=None):
+        self._node = node
+        self._on_published = on_published
+        self._on_empty = on_empty
+        # _condition protects _queue and _generation (sensor thread puts and clears, the
+        # pacer thread takes); everything else is written by the pacer thread only.
+        self._condition = threading.Condition()
+        self._queue = collections.deque()
+        self._generation = 0
+        self._stop = False
+        self.published = 0
+        self.late = 0
+        self.max_delay_ns = 0
+        self.last_stamp_ns = None
+        self._thread = threading.Thread(target=self._loop, name='qfa_pacer', daemon=True)
+
+    def start(self):
+        """Start the publishing thread."""
+        self._thread.start()
+
+    def stop(self, timeout_s=10.0):
+        """Stop the publishing thread (messages stamped later are not published)."""
+        with self._condition:
+            self._stop = True
+            self._condition.notify()
+        if self._thread.is_alive():
+            self._thread.join(timeout=timeout_s)
+
+    def put(self, items):
+        """
+        Queue ``(stamp_ns, publisher, msgtype, data)`` items, in stamp order.
+
+        Their stamps must not precede those already queued.
+        """
+        if not items:
+            return
+        with self._condition:
+            self._queue.extend(items)
+            self._condition.notify()
+
+    def clear(self):
+        """Forget every queued message (the clock went back: they will never be due)."""
+        with self._condition:
+            self._queue.clear()
+            self._generation += 1
+            self.last_stamp_ns = None
+
+    @property
+    def pending(self):
+        """Return how many messages wait for their instant."""
+        return len(self._queue)
+
+    # Pacer thread ------------------------------------------------------------------------
+    def _loop(self):
+        clock = self._node.get_clock()
+        while True:
+            with self._condition:
+                while not self._queue and not self._stop:
+                    self._condition.wait()
+                if self._stop:
+                    return
+                item = self._queue[0]
+                generation = self._generation
+            stamp = item[0]
+            if not self._wait_until(clock, stamp):
+                continue
+            with self._condition:
+                if self._stop:
+                    return
+                if generation != self._generation or not self._queue \
+                        or self._queue[0] is not item:
+                    continue
+                self._queue.popleft()
+                empty = not self._queue
+            _, publisher, msgtype, data = item
+            publisher.publish(data)
+            now = self._now_ns(clock)
+            delay = now - stamp
+            self.published += 1
+            self.last_stamp_ns = stamp
+            if delay > LATE_NS:
+                self.late += 1
+            if delay > self.max_delay_ns:
+                self.max_delay_ns = delay
+            if self._on_published is not None:
+                self._on_published(publisher.topic_name, msgtype, data, now)
+            if empty and self._on_empty is not None:
+                self._on_empty()
+
+    @staticmethod
+    def _now_ns(clock):
+        # The node clock is the system clock (CLOCK_REALTIME, as time.time_ns) unless
+        # use_sim_time made it follow /clock; time.time_ns costs far less than Clock.now.
+        if clock.ros_time_is_active:
+            return clock.now().nanoseconds
+        return time.time_ns()
+
+    def _wait_until(self, clock, stamp):
+        """
+        Sleep until the node clock reaches ``stamp``.
+
+        Return False to re-check the queue first (a long sleep, a stop, a cleared queue).
+        """
+        while True:
+            if self._stop:
+                return False
+            if clock.ros_time_is_active:
+                if clock.now().nanoseconds >= stamp:
+                    return True
+                time.sleep(SIM_POLL_S)
+                continue
+            remaining = stamp - time.time_ns()
+            if remaining <= 0:
+                return True
+            if remaining > MAX_SLEEP_S * 1e9:
+                time.sleep(MAX_SLEEP_S)
+                return False
+            time.sleep(remaining / 1e9)
+
+
+class RecordingQueue:
+    """
+    Write what the pacer published into the flight recording, on a thread of its own.
+
+    The pacer only appends to a queue; every ``RECORD_PERIOD_S`` this thread takes the node
+    lock (the :class:`~qfa_ros.ros.recording.StreamRecording` contract) and records the
+    queued messages, so chunking, compression and fsync never delay a publication.
+
+    :param lock: The node lock.
+    :param recording: :class:`~qfa_ros.ros.recording.StreamRecording`.
+    """
+
+    def __init__(self, lock, recording):
+        self._lock = lock
+        self._recording = recording
+        # deque.append and popleft are atomic: the pacer appends, the writer pops.
+        self._queue = collections.deque()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name='qfa_recorder', daemon=True)
+
+    def start(self):
+        """Start the recording thread."""
+        self._thread.start()
+
+    def stop(self, timeout_s=10.0):
+        """Stop the recording thread after it has recorded everything queued."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=timeout_s)
+        with self._lock:
+            self.flush()
+
+    def append(self, topic, msgtype, data, time_ns):
+        """Queue one published message (any thread; never blocks)."""
+        if self._recording.active:
+            self._queue.append((topic, msgtype, data, time_ns))
+
+    def flush(self):
+        """Record every queued message now (call with the node lock held)."""
+        queue = self._queue
+        recording = self._recording
+        while queue:
+            topic, msgtype, data, time_ns = queue.popleft()
+            if recording.active:
+                recording.record(topic, msgtype, data, time_ns)
+
+    def _loop(self):
+        while not self._stop.wait(RECORD_PERIOD_S):
+            if self._queue:
+                with self._lock:
+                    self.flush()
