@@ -37,6 +37,7 @@ from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES_FILE = ROOT / 'config' / 'fastdds_discovery.xml'
@@ -99,8 +100,8 @@ def start_floor(domain, rate):
                             env=environment(domain), cwd=ROOT, stdout=subprocess.DEVNULL)
 
 
-def start_node(domain, directory, rate, recorder):
-    parameters = {'sample_rate_hz': float(rate),
+def start_node(domain, directory, rate, recorder, extra):
+    parameters = {**extra, 'sample_rate_hz': float(rate),
                   'state_file': str(Path(directory) / 'state.json'),
                   'trace_dir': str(Path(directory) / 'traces'),
                   'recorder.enabled': recorder,
@@ -181,7 +182,7 @@ def run_case(domain, kind, rate, recorder, args):
         with tempfile.TemporaryDirectory() as directory:
             started = time.time()
             process = start_floor(domain, rate) if kind == 'floor' \
-                else start_node(domain, directory, rate, recorder)
+                else start_node(domain, directory, rate, recorder, args.param)
             try:
                 subscribers.spin(120.0, lambda: len(reliable.stamps) >= args.startup_samples)
                 if len(reliable.stamps) < args.startup_samples:
@@ -210,6 +211,14 @@ def run_case(domain, kind, rate, recorder, args):
             'delivery': {name: delivery(*window, rate) for name, window in windows.items()}}
 
 
+def parse_param(text):
+    """Return (name, value) of ``NAME=VALUE`` (the value parsed as YAML)."""
+    name, separator, value = text.partition('=')
+    if not separator:
+        raise argparse.ArgumentTypeError(f'expected NAME=VALUE, got {text!r}')
+    return name, yaml.safe_load(value)
+
+
 def label(result):
     if result['kind'] == 'floor':
         return f'floor {result["rate"]:g} Hz'
@@ -221,8 +230,9 @@ def table(results, args):
     floor_cpu = {r['rate']: r['cpu'] for r in results if r['kind'] == 'floor'}
     floor_p99 = {r['rate']: max(d['p99'] for d in r['delivery'].values())
                  for r in results if r['kind'] == 'floor'}
+    settings = ', '.join(f'`{k}: {v}`' for k, v in args.param.items()) or 'defaults'
     lines = [f'### {args.window:g} s windows after {args.warmup:g} s ({datetime.date.today()}, '
-             f'{os.cpu_count()} cores, Python {platform.python_version()})\n',
+             f'{os.cpu_count()} cores, Python {platform.python_version()}; node {settings})\n',
              '| case | subscriber | received | lost | latency p50 / p99 / max [ms] | '
              'p99 − floor p99 [ms] | CPU [% core] | CPU ÷ floor | start-up: first '
              f'{args.startup_samples} late p99 / max [ms] |',
@@ -256,9 +266,12 @@ def main():
                         help='first samples whose lateness is reported')
     parser.add_argument('--no-recorder', action='store_true',
                         help='skip the cases with the flight recorder on')
+    parser.add_argument('--param', type=parse_param, action='append', default=[],
+                        metavar='NAME=VALUE', help='node parameter (YAML value; repeatable)')
     parser.add_argument('--out', type=Path, default=None, help='append the Markdown here')
     parser.add_argument('--floor', type=float, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    args.param = dict(args.param)
     if args.floor is not None:
         return run_floor(args.floor)
     results = []

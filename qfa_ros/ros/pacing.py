@@ -51,6 +51,8 @@ class Pacer:
         self.late = 0
         self.max_delay_ns = 0
         self.last_stamp_ns = None
+        # The messages taken off the queue, being published (pacer thread only).
+        self._hand, self._hand_index = (), 0
         self._thread = threading.Thread(target=self._loop, name='qfa_pacer', daemon=True)
 
     def start(self):
@@ -87,7 +89,7 @@ class Pacer:
     @property
     def pending(self):
         """Return how many messages wait for their instant."""
-        return len(self._queue)
+        return len(self._queue) + len(self._hand) - self._hand_index
 
     # Pacer thread ------------------------------------------------------------------------
     def _loop(self):
@@ -98,63 +100,55 @@ class Pacer:
                     self._condition.wait()
                 if self._stop:
                     return
-                item = self._queue[0]
+                # Take every queued message at once: one lock round per batch, not per sample.
+                self._hand, self._hand_index = list(self._queue), 0
+                self._queue.clear()
                 generation = self._generation
-            stamp = item[0]
-            if not self._wait_until(clock, stamp):
-                continue
-            with self._condition:
-                if self._stop:
-                    return
-                if generation != self._generation or not self._queue \
-                        or self._queue[0] is not item:
-                    continue
-                self._queue.popleft()
-                empty = not self._queue
-            _, publisher, msgtype, data = item
+            self._publish_hand(clock, generation)
+            self._hand, self._hand_index = (), 0
+            if self._on_empty is not None and not self._queue:
+                self._on_empty()
+
+    def _publish_hand(self, clock, generation):
+        """Publish the messages in hand, each at its stamp, until done, cleared or stopped."""
+        on_published = self._on_published
+        for index, (stamp, publisher, msgtype, data) in enumerate(self._hand):
+            self._hand_index = index
+            now = self._wait_until(clock, stamp, generation)
+            if now is None:
+                return
             publisher.publish(data)
-            now = self._now_ns(clock)
-            delay = now - stamp
             self.published += 1
             self.last_stamp_ns = stamp
+            delay = now - stamp
             if delay > LATE_NS:
                 self.late += 1
             if delay > self.max_delay_ns:
                 self.max_delay_ns = delay
-            if self._on_published is not None:
-                self._on_published(publisher.topic_name, msgtype, data, now)
-            if empty and self._on_empty is not None:
-                self._on_empty()
+            if on_published is not None:
+                on_published(publisher.topic_name, msgtype, data, now)
 
-    @staticmethod
-    def _now_ns(clock):
-        # The node clock is the system clock (CLOCK_REALTIME, as time.time_ns) unless
-        # use_sim_time made it follow /clock; time.time_ns costs far less than Clock.now.
-        if clock.ros_time_is_active:
-            return clock.now().nanoseconds
-        return time.time_ns()
-
-    def _wait_until(self, clock, stamp):
+    def _wait_until(self, clock, stamp, generation):
         """
-        Sleep until the node clock reaches ``stamp``.
+        Sleep until the node clock reaches ``stamp``; return the clock then [ns].
 
-        Return False to re-check the queue first (a long sleep, a stop, a cleared queue).
+        Return None if the pacer was stopped or its queue cleared meanwhile.
         """
         while True:
-            if self._stop:
-                return False
+            if self._stop or generation != self._generation:
+                return None
             if clock.ros_time_is_active:
-                if clock.now().nanoseconds >= stamp:
-                    return True
+                now = clock.now().nanoseconds
+                if now >= stamp:
+                    return now
                 time.sleep(SIM_POLL_S)
                 continue
-            remaining = stamp - time.time_ns()
-            if remaining <= 0:
-                return True
-            if remaining > MAX_SLEEP_S * 1e9:
-                time.sleep(MAX_SLEEP_S)
-                return False
-            time.sleep(remaining / 1e9)
+            # The node clock is the system clock (CLOCK_REALTIME, as time.time_ns) unless
+            # use_sim_time made it follow /clock; time.time_ns costs far less than Clock.now.
+            now = time.time_ns()
+            if now >= stamp:
+                return now
+            time.sleep(min(stamp - now, MAX_SLEEP_S * 1e9) / 1e9)
 
 
 class RecordingQueue:

@@ -1,0 +1,118 @@
+"""Delivery as a sensor-data subscriber sees it: each sample at its instant, skips announced."""
+
+import signal
+import struct
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from node_helpers import Client, domain_id, NodeProcess
+import numpy as np
+import pytest
+from rclpy.qos import HistoryPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu
+
+# Batches of 10 samples: published as one burst, half of each would be lost by a keep-last-5
+# subscriber; paced, the subscriber may be held up for 25 ms without a loss (a busy machine).
+RATE = 200.0
+BATCH = {'stream.batch_s': 0.05, 'stream.lead_s': 0.1}
+PERIOD_NS = int(1e9 / RATE)
+STARTUP = 200
+STAMP = struct.Struct('<iI')
+
+
+class Stamps:
+    """Stamps and receive times of raw ``imu/data_raw`` messages (no deserialization)."""
+
+    def __init__(self, client, qos):
+        self.stamps = []
+        self.received = []
+        client.node.create_subscription(Imu, 'imu/data_raw', self.callback, qos, raw=True)
+
+    def callback(self, data):
+        self.received.append(time.time_ns())
+        sec, nanosec = STAMP.unpack_from(data, 4)
+        self.stamps.append(sec * 1_000_000_000 + nanosec)
+
+    def clear(self):
+        self.stamps, self.received = [], []
+
+
+@pytest.fixture(scope='module')
+def setup(tmp_path_factory):
+    directory = tmp_path_factory.mktemp('delivery')
+    domain = domain_id('delivery')
+    # The subscribers exist before the node: they see its very first samples.
+    client = Client(domain)
+    sensor_data = Stamps(client, qos_profile_sensor_data)
+    everything = Stamps(client, QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
+                                           reliability=ReliabilityPolicy.RELIABLE))
+    diagnostics = []
+    client.subscribe(DiagnosticArray, '/diagnostics', diagnostics.append, depth=10)
+    node = NodeProcess(domain, directory, {
+        'sample_rate_hz': RATE, **BATCH, 'qos_overrides./imu/data_raw.publisher.depth': 10000,
+        'state_file': str(directory / 'state.json'), 'trace_dir': str(directory / 'traces')})
+    yield {'node': node, 'client': client, 'sensor_data': sensor_data,
+           'everything': everything, 'diagnostics': diagnostics}
+    client.close()
+    node.stop(signal.SIGKILL)
+
+
+def stream_status(diagnostics):
+    return next(s for s in diagnostics[-1].status if s.name.endswith('stream'))
+
+
+def test_first_samples_arrive_spread_like_their_stamps(setup):
+    client, everything = setup['client'], setup['everything']
+    client.spin_until(lambda: len(everything.stamps) >= STARTUP, 120, 'the first samples')
+    stamps = np.asarray(everything.stamps[:STARTUP], dtype=np.int64)
+    received = np.asarray(everything.received[:STARTUP], dtype=np.int64)
+    assert np.all(np.diff(stamps) == PERIOD_NS), 'first samples not consecutive'
+    # A burst delivers many samples within microseconds and late by up to its length;
+    # paced samples arrive one period apart (a preempted process catches up now and then).
+    spacing = np.diff(received)
+    assert np.median(spacing) > 0.5 * PERIOD_NS, 'first samples arrived in bursts'
+    assert received[-1] - received[0] > 0.5 * (stamps[-1] - stamps[0])
+    lateness = received - stamps
+    assert np.all(lateness > 0), 'a sample was published before its instant'
+    assert np.median(lateness[:50]) < 0.1e9, 'the first samples were published late'
+
+
+def test_sensor_data_subscriber_loses_no_sample(setup):
+    client, sensor_data = setup['client'], setup['sensor_data']
+    client.spin_until(lambda: len(sensor_data.stamps) > STARTUP, 60, 'samples')
+    sensor_data.clear()
+    client.spin_for(3.0)
+    stamps = np.asarray(sensor_data.stamps, dtype=np.int64)
+    assert len(stamps) > 0.5 * 3.0 * RATE
+    gaps = np.diff(stamps)
+    assert np.all(gaps > 0), 'samples out of order or duplicated'
+    lost = int(np.sum(gaps // PERIOD_NS - 1))
+    assert lost == 0, f'{lost} samples lost by a best-effort depth-5 subscriber'
+
+
+def test_a_stall_that_skips_samples_is_a_warning(setup):
+    node, client, everything = setup['node'], setup['client'], setup['everything']
+    diagnostics = setup['diagnostics']
+    everything.clear()
+    client.spin_until(lambda: len(everything.stamps) > 10 and diagnostics, 60, 'the stream')
+    assert stream_status(diagnostics).level == DiagnosticStatus.OK
+    node.process.send_signal(signal.SIGSTOP)
+    try:
+        time.sleep(2.0)  # the stall itself: longer than the 1 s the node ever catches up
+    finally:
+        node.process.send_signal(signal.SIGCONT)
+    everything.clear()
+    diagnostics.clear()
+    client.spin_until(lambda: diagnostics and 'skipped' in stream_status(diagnostics).message,
+                      30, 'the skip in the stream diagnostic')
+    status = stream_status(diagnostics)
+    assert status.level == DiagnosticStatus.WARN
+    values = {kv.key: kv.value for kv in status.values}
+    assert int(values['samples skipped (node stalled)']) > 0
+    assert 'skipped' in node.log()
+    # Across the stall the stamps stay on the grid; after it the stream goes on as before.
+    stamps = np.asarray(everything.stamps, dtype=np.int64)
+    assert np.all(np.diff(stamps) % PERIOD_NS == 0) and np.all(np.diff(stamps) > 0)
+    everything.clear()
+    client.spin_until(lambda: len(everything.stamps) > 100, 30, 'samples after the stall')
+    assert np.all(np.diff(everything.stamps) == PERIOD_NS)
