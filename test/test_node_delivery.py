@@ -4,11 +4,13 @@ import signal
 import struct
 import time
 
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from node_helpers import Client, domain_id, NodeProcess
 import numpy as np
 import pytest
 from rclpy.qos import HistoryPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
 
 # Batches of 10 samples: published as one burst, half of each would be lost by a keep-last-5
@@ -116,3 +118,34 @@ def test_a_stall_that_skips_samples_is_a_warning(setup):
     everything.clear()
     client.spin_until(lambda: len(everything.stamps) > 100, 30, 'samples after the stall')
     assert np.all(np.diff(everything.stamps) == PERIOD_NS)
+
+
+def test_a_simulated_clock_paces_the_stream(tmp_path):
+    domain = domain_id('delivery sim')
+    client = Client(domain)
+    samples = Stamps(client, QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
+                                        reliability=ReliabilityPolicy.RELIABLE))
+    clock_publisher = client.node.create_publisher(Clock, '/clock', 10)
+    published = []
+
+    def tick():
+        # Simulated time from 1000 s, at half the wall-clock rate.
+        now = 1000 * 10**9 + len(published) * 5_000_000
+        published.append((time.time_ns(), now))
+        clock_publisher.publish(Clock(clock=Time(sec=now // 10**9, nanosec=now % 10**9)))
+
+    node = NodeProcess(domain, tmp_path, {'sample_rate_hz': RATE, **BATCH,
+                                          'use_sim_time': True, 'state_file': ''})
+    try:
+        client.node.create_timer(0.01, tick)
+        client.spin_until(lambda: len(samples.stamps) > 100, 120, 'samples on the sim clock')
+    finally:
+        client.close()
+        node.stop(signal.SIGKILL)
+    stamps = np.asarray(samples.stamps, dtype=np.int64)
+    assert np.all(np.diff(stamps) == PERIOD_NS)
+    assert 1000 * 10**9 < stamps[0] < published[-1][1]
+    # Never published before the simulated clock reached the stamp.
+    wall, sim = np.asarray(published, dtype=np.int64).T
+    clock_at_receipt = sim[np.searchsorted(wall, samples.received, side='right') - 1]
+    assert np.all(stamps <= clock_at_receipt)
