@@ -12,9 +12,10 @@ last received), latency (receive time - stamp) p50 / p99 / max, the publisher's 
 its ratio to the floor's CPU at the same rate, and for the node the lateness of the first
 ``--startup-samples`` samples after it starts (receive time - stamp).
 
-Run (quiet machine, full length):
-``python bench/node_rate.py --window 60 --out bench/results/node_rate.md``; a quick check:
-``python bench/node_rate.py --window 5``. Prints Markdown.
+Run (quiet machine, full length; then a 10-minute soak of the node for its memory):
+``python bench/node_rate.py --window 60 --soak 600 --out bench/results/node_rate.md``;
+a quick check: ``python bench/node_rate.py --window 5``. ``--param NAME=VALUE`` passes node
+parameters (e.g. ``stream.batch_s=0.02``). Prints Markdown.
 """
 
 import argparse
@@ -42,6 +43,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES_FILE = ROOT / 'config' / 'fastdds_discovery.xml'
 CLOCK_TICKS = os.sysconf('SC_CLK_TCK')
+PAGE_BYTES = os.sysconf('SC_PAGE_SIZE')
 NS_PER_S = 1_000_000_000
 STAMP = struct.Struct('<iI')
 """``header.stamp`` (sec, nanosec) right after the 4-byte CDR encapsulation header."""
@@ -57,6 +59,11 @@ def cpu_seconds(pid):
     """Return user + system CPU time of process ``pid`` [s] (all its threads)."""
     fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+
+
+def rss_bytes(pid):
+    """Return the resident set size of process ``pid`` [bytes]."""
+    return int(Path(f'/proc/{pid}/statm').read_text().split()[1]) * PAGE_BYTES
 
 
 def environment(domain):
@@ -174,8 +181,8 @@ def delivery(stamps, received, rate):
             'max': float(latency.max())}
 
 
-def run_case(domain, kind, rate, recorder, args):
-    """Measure one case; return its result dict."""
+def run_case(domain, kind, rate, recorder, args, window):
+    """Measure one case over ``window`` seconds; return its result dict."""
     subscribers = Subscribers(domain)
     reliable = subscribers.receivers['reliable, depth 10']
     try:
@@ -194,10 +201,12 @@ def run_case(domain, kind, rate, recorder, args):
                 subscribers.spin(args.warmup)
                 for receiver in subscribers.receivers.values():
                     receiver.take()
+                rss_start = rss_bytes(process.pid)
                 cpu_start, wall_start = cpu_seconds(process.pid), time.monotonic()
-                subscribers.spin(args.window)
+                subscribers.spin(window)
                 cpu = cpu_seconds(process.pid) - cpu_start
                 wall = time.monotonic() - wall_start
+                rss_end = rss_bytes(process.pid)
                 windows = {name: receiver.take()
                            for name, receiver in subscribers.receivers.items()}
             finally:
@@ -206,6 +215,7 @@ def run_case(domain, kind, rate, recorder, args):
     finally:
         subscribers.close()
     return {'kind': kind, 'rate': rate, 'recorder': recorder, 'cpu': 100.0 * cpu / wall,
+            'window': wall, 'rss': rss_end / 1e6, 'rss_change': (rss_end - rss_start) / 1e6,
             'first_s': first_s, 'startup_p99': float(np.percentile(lateness, 99)),
             'startup_max': float(lateness.max()), 'status': status,
             'delivery': {name: delivery(*window, rate) for name, window in windows.items()}}
@@ -222,7 +232,8 @@ def parse_param(text):
 def label(result):
     if result['kind'] == 'floor':
         return f'floor {result["rate"]:g} Hz'
-    return f'node {result["rate"]:g} Hz' + (', recorder' if result['recorder'] else '')
+    text = f'node {result["rate"]:g} Hz' + (', recorder' if result['recorder'] else '')
+    return text + (f', soak {result["window"]:.0f} s' if result.get('soak') else '')
 
 
 def table(results, args):
@@ -235,16 +246,17 @@ def table(results, args):
              f'{os.cpu_count()} cores, Python {platform.python_version()}; node {settings})\n',
              '| case | subscriber | received | lost | latency p50 / p99 / max [ms] | '
              'p99 − floor p99 [ms] | CPU [% core] | CPU ÷ floor | start-up: first '
-             f'{args.startup_samples} late p99 / max [ms] |',
-             '|---|---|---|---|---|---|---|---|---|']
+             f'{args.startup_samples} late p99 / max [ms] | RSS [MB] (change in window) |',
+             '|---|---|---|---|---|---|---|---|---|---|']
     for result in results:
         ratio = result['cpu'] / floor_cpu[result['rate']] if result['rate'] in floor_cpu \
             else float('nan')
         for index, (name, d) in enumerate(result['delivery'].items()):
             excess = d['p99'] - floor_p99.get(result['rate'], float('nan'))
             common = (f'{result["cpu"]:.1f} | {ratio:.2f} | '
-                      f'{result["startup_p99"]:.2f} / {result["startup_max"]:.2f}') \
-                if index == 0 else ' | | '
+                      f'{result["startup_p99"]:.2f} / {result["startup_max"]:.2f} | '
+                      f'{result["rss"]:.0f} ({result["rss_change"]:+.2f})') \
+                if index == 0 else ' | | | '
             lines.append(f'| {label(result) if index == 0 else ""} | {name} | {d["received"]} '
                          f'| {d["lost"]} | {d["p50"]:.2f} / {d["p99"]:.2f} / {d["max"]:.2f} | '
                          f'{excess:+.2f} | {common} |')
@@ -268,6 +280,8 @@ def main():
                         help='skip the cases with the flight recorder on')
     parser.add_argument('--param', type=parse_param, action='append', default=[],
                         metavar='NAME=VALUE', help='node parameter (YAML value; repeatable)')
+    parser.add_argument('--soak', type=float, default=0.0,
+                        help='then run the node at the first rate this long [s] (RSS growth)')
     parser.add_argument('--out', type=Path, default=None, help='append the Markdown here')
     parser.add_argument('--floor', type=float, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -281,9 +295,12 @@ def main():
     recorders = (False,) if args.no_recorder else (False, True)
     for rate in args.rates:
         for kind, recorder in [('floor', False)] + [('node', r) for r in recorders]:
-            results.append(run_case(domain, kind, rate, recorder, args))
+            results.append(run_case(domain, kind, rate, recorder, args, args.window))
             domain = low + (domain + 1 - low) % (high - low + 1)
             print(f'{label(results[-1])}: done', file=sys.stderr)
+    if args.soak:
+        results.append(run_case(domain, 'node', args.rates[0], False, args, args.soak))
+        results[-1]['soak'] = True
     text = table(results, args)
     print(text)
     if args.out:
