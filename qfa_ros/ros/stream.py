@@ -262,7 +262,8 @@ class SampleStream:
         self.skipped += count
         self._last_skip = time.monotonic()
         seconds = count / self._values['sample_rate_hz']
-        self.skip_note = f'node stalled: {count} samples ({seconds:.3f} s) skipped'
+        self.skip_note = (f'{count} samples ({seconds:.3f} s) skipped: the node was held up '
+                          'or its clock jumped ahead')
         self._node.get_logger().warning(
             f'{self.skip_note}; the stream resumes on its grid (more than '
             f'{MAX_CATCH_UP_S:g} s behind the clock is never computed)')
