@@ -369,7 +369,7 @@ class SampleStream:
                    ('messages published', pacer.published),
                    ('messages waiting for their instant', pacer.pending),
                    ('samples withheld', self.withheld),
-                   ('samples skipped (node stalled)', self.skipped),
+                   ('samples skipped', self.skipped),
                    (f'messages published > {LATE_NS / 1e6:g} ms late', pacer.late),
                    ('largest publication delay [ms]', f'{pacer.max_delay_ns / 1e6:.3f}'),
                    ('sensor time [s]', f'{triad.time:.3f}')]
