@@ -14,29 +14,38 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
 
 # Batches of 10 samples: published as one burst, half of each would be lost by a keep-last-5
-# subscriber; paced, the subscriber may be held up for 25 ms without a loss (a busy machine).
-RATE = 200.0
-BATCH = {'stream.batch_s': 0.05, 'stream.lead_s': 0.1}
+# subscriber; paced, the node and the subscriber may each be held up for 50 ms without a loss
+# (a busy machine).
+RATE = 100.0
+BATCH = {'stream.batch_s': 0.1, 'stream.lead_s': 0.2}
 PERIOD_NS = int(1e9 / RATE)
 STARTUP = 200
 STAMP = struct.Struct('<iI')
 
 
 class Stamps:
-    """Stamps and receive times of raw ``imu/data_raw`` messages (no deserialization)."""
+    """
+    Stamps, publication and receive times of raw ``imu/data_raw`` messages.
+
+    The publication time is the DDS source timestamp the node's writer puts on each
+    message (system clock, as the stamps): unlike the receive time, it does not depend on
+    when this (possibly starved) process gets to read the message.
+    """
 
     def __init__(self, client, qos):
         self.stamps = []
+        self.published = []
         self.received = []
         client.node.create_subscription(Imu, 'imu/data_raw', self.callback, qos, raw=True)
 
-    def callback(self, data):
+    def callback(self, data, info):
         self.received.append(time.time_ns())
+        self.published.append(info['source_timestamp'])
         sec, nanosec = STAMP.unpack_from(data, 4)
         self.stamps.append(sec * 1_000_000_000 + nanosec)
 
     def clear(self):
-        self.stamps, self.received = [], []
+        self.stamps, self.published, self.received = [], [], []
 
 
 @pytest.fixture(scope='module')
@@ -67,16 +76,15 @@ def test_first_samples_arrive_spread_like_their_stamps(setup):
     client, everything = setup['client'], setup['everything']
     client.spin_until(lambda: len(everything.stamps) >= STARTUP, 120, 'the first samples')
     stamps = np.asarray(everything.stamps[:STARTUP], dtype=np.int64)
-    received = np.asarray(everything.received[:STARTUP], dtype=np.int64)
+    published = np.asarray(everything.published[:STARTUP], dtype=np.int64)
     assert np.all(np.diff(stamps) == PERIOD_NS), 'first samples not consecutive'
-    # A burst delivers many samples within microseconds and late by up to its length;
-    # paced samples arrive one period apart (a preempted process catches up now and then).
-    spacing = np.diff(received)
-    assert np.median(spacing) > 0.5 * PERIOD_NS, 'first samples arrived in bursts'
-    assert received[-1] - received[0] > 0.5 * (stamps[-1] - stamps[0])
-    lateness = received - stamps
-    assert np.all(lateness > 0), 'a sample was published before its instant'
-    assert np.median(lateness[:50]) < 0.1e9, 'the first samples were published late'
+    assert np.all(published >= stamps), 'a sample was published before its instant'
+    # A burst publishes many samples within microseconds, late by up to its length; paced
+    # samples leave one period apart (a preempted node catches up now and then).
+    spacing = np.diff(published)
+    assert np.median(spacing) > 0.5 * PERIOD_NS, 'first samples published in bursts'
+    assert published[-1] - published[0] > 0.5 * (stamps[-1] - stamps[0])
+    assert np.median(published[:50] - stamps[:50]) < 0.1e9, 'first samples published late'
 
 
 def test_sensor_data_subscriber_loses_no_sample(setup):
@@ -89,7 +97,10 @@ def test_sensor_data_subscriber_loses_no_sample(setup):
     gaps = np.diff(stamps)
     assert np.all(gaps > 0), 'samples out of order or duplicated'
     lost = int(np.sum(gaps // PERIOD_NS - 1))
-    assert lost == 0, f'{lost} samples lost by a best-effort depth-5 subscriber'
+    delay = (np.asarray(sensor_data.published) - stamps) / 1e6
+    assert lost == 0, f'{lost} samples lost by a best-effort depth-5 subscriber ' \
+        f'(publication delay max {delay.max():.1f} ms; the subscriber read them up to ' \
+        f'{(np.asarray(sensor_data.received) - stamps).max() / 1e6:.1f} ms late)'
 
 
 def test_a_stall_that_skips_samples_is_a_warning(setup):
@@ -115,9 +126,10 @@ def test_a_stall_that_skips_samples_is_a_warning(setup):
     # Across the stall the stamps stay on the grid; after it the stream goes on as before.
     stamps = np.asarray(everything.stamps, dtype=np.int64)
     assert np.all(np.diff(stamps) % PERIOD_NS == 0) and np.all(np.diff(stamps) > 0)
-    everything.clear()
-    client.spin_until(lambda: len(everything.stamps) > 100, 30, 'samples after the stall')
-    assert np.all(np.diff(everything.stamps) == PERIOD_NS)
+    after = time.time_ns()
+    client.spin_until(lambda: sum(s >= after for s in everything.stamps) > 100, 30,
+                      'samples after the stall')
+    assert np.all(np.diff([s for s in everything.stamps if s >= after]) == PERIOD_NS)
 
 
 def test_a_simulated_clock_paces_the_stream(tmp_path):
@@ -149,3 +161,5 @@ def test_a_simulated_clock_paces_the_stream(tmp_path):
     wall, sim = np.asarray(published, dtype=np.int64).T
     clock_at_receipt = sim[np.searchsorted(wall, samples.received, side='right') - 1]
     assert np.all(stamps <= clock_at_receipt)
+    # The writer's (system) clock at publication is no use here: only the sim clock counts.
+    assert len(samples.published) == len(stamps)

@@ -232,6 +232,9 @@ class SampleStream:
 
     def _advance_to_clock(self):
         """Compute every sample that can be computed now and queue it for its instant."""
+        # Read before the clock: the pacer publishes a stamp only once the clock has reached
+        # it, so only a clock that went back can read earlier than this.
+        last = self.pacer.last_stamp_ns
         now = self._now_ns()
         if now <= 0:
             # use_sim_time without /clock yet: there is no time to stamp samples with.
@@ -241,7 +244,6 @@ class SampleStream:
             # The first sample ends one lead time from now: it gets the same margin as every
             # later one (the first batch on the model pays for its first-call costs).
             grid.anchor(now + int(self._values['stream.lead_s'] * NS_PER_S))
-        last = self.pacer.last_stamp_ns
         if last is not None and now < last:
             # The clock went back (a bag or simulation restarted): restart the stream.
             self.clock_note = f'clock jumped back by {(last - now) / 1e9:.3f} s; ' \
