@@ -1,42 +1,58 @@
-"""Benchmark the node over real DDS: delivery, stamp spacing, latency, CPU and memory.
+"""Benchmark the node's delivery over real DDS against a bare paced publisher, side by side.
 
-Each case starts the node in its own process; this process subscribes to
-``imu/data_raw`` with a SingleThreadedExecutor and reads the node's CPU time and RSS
-from ``/proc/<pid>`` (all threads: the sensor thread, the executor, Fast DDS).
+Every case starts a publisher in its own process: either the node (``qfa_ros.cli.node``)
+or the *floor*, a bare Python thread that sleeps until each sample instant and publishes a
+pre-serialized ``Imu`` (what a Python node can reach at best). This process subscribes to
+``imu/data_raw`` twice, as INS stacks and ``ros2 topic hz`` do (best effort, keep last 5:
+``qos_profile_sensor_data``) and as a careful consumer would (reliable, keep last 10), and
+reads the publisher's CPU time from ``/proc/<pid>/stat`` (all threads).
 
-Run: ``.venv/bin/python bench/node_rate.py [--duration 60] [--case RATE:TICK[:rec] ...]
-[--soak 600] [--out bench/results/node_rate.md]``. Without ``--case`` it runs the
-standard cases: 1 kHz at the default tick rate, the same with the flight recorder on,
-2 kHz, and 1 kHz with a 1000 Hz tick. Prints Markdown.
+Reported per case: samples lost per subscriber (stamps missing between the first and the
+last received), latency (receive time - stamp) p50 / p99 / max, the publisher's CPU and
+its ratio to the floor's CPU at the same rate, and for the node the lateness of the first
+``--startup-samples`` samples after it starts (receive time - stamp).
+
+Run (quiet machine, full length; then a 10-minute soak of the node for its memory):
+``python bench/node_rate.py --window 60 --soak 600 --out bench/results/node_rate.md``;
+a quick check: ``python bench/node_rate.py --window 5``. ``--param NAME=VALUE`` passes node
+parameters (e.g. ``stream.batch_s=0.02``). Prints Markdown.
 """
 
 import argparse
+import datetime
 import json
 import os
 from pathlib import Path
+import platform
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import numpy as np
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
-
-from qfa_ros.ros.params import SPECS
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES_FILE = ROOT / 'config' / 'fastdds_discovery.xml'
 CLOCK_TICKS = os.sysconf('SC_CLK_TCK')
 PAGE_BYTES = os.sysconf('SC_PAGE_SIZE')
-DEFAULT_TICK = SPECS['tick_rate_hz'].default
-STANDARD_CASES = (f'1000:{DEFAULT_TICK:g}', f'1000:{DEFAULT_TICK:g}:rec',
-                  f'2000:{DEFAULT_TICK:g}', '1000:1000')
+NS_PER_S = 1_000_000_000
+STAMP = struct.Struct('<iI')
+"""``header.stamp`` (sec, nanosec) right after the 4-byte CDR encapsulation header."""
+
+SUBSCRIBERS = {
+    'best effort, depth 5': qos_profile_sensor_data,
+    'reliable, depth 10': QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                                     reliability=ReliabilityPolicy.RELIABLE),
+}
 
 
 def cpu_seconds(pid):
@@ -50,41 +66,49 @@ def rss_bytes(pid):
     return int(Path(f'/proc/{pid}/statm').read_text().split()[1]) * PAGE_BYTES
 
 
-class Receiver:
-    """Record the header stamp and the receive time of every sample."""
-
-    def __init__(self, node, depth):
-        self.stamps = []
-        self.received = []
-        qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
-        self.subscription = node.create_subscription(Imu, 'imu/data_raw', self.callback, qos)
-
-    def callback(self, message):
-        self.received.append(time.time_ns())
-        stamp = message.header.stamp
-        self.stamps.append(stamp.sec * 1_000_000_000 + stamp.nanosec)
-
-    def clear(self):
-        self.stamps = []
-        self.received = []
+def environment(domain):
+    return dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                FASTDDS_DEFAULT_PROFILES_FILE=str(PROFILES_FILE), PYTHONUNBUFFERED='1')
 
 
-def spin(executor, seconds, stop=lambda: False):
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline and not stop():
-        executor.spin_once(timeout_sec=0.05)
+# The floor: a bare paced publisher in its own process -------------------------------------
+def run_floor(rate):
+    """Publish pre-serialized Imu samples at ``rate`` Hz, each at its instant, until SIGTERM."""
+    from qfa_ros.bag.imu_cdr import ImuEncoder
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    rclpy.init()
+    node = Node('qfa_floor')
+    publisher = node.create_publisher(Imu, 'imu/data_raw', QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    encoder = ImuEncoder('imu_link', [1e-6, 0, 0, 0, 1e-6, 0, 0, 0, 1e-6])
+    period = NS_PER_S / rate
+    start = time.time_ns()
+    index = 0
+    while not stop.is_set():
+        # Serialize a second ahead (as cheap as the node's batch encoding), then pace.
+        stamps = start + (np.arange(index, index + int(rate)) + 1) * period
+        messages = encoder.encode(stamps.astype(np.int64), np.zeros((len(stamps), 3)))
+        for stamp, data in zip(stamps.astype(np.int64).tolist(), messages):
+            remaining = stamp - time.time_ns()
+            if remaining > 0:
+                time.sleep(remaining / 1e9)
+            if stop.is_set():
+                break
+            publisher.publish(data)
+        index += int(rate)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
 
 
-def parse_case(text):
-    """Return (rate Hz, tick rate Hz, recorder on) of ``RATE:TICK[:rec]``."""
-    parts = text.split(':')
-    if len(parts) not in (2, 3) or (len(parts) == 3 and parts[2] != 'rec'):
-        raise argparse.ArgumentTypeError(f'expected RATE:TICK or RATE:TICK:rec, got {text!r}')
-    return float(parts[0]), float(parts[1]), len(parts) == 3
+def start_floor(domain, rate):
+    return subprocess.Popen([sys.executable, __file__, '--floor', str(rate)],
+                            env=environment(domain), cwd=ROOT, stdout=subprocess.DEVNULL)
 
 
-def start_node(domain, directory, rate, tick_rate, recorder, depth):
-    parameters = {'sample_rate_hz': rate, 'tick_rate_hz': tick_rate, 'qos.depth': depth,
+def start_node(domain, directory, rate, recorder, extra):
+    parameters = {**extra, 'sample_rate_hz': float(rate),
                   'state_file': str(Path(directory) / 'state.json'),
                   'output_dir': str(directory),
                   'trace_dir': str(Path(directory) / 'traces'),
@@ -92,157 +116,193 @@ def start_node(domain, directory, rate, tick_rate, recorder, depth):
                   'recorder.directory': str(Path(directory) / 'recordings')}
     params_file = Path(directory) / 'params.yaml'
     params_file.write_text(json.dumps({'qfa_node': {'ros__parameters': parameters}}))
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               FASTDDS_DEFAULT_PROFILES_FILE=str(PROFILES_FILE))
     return subprocess.Popen([sys.executable, '-m', 'qfa_ros.cli.node', '--ros-args',
-                             '--params-file', str(params_file)], env=env, cwd=ROOT)
+                             '--params-file', str(params_file)], env=environment(domain),
+                            cwd=ROOT, stdout=subprocess.DEVNULL)
 
 
-def summarize(receiver, rate, cpu, wall):
-    stamps = np.asarray(receiver.stamps, dtype=np.int64)
-    received = np.asarray(receiver.received, dtype=np.int64)
-    period = 1e9 / rate
-    expected = int(round((stamps[-1] - stamps[0]) / period)) + 1
-    unique = len(np.unique(stamps))
-    spacing = np.diff(stamps)
-    arrival = np.diff(received) / 1e6
-    latency = (received - stamps) / 1e6
-    return {
-        'received': len(stamps), 'expected': expected, 'dropped': expected - unique,
-        'duplicates': len(stamps) - unique,
-        'spacing error max [us]': float(np.max(np.abs(spacing - period)) / 1e3),
-        'inter-arrival mean [ms]': float(arrival.mean()),
-        'inter-arrival std [ms]': float(arrival.std()),
-        'inter-arrival p99 [ms]': float(np.percentile(arrival, 99)),
-        'latency median [ms]': float(np.median(latency)),
-        'latency p99 [ms]': float(np.percentile(latency, 99)),
-        'node CPU [% of one core]': 100.0 * cpu / wall,
-    }
+# The subscribers ---------------------------------------------------------------------------
+class Receiver:
+    """Record the stamp and the receive time of every sample (raw: no deserialization)."""
+
+    def __init__(self, node, qos):
+        self.stamps = []
+        self.received = []
+        node.create_subscription(Imu, 'imu/data_raw', self.callback, qos, raw=True)
+
+    def callback(self, data):
+        self.received.append(time.time_ns())
+        sec, nanosec = STAMP.unpack_from(data, 4)
+        self.stamps.append(sec * NS_PER_S + nanosec)
+
+    def take(self):
+        stamps = np.asarray(self.stamps, dtype=np.int64)
+        received = np.asarray(self.received, dtype=np.int64)
+        self.stamps, self.received = [], []
+        return stamps, received
 
 
-class Bench:
-    """A subscriber node in its own context on ``domain`` (one per case: no stale samples)."""
+class Subscribers:
+    """Both subscribers in one context on ``domain``, spun by an EventsExecutor if any."""
 
-    def __init__(self, depth, domain):
-        self.domain = domain
+    def __init__(self, domain):
         self.context = Context()
-        rclpy.init(context=self.context, domain_id=self.domain)
+        rclpy.init(context=self.context, domain_id=domain)
         self.node = Node('qfa_bench', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
+        try:
+            from rclpy.experimental import EventsExecutor
+            self.executor = EventsExecutor(context=self.context)
+        except ImportError:
+            from rclpy.executors import SingleThreadedExecutor
+            self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.receiver = Receiver(self.node, depth)
-        self.depth = depth
+        self.receivers = {name: Receiver(self.node, qos) for name, qos in SUBSCRIBERS.items()}
+
+    def spin(self, seconds, stop=lambda: False):
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline and not stop():
+            self.executor.spin_once(timeout_sec=0.05)
 
     def close(self):
         self.executor.shutdown()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
 
-    def run_case(self, case, args):
-        """Measure one case; return (result dict, first-sample delay [s], exit status)."""
-        rate, tick_rate, recorder = case
-        receiver = self.receiver
-        receiver.clear()
+
+def delivery(stamps, received, rate):
+    """Return lost samples and latency p50 / p99 / max [ms] of one subscriber's window."""
+    if len(stamps) < 2:
+        return {'received': len(stamps), 'lost': float('nan'), 'p50': float('nan'),
+                'p99': float('nan'), 'max': float('nan')}
+    unique = np.unique(stamps)
+    expected = int(round((unique[-1] - unique[0]) * rate / NS_PER_S)) + 1
+    latency = (received - stamps) / 1e6
+    return {'received': len(stamps), 'lost': expected - len(unique),
+            'p50': float(np.median(latency)), 'p99': float(np.percentile(latency, 99)),
+            'max': float(latency.max())}
+
+
+def run_case(domain, kind, rate, recorder, args, window):
+    """Measure one case over ``window`` seconds; return its result dict."""
+    subscribers = Subscribers(domain)
+    reliable = subscribers.receivers['reliable, depth 10']
+    try:
         with tempfile.TemporaryDirectory() as directory:
-            process = start_node(self.domain, directory, rate, tick_rate, recorder, self.depth)
+            started = time.time()
+            process = start_floor(domain, rate) if kind == 'floor' \
+                else start_node(domain, directory, rate, recorder, args.param)
             try:
-                started = time.monotonic()
-                spin(self.executor, 60.0, lambda: receiver.stamps)
-                if not receiver.stamps:
-                    raise RuntimeError('no sample within 60 s')
-                first_sample_s = time.monotonic() - started
-                spin(self.executor, args.warmup)
+                subscribers.spin(120.0, lambda: len(reliable.stamps) >= args.startup_samples)
+                if len(reliable.stamps) < args.startup_samples:
+                    raise RuntimeError(f'{kind}: fewer than {args.startup_samples} samples '
+                                       'within 120 s')
+                first_s = reliable.received[0] / 1e9 - started
+                lateness = (np.asarray(reliable.received[:args.startup_samples])
+                            - np.asarray(reliable.stamps[:args.startup_samples])) / 1e6
+                subscribers.spin(args.warmup)
+                for receiver in subscribers.receivers.values():
+                    receiver.take()
                 rss_start = rss_bytes(process.pid)
-                receiver.clear()
                 cpu_start, wall_start = cpu_seconds(process.pid), time.monotonic()
-                spin(self.executor, args.duration)
+                subscribers.spin(window)
                 cpu = cpu_seconds(process.pid) - cpu_start
                 wall = time.monotonic() - wall_start
                 rss_end = rss_bytes(process.pid)
-                result = summarize(receiver, rate, cpu, wall)
-                result['RSS [MB]'] = rss_end / 1e6
-                result['RSS change over the window [MB]'] = (rss_end - rss_start) / 1e6
-                soak = self.soak(process, rate, args.soak) if args.soak else None
+                windows = {name: receiver.take()
+                           for name, receiver in subscribers.receivers.items()}
             finally:
                 process.send_signal(signal.SIGTERM)
                 status = process.wait(30)
-                receiver.clear()
-        return result, first_sample_s, status, soak
-
-    def soak(self, process, rate, seconds):
-        """Return the soak table rows: RSS over ``seconds`` and the samples lost."""
-        receiver = self.receiver
-        receiver.clear()
-        samples = [(0.0, rss_bytes(process.pid), 0)]
-        soak_start = time.monotonic()
-        cpu_start = cpu_seconds(process.pid)
-        while time.monotonic() - soak_start < seconds:
-            spin(self.executor, min(30.0, seconds - (time.monotonic() - soak_start)))
-            lost = 0
-            stamps = receiver.stamps
-            if len(stamps) > 2:
-                gaps = np.diff(np.asarray(stamps, dtype=np.int64))
-                lost = int(np.sum(np.round(gaps * rate / 1e9)) - len(gaps))
-                # Keep the receiver's own memory flat over a long soak.
-                receiver.stamps = stamps[-1:]
-                receiver.received = receiver.received[-1:]
-            samples.append((time.monotonic() - soak_start, rss_bytes(process.pid), lost))
-        cpu = cpu_seconds(process.pid) - cpu_start
-        wall = time.monotonic() - soak_start
-        lines = [f'### Soak: {wall:.0f} s at {rate:g} Hz\n', '| measure | value |', '|---|---|',
-                 f'| RSS at start [MB] | {samples[0][1] / 1e6:.1f} |',
-                 f'| RSS at end [MB] | {samples[-1][1] / 1e6:.1f} |',
-                 f'| RSS growth [MB] | {(samples[-1][1] - samples[0][1]) / 1e6:.2f} |',
-                 f'| samples dropped | {sum(s[2] for s in samples)} |',
-                 f'| node CPU [% of one core] | {100.0 * cpu / wall:.1f} |']
-        trend = ', '.join(f'{t:.0f} s: {r / 1e6:.1f}' for t, r, _ in samples)
-        return '\n'.join(lines) + f'\n\nRSS [MB] over time: {trend}\n'
+    finally:
+        subscribers.close()
+    return {'kind': kind, 'rate': rate, 'recorder': recorder, 'cpu': 100.0 * cpu / wall,
+            'window': wall, 'rss': rss_end / 1e6, 'rss_change': (rss_end - rss_start) / 1e6,
+            'first_s': first_s, 'startup_p99': float(np.percentile(lateness, 99)),
+            'startup_max': float(lateness.max()), 'status': status,
+            'delivery': {name: delivery(*window, rate) for name, window in windows.items()}}
 
 
-def case_label(case):
-    rate, tick_rate, recorder = case
-    return f'{rate:g} Hz, tick {tick_rate:g} Hz' + (', recorder on' if recorder else '')
+def parse_param(text):
+    """Return (name, value) of ``NAME=VALUE`` (the value parsed as YAML)."""
+    name, separator, value = text.partition('=')
+    if not separator:
+        raise argparse.ArgumentTypeError(f'expected NAME=VALUE, got {text!r}')
+    return name, yaml.safe_load(value)
 
 
-def run(args):
-    cases = args.case or [parse_case(text) for text in STANDARD_CASES]
-    results, notes, soaks = [], [], []
-    for index, case in enumerate(cases):
-        bench = Bench(args.depth, 1 + (os.getpid() + index) % 100)
-        try:
-            result, first_sample_s, status, soak = bench.run_case(case, args)
-        finally:
-            bench.close()
-        results.append(result)
-        notes.append(f'{case_label(case)}: first sample {first_sample_s:.2f} s after the '
-                     f'process started; exit status {status} after SIGTERM')
-        if soak:
-            soaks.append(soak)
-    lines = [f'### {args.duration:g} s windows (after {args.warmup:g} s of warm-up)\n',
-             '| measure | ' + ' | '.join(case_label(c) for c in cases) + ' |',
-             '|---|' + '---|' * len(cases)]
-    for key in results[0]:
-        cells = [f'{r[key]:.3f}' if isinstance(r[key], float) else str(r[key]) for r in results]
-        lines.append(f'| {key} | ' + ' | '.join(cells) + ' |')
+def label(result):
+    if result['kind'] == 'floor':
+        return f'floor {result["rate"]:g} Hz'
+    text = f'node {result["rate"]:g} Hz' + (', recorder' if result['recorder'] else '')
+    return text + (f', soak {result["window"]:.0f} s' if result.get('soak') else '')
+
+
+def table(results, args):
+    """Return the Markdown report of ``results``."""
+    floor_cpu = {r['rate']: r['cpu'] for r in results if r['kind'] == 'floor'}
+    floor_p99 = {r['rate']: max(d['p99'] for d in r['delivery'].values())
+                 for r in results if r['kind'] == 'floor'}
+    settings = ', '.join(f'`{k}: {v}`' for k, v in args.param.items()) or 'defaults'
+    lines = [f'### {args.window:g} s windows after {args.warmup:g} s ({datetime.date.today()}, '
+             f'{os.cpu_count()} cores, Python {platform.python_version()}; node {settings})\n',
+             '| case | subscriber | received | lost | latency p50 / p99 / max [ms] | '
+             'p99 − floor p99 [ms] | CPU [% core] | CPU ÷ floor | start-up: first '
+             f'{args.startup_samples} late p99 / max [ms] | RSS [MB] (change in window) |',
+             '|---|---|---|---|---|---|---|---|---|---|']
+    for result in results:
+        ratio = result['cpu'] / floor_cpu[result['rate']] if result['rate'] in floor_cpu \
+            else float('nan')
+        for index, (name, d) in enumerate(result['delivery'].items()):
+            excess = d['p99'] - floor_p99.get(result['rate'], float('nan'))
+            common = (f'{result["cpu"]:.1f} | {ratio:.2f} | '
+                      f'{result["startup_p99"]:.2f} / {result["startup_max"]:.2f} | '
+                      f'{result["rss"]:.0f} ({result["rss_change"]:+.2f})') \
+                if index == 0 else ' | | | '
+            lines.append(f'| {label(result) if index == 0 else ""} | {name} | {d["received"]} '
+                         f'| {d["lost"]} | {d["p50"]:.2f} / {d["p99"]:.2f} / {d["max"]:.2f} | '
+                         f'{excess:+.2f} | {common} |')
     lines.append('')
-    lines += [f'- {note}' for note in notes]
-    lines.append('')
-    return '\n'.join(lines + soaks)
+    lines += [f'- {label(r)}: first sample {r["first_s"]:.2f} s after the process started; '
+              f'exit status {r["status"]} after SIGTERM' for r in results]
+    return '\n'.join(lines) + '\n'
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--duration', type=float, default=60.0, help='window per case [s]')
-    parser.add_argument('--case', type=parse_case, action='append',
-                        help='RATE:TICK or RATE:TICK:rec (repeatable; default: the standard '
-                             f'cases {", ".join(STANDARD_CASES)})')
-    parser.add_argument('--depth', type=int, default=1000, help='history depth both sides')
-    parser.add_argument('--warmup', type=float, default=2.0, help='seconds before the window')
+    parser.add_argument('--window', '--duration', type=float, default=60.0,
+                        help='measurement window per case [s]')
+    parser.add_argument('--rates', type=float, nargs='+', default=[1000.0, 2000.0],
+                        help='sample rates [Hz]')
+    parser.add_argument('--warmup', type=float, default=2.0,
+                        help='seconds between the start-up samples and the window')
+    parser.add_argument('--startup-samples', type=int, default=2000,
+                        help='first samples whose lateness is reported')
+    parser.add_argument('--no-recorder', action='store_true',
+                        help='skip the cases with the flight recorder on')
+    parser.add_argument('--param', type=parse_param, action='append', default=[],
+                        metavar='NAME=VALUE', help='node parameter (YAML value; repeatable)')
     parser.add_argument('--soak', type=float, default=0.0,
-                        help='after each case window, soak this long [s] and report RSS growth')
+                        help='then run the node at the first rate this long [s] (RSS growth)')
     parser.add_argument('--out', type=Path, default=None, help='append the Markdown here')
+    parser.add_argument('--floor', type=float, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
-    text = run(args)
+    args.param = dict(args.param)
+    if args.floor is not None:
+        return run_floor(args.floor)
+    results = []
+    # QFA_TEST_DOMAINS=LOW-HIGH confines the ROS domains, as for the tests.
+    low, high = (int(v) for v in os.environ.get('QFA_TEST_DOMAINS', '1-100').split('-'))
+    domain = low + os.getpid() % (high - low + 1)
+    recorders = (False,) if args.no_recorder else (False, True)
+    for rate in args.rates:
+        for kind, recorder in [('floor', False)] + [('node', r) for r in recorders]:
+            results.append(run_case(domain, kind, rate, recorder, args, args.window))
+            domain = low + (domain + 1 - low) % (high - low + 1)
+            print(f'{label(results[-1])}: done', file=sys.stderr)
+    if args.soak:
+        results.append(run_case(domain, 'node', args.rates[0], False, args, args.soak))
+        results[-1]['soak'] = True
+    text = table(results, args)
     print(text)
     if args.out:
         with open(args.out, 'a') as stream:

@@ -51,7 +51,8 @@ def setup(tmp_path_factory):
     directory = tmp_path_factory.mktemp('input')
     domain = domain_id('input')
     node = NodeProcess(domain, directory, {
-        'qos.depth': 1000, 'input.mode': 'topic', 'input.topic_type': 'accel',
+        'qos_overrides./imu/data_raw.publisher.depth': 1000,
+        'input.mode': 'topic', 'input.topic_type': 'accel',
         'input.timeout_s': 0.2, 'state_file': str(directory / 'state.json'),
         'output_dir': str(directory), 'trace_dir': str(directory / 'traces')})
     client = Client(domain)
@@ -76,7 +77,7 @@ def test_loops_measure_the_ground_truth_and_reject_non_finite_input(setup):
     client, imu, diagnostics = setup['client'], setup['imu'], setup['diagnostics']
     truth = GroundTruth(client)
     client.spin_until(lambda: len(imu.samples) > 50, 60, 'samples from the topic input')
-    mean = mean_accel(client, imu, 500, settle_s=0.05)
+    mean = mean_accel(client, imu, 500, settle_s=0.15)
     assert mean == pytest.approx(np.add(INPUT, thermal_zero_bias()), abs=2e-3)
 
     truth.value = (math.nan, 0.0, math.inf)

@@ -75,7 +75,7 @@ def stop_and_time(node, signum):
 
 def test_node_answers_and_streams_after_hundreds_of_participants(tmp_path, busy_core):
     domain = domain_id('churn')
-    node = NodeProcess(domain, tmp_path, {'qos.depth': 1000})
+    node = NodeProcess(domain, tmp_path, {'qos_overrides./imu/data_raw.publisher.depth': 1000})
     try:
         client = Client(domain)
         imu = ImuCollector(client)

@@ -132,7 +132,7 @@ def test_integers_typed_for_doubles_become_doubles():
     converted = as_declared_type(Parameter('sample_rate_hz', value=2000))
     assert converted.type_ == Parameter.Type.DOUBLE and converted.value == 2000.0
     for unchanged in (Parameter('seed', value=3), Parameter('frame_id', value='x'),
-                      Parameter('qos.depth', value=10)):
+                      Parameter('recorder.max_bytes', value=2 ** 20)):
         assert as_declared_type(unchanged) is unchanged
 
 

@@ -59,7 +59,8 @@ def setup(tmp_path_factory):
     output = directory / 'output'
     domain = domain_id('security')
     node = NodeProcess(domain, directory, {
-        'qos.depth': 1000, 'diagnostics_rate_hz': 10.0, 'output_dir': str(output),
+        'qos_overrides./imu/data_raw.publisher.depth': 1000, 'diagnostics_rate_hz': 10.0,
+        'output_dir': str(output),
         'state_file': str(directory / 'state.json'), 'estimation.realtime': False,
         **SCHEDULES})
     client = Client(domain)

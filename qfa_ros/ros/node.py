@@ -15,6 +15,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
@@ -48,7 +49,7 @@ from qfa_ros.ros.params import (
 )
 from qfa_ros.ros.recording import RECORDER_PARAMETERS, StreamRecording
 from qfa_ros.ros.schedules import ScheduleService
-from qfa_ros.ros.stream import SampleStream
+from qfa_ros.ros.stream import offered_qos, SampleStream
 
 PPM = 1e-6
 DRIFT_PARAMETERS = frozenset({'drift.forward_ppm', 'drift.feedback_ppm',
@@ -110,23 +111,29 @@ class QfaNode(Node):
         self._lock = threading.Lock()
         self._keeper.load()
 
-        stream_qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST, depth=values['qos.depth'],
-            reliability=ReliabilityPolicy.RELIABLE if values['qos.reliability'] == 'reliable'
-            else ReliabilityPolicy.BEST_EFFORT)
+        # REP-2003: a sensor driver offers the system-default (reliable) QoS; a depth of
+        # 100 lets a reliable subscriber be briefly late. Users override it the ROS way:
+        # qos_overrides./<namespace>/imu/data_raw.publisher.{history,depth,reliability}.
+        stream_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                                reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                              reliability=ReliabilityPolicy.RELIABLE)
-        imu_publisher = self.create_publisher(Imu, 'imu/data_raw', stream_qos)
-        temperature_publisher = self.create_publisher(Temperature, 'imu/temperature',
-                                                      stream_qos)
+        imu_publisher = self.create_publisher(
+            Imu, 'imu/data_raw', stream_qos,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        temperature_publisher = self.create_publisher(
+            Temperature, 'imu/temperature', QoSProfile(
+                history=stream_qos.history, depth=stream_qos.depth,
+                reliability=stream_qos.reliability),
+            qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self._diagnostics_publisher = self.create_publisher(
             DiagnosticArray, '/diagnostics', 10)
         self._calibrated_publisher = self.create_publisher(Bool, '~/is_calibrated', latched)
 
-        recorded_qos = QosProfile(depth=values['qos.depth'], reliability=values['qos.reliability'])
+        # The recording states the QoS the publishers really offer (overrides applied).
         self._recording = StreamRecording(self, values, {
-            imu_publisher.topic_name: recorded_qos,
-            temperature_publisher.topic_name: recorded_qos,
+            imu_publisher.topic_name: offered_qos(imu_publisher.qos_profile),
+            temperature_publisher.topic_name: offered_qos(temperature_publisher.qos_profile),
             '/diagnostics': QosProfile(depth=10),
             self._calibrated_publisher.topic_name: QOS_LATCHED})
         self._recording.restart()
@@ -219,6 +226,8 @@ class QfaNode(Node):
                 if names & THERMAL_RUNTIME_PARAMETERS:
                     self._apply_ambient()
                 if names & RECORDER_PARAMETERS:
+                    # What was published before the change goes to the recording it was in.
+                    self._stream.flush_recording()
                     self._recording.restart()
             except (ValueError, OSError) as error:
                 self._schedules.last_error = f'applying {", ".join(sorted(names))}: {error}'
@@ -266,6 +275,7 @@ class QfaNode(Node):
             time_ns = self.get_clock().now().nanoseconds
         with self._lock:
             self._ground_truth.accept(time_ns, (vector.x, vector.y, vector.z))
+        self._stream.input_arrived()
 
     # Services ---------------------------------------------------------------------------
     async def capture_reference_callback(self, request, response):

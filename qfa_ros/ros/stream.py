@@ -1,39 +1,82 @@
 """
-The sample stream: the sensor thread that advances the model and publishes its output.
+The sample stream: the sensor thread that computes the model ahead and the paced output.
 
-Like a real driver's device thread, it plays the part of the sensor's own electronics:
-every 1/``tick_rate_hz`` it advances the model to the node clock and publishes every
-sample that has become due on an exact grid, and it drives the running schedule.
+Like a real sensor's electronics, whose filter has a group delay, the sensor thread runs
+the model ahead of the clock in batches: every ``stream.batch_s`` it computes the samples
+stamped up to ``stream.lead_s`` ahead, encodes them and hands them to the
+:class:`~qfa_ros.ros.pacing.Pacer`, which publishes each one at its own instant. With the
+ground-truth topic input a sample cannot be computed before its input exists: the thread
+computes when an input arrives and the pacer publishes at once.
 """
 
+import copy
+import sys
 import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Temperature
 
 from qfa_ros.bag.imu_cdr import ImuEncoder
+from qfa_ros.bag.qos import QosProfile
 from qfa_ros.model.triad import AXES, NS_PER_S, SampleGrid
+from qfa_ros.ros.pacing import LATE_NS, Pacer, RecordingQueue
 
 FAST_CHUNK_SAMPLES = 1000
 FAST_SLICE_S = 0.02
 """CPU time a fast schedule may hold the model before the executor gets a turn [s]."""
 
 MAX_CATCH_UP_S = 1.0
-"""A tick later than this skips ahead instead of computing the backlog (e.g. a debugger stop)."""
+"""A backlog longer than this is skipped instead of computed (e.g. the process was stopped)."""
+
+SKIP_WARN_S = 10.0
+"""The stream diagnostic stays WARN this long (wall time) after samples were skipped [s]."""
+
+WARM_UP_SAMPLES = 50
+"""Samples run on a copy of the model before the grid is anchored (JIT, first calls)."""
+
+SWITCH_INTERVAL_S = 0.0005
+"""Python's GIL switch interval while the node runs [s] (the default 5 ms would let a busy
+thread hold the pacer that long; see docs/node.md)."""
 
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 TEMPERATURE_TYPE = 'sensor_msgs/msg/Temperature'
 
+_HISTORY = {0: 'system_default', 1: 'keep_last', 2: 'keep_all'}
+_RELIABILITY = {0: 'system_default', 1: 'reliable', 2: 'best_effort'}
+_DURABILITY = {0: 'system_default', 1: 'transient_local', 2: 'volatile'}
+# An unset (system default) liveliness is automatic: what rmw reports for the publisher.
+_LIVELINESS = {0: 'automatic', 1: 'automatic', 3: 'manual_by_topic'}
+
+
+def offered_qos(profile):
+    """Return the rosbag2 offered QoS of an ``rclpy.qos.QoSProfile`` (a publisher's)."""
+    def duration(value):
+        nanoseconds = value.nanoseconds
+        return None if nanoseconds <= 0 else nanoseconds
+    return QosProfile(
+        history=_HISTORY.get(int(profile.history), 'unknown'), depth=int(profile.depth),
+        reliability=_RELIABILITY.get(int(profile.reliability), 'unknown'),
+        durability=_DURABILITY.get(int(profile.durability), 'unknown'),
+        deadline_ns=duration(profile.deadline), lifespan_ns=duration(profile.lifespan),
+        liveliness=_LIVELINESS.get(int(profile.liveliness), 'unknown'),
+        liveliness_lease_duration_ns=duration(profile.liveliness_lease_duration),
+        avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions))
+
 
 class SampleStream:
     """
-    Advance the model to the node clock and publish ``imu/data_raw`` and ``imu/temperature``.
+    Compute the model ahead of the clock; publish each ``imu/data_raw`` sample at its instant.
 
-    The sensor thread and the executor thread share the model, the grid, the running
-    schedule, the ground-truth input and the recording; ``lock`` (the node's) makes each
-    tick and each callback's use of them atomic.
+    ``imu/temperature`` readings are paced the same way, after the sample they belong to.
+
+    Three threads: the sensor thread (model, grid, schedules, encoding; it holds ``lock``,
+    the node's, for each batch, as the executor does for each callback that touches the
+    model, the grid, the running schedule, the ground-truth input or the recording); the
+    pacer thread (publishes; never takes ``lock``); the recording thread (writes the
+    flight recording; takes ``lock`` for each write).
 
     :param node: The node (clock and logger).
     :param lock: The node lock.
@@ -66,27 +109,46 @@ class SampleStream:
                                                / values['temperature_rate_hz']))
         self.schedule = None
         self.pause_reason = None
-        self.published = 0
+        self.computed = 0
         self.withheld = 0
         self.skipped = 0
-        self.max_batch = 0
+        self._last_skip = None
+        self.skip_note = None
         self.sensor_error = None
         self.clock_note = None
         self.saturated = np.zeros(len(AXES), dtype=np.int64)
         self.last_temperature = None
         self.on_schedule_end = None
         self._stop = threading.Event()
+        # Set by the pacer when it runs dry and by a ground-truth input: compute now.
+        self._wake = threading.Event()
+        self.recording_queue = RecordingQueue(lock, recording)
+        self.pacer = Pacer(node, self.recording_queue.append, self._wake.set)
         self._thread = threading.Thread(target=self._loop, name='qfa_sensor', daemon=True)
 
     def start(self):
-        """Start the sensor thread."""
+        """Start the sensor, pacer and recording threads."""
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        self.recording_queue.start()
+        self.pacer.start()
         self._thread.start()
 
     def stop(self, timeout_s=10.0):
-        """Stop the sensor thread and wait for it (at most ``timeout_s``)."""
+        """Stop the threads (at most ``timeout_s`` each); record what was published."""
         self._stop.set()
+        self._wake.set()
         if self._thread.is_alive():
             self._thread.join(timeout=timeout_s)
+        self.pacer.stop(timeout_s)
+        self.recording_queue.stop(timeout_s)
+
+    def flush_recording(self):
+        """Record what was published so far (call with the node lock held)."""
+        self.recording_queue.flush()
+
+    def input_arrived(self):
+        """Wake the sensor thread: a ground-truth input makes samples computable."""
+        self._wake.set()
 
     def set_frame_id(self, frame_id):
         """Stamp every following message with ``frame_id``."""
@@ -103,34 +165,49 @@ class SampleStream:
         self.schedule = None
         self.pause_reason = None
 
+    @property
+    def published(self):
+        """Return how many messages the pacer published (imu/data_raw and imu/temperature)."""
+        return self.pacer.published
+
     # Sensor thread ----------------------------------------------------------------------
     def _loop(self):
-        """Advance the model at ``tick_rate_hz`` until stopped (thread target)."""
-        period = 1.0 / self._values['tick_rate_hz']
-        deadline = time.monotonic()
+        """Compute a batch every ``stream.batch_s`` until stopped (thread target)."""
+        try:
+            self._warm_up()
+        except Exception as error:
+            self.sensor_error = f'warm-up: {type(error).__name__}: {error}'
+            self._node.get_logger().error(f'sensor thread: {self.sensor_error}')
         while not self._stop.is_set():
             with self._lock:
                 try:
                     fast = self._step()
                 except Exception as error:
-                    # The sensor keeps running whatever one tick ran into; diagnostics tell.
+                    # The sensor keeps running whatever one batch ran into; diagnostics tell.
                     fast = False
                     self.sensor_error = f'{type(error).__name__}: {error}'
                     self._node.get_logger().error(f'sensor thread: {self.sensor_error}',
                                                   throttle_duration_sec=5.0)
-            now = time.monotonic()
             if fast:
                 # Let the executor thread take the lock between slices of a fast schedule.
                 self._stop.wait(0.001)
-                deadline = now
                 continue
-            deadline += period
-            if deadline < now - period:
-                deadline = now  # the thread was held up: no burst of catch-up ticks
-            self._stop.wait(max(0.0, deadline - now))
+            self._wake.wait(self._values['stream.batch_s'])
+            self._wake.clear()
+
+    def _warm_up(self):
+        """Pay for JIT loading and first calls before the grid is anchored (on copies)."""
+        with self._lock:
+            model = copy.deepcopy(self._triad)
+            encoder = self._imu_encoder
+        output = model.run(WARM_UP_SAMPLES)
+        encoder.encode(output.stamps_ns, output.accel)
+        serialize_message(self._temperature)
+        if model.thermal is not None:
+            model.thermal.reading_c(output.v_temp)
 
     def _step(self):
-        """Run one tick, or one slice of a fast schedule; return True for the latter."""
+        """Compute one batch, or one slice of a fast schedule; return True for the latter."""
         run = self.schedule
         if run is not None and run.fast:
             self._run_fast_slice(run)
@@ -141,32 +218,57 @@ class SampleStream:
     def _now_ns(self):
         return self._node.get_clock().now().nanoseconds
 
+    def _compute_until(self, now):
+        """Return the instant up to which samples can be computed now [ns]."""
+        ground_truth = self._ground_truth
+        if not ground_truth.active:
+            return now + int(self._values['stream.lead_s'] * NS_PER_S)
+        # A sample takes the latest input stamped at or before it: it is final once an
+        # input stamped at or after it has arrived, or once it is a batch old (held input).
+        latest = ground_truth.pending[-1][0] if ground_truth.pending else (
+            ground_truth.held[0] if ground_truth.held else None)
+        waited = now - int(self._values['stream.batch_s'] * NS_PER_S)
+        return waited if latest is None else max(waited, min(latest, now))
+
     def _advance_to_clock(self):
-        """Run the model up to the node clock and publish every sample that is due."""
+        """Compute every sample that can be computed now and queue it for its instant."""
+        # Read before the clock: the pacer publishes a stamp only once the clock has reached
+        # it, so only a clock that went back can read earlier than this.
+        last = self.pacer.last_stamp_ns
         now = self._now_ns()
         if now <= 0:
             # use_sim_time without /clock yet: there is no time to stamp samples with.
             return
         grid = self.grid
         if grid.start_ns is None:
-            grid.anchor(now)
-            return
-        if grid.next_index and now < grid.stamp_ns(grid.next_index - 1):
+            # The first sample ends one lead time from now: it gets the same margin as every
+            # later one (the first batch on the model pays for its first-call costs).
+            grid.anchor(now + int(self._values['stream.lead_s'] * NS_PER_S))
+        if last is not None and now < last:
             # The clock went back (a bag or simulation restarted): restart the stream.
-            jump = (grid.stamp_ns(grid.next_index - 1) - now) / 1e9
-            self.clock_note = f'clock jumped back by {jump:.3f} s; stream re-anchored'
+            self.clock_note = f'clock jumped back by {(last - now) / 1e9:.3f} s; ' \
+                'stream re-anchored'
+            self.pacer.clear()
             grid.anchor(now)
-            return
         backlog = grid.due(now) - grid.next_index
         limit = int(MAX_CATCH_UP_S * self._values['sample_rate_hz'])
         if backlog > limit:
-            self.skipped += backlog
-            grid.next_index += backlog
-            self.clock_note = f'node was {backlog} samples late; skipped them'
-            return
-        if backlog > 0:
-            self.max_batch = max(self.max_batch, backlog)
-            self._advance(backlog)
+            self._skip(backlog)
+        count = grid.due(self._compute_until(now)) - grid.next_index
+        if count > 0:
+            self._advance(count)
+
+    def _skip(self, count):
+        """Skip ``count`` samples the node can no longer compute in time; say so loudly."""
+        self.grid.next_index += count
+        self.skipped += count
+        self._last_skip = time.monotonic()
+        seconds = count / self._values['sample_rate_hz']
+        self.skip_note = (f'{count} samples ({seconds:.3f} s) skipped: the node was held up '
+                          'or its clock jumped ahead')
+        self._node.get_logger().warning(
+            f'{self.skip_note}; the stream resumes on its grid (more than '
+            f'{MAX_CATCH_UP_S:g} s behind the clock is never computed)')
 
     def _advance(self, count):
         grid = self.grid
@@ -176,8 +278,9 @@ class SampleStream:
             stamps = grid.stamp_ns(np.arange(grid.next_index, grid.next_index + chunk))
             force, stale = self._ground_truth.force(stamps)
             output = self._triad.run(chunk, force)
-            self._publish_samples(grid.next_index, stamps, output, stale)
+            self._queue_samples(grid.next_index, stamps, output, stale)
             grid.next_index += chunk
+            self.computed += chunk
             count -= chunk
             if run is not None and run.feed(output):
                 self._schedule_ended()
@@ -205,7 +308,8 @@ class SampleStream:
         if self.on_schedule_end is not None:
             self.on_schedule_end()
 
-    def _publish_samples(self, first, stamps, output, stale):
+    def _queue_samples(self, first, stamps, output, stale):
+        """Encode the valid samples and the temperature readings; queue them for the pacer."""
         self.saturated += output.saturated.sum(axis=0)
         valid = output.valid.all(axis=1)
         if stale is not None:
@@ -219,31 +323,32 @@ class SampleStream:
         else:
             reason = None
         self.pause_reason = reason if not valid[-1] else None
-        recording = self._recording
-        # The log time of everything this batch records: one clock read, not one per message.
-        now_ns = self._now_ns() if recording.active else None
+        items = []
         if valid.any():
-            messages = self._imu_encoder.encode(stamps[valid], output.accel[valid])
-            topic = self._imu_publisher.topic_name
-            for data in messages:
-                self._imu_publisher.publish(data)
-                if recording.active:
-                    recording.record(topic, IMU_TYPE, data, now_ns)
-            self.published += len(messages)
+            imu = self._imu_publisher
+            valid_stamps = stamps[valid]
+            messages = self._imu_encoder.encode(valid_stamps, output.accel[valid])
+            items = [(stamp, 0, imu, IMU_TYPE, data)
+                     for stamp, data in zip(valid_stamps.tolist(), messages)]
         self.withheld += int(len(valid) - np.count_nonzero(valid))
         due = np.arange((-(first + 1)) % self._temperature_every, len(stamps),
                         self._temperature_every)
-        if not len(due):
-            return
-        thermal = self._triad.thermal
-        readings = output.temperature[due] if thermal is None \
-            else thermal.reading_c(output.v_temp[due])
-        self.last_temperature = float(readings[-1])
-        message = self._temperature
-        for stamp, reading in zip(stamps[due].tolist(), readings.tolist()):
-            message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, NS_PER_S)
-            message.temperature = reading
-            recording.publish(self._temperature_publisher, message, TEMPERATURE_TYPE, now_ns)
+        if len(due):
+            thermal = self._triad.thermal
+            readings = output.temperature[due] if thermal is None \
+                else thermal.reading_c(output.v_temp[due])
+            self.last_temperature = float(readings[-1])
+            message = self._temperature
+            for stamp, reading in zip(stamps[due].tolist(), readings.tolist()):
+                message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp,
+                                                                                 NS_PER_S)
+                message.temperature = reading
+                items.append((stamp, 1, self._temperature_publisher, TEMPERATURE_TYPE,
+                              serialize_message(message)))
+            # The temperature reading follows the sample it belongs to.
+            items.sort(key=lambda item: item[:2])
+        self.pacer.put([(stamp, publisher, msgtype, data)
+                        for stamp, _, publisher, msgtype, data in items])
 
     # Diagnostics ------------------------------------------------------------------------
     def status(self):
@@ -261,13 +366,19 @@ class SampleStream:
         values += [('I_ref ' + a, 'on' if loop.reference_current_on else 'off')
                    for a, loop in zip(AXES, triad.axes)]
         values += [('saturated samples ' + a, int(n)) for a, n in zip(AXES, self.saturated)]
-        values += [('samples published', self.published),
+        pacer = self.pacer
+        values += [('samples computed', self.computed),
+                   ('messages published', pacer.published),
+                   ('messages waiting for their instant', pacer.pending),
                    ('samples withheld', self.withheld),
-                   ('samples skipped (node late)', self.skipped),
-                   ('largest batch per tick', self.max_batch),
+                   ('samples skipped', self.skipped),
+                   (f'messages published > {LATE_NS / 1e6:g} ms late', pacer.late),
+                   ('largest publication delay [ms]', f'{pacer.max_delay_ns / 1e6:.3f}'),
                    ('sensor time [s]', f'{triad.time:.3f}')]
         if self.clock_note:
             values.append(('clock', self.clock_note))
+        if self.skip_note:
+            values.append(('last skip', self.skip_note))
         recording = self._recording
         if recording.active:
             values.append(('recording', recording.current_path or 'between files'))
@@ -276,7 +387,10 @@ class SampleStream:
         if self.sensor_error:
             values.append(('sensor thread error', self.sensor_error))
         level, message = DiagnosticStatus.OK, 'publishing'
-        if self.pause_reason:
+        if self._last_skip is not None and time.monotonic() - self._last_skip < SKIP_WARN_S:
+            level, message = DiagnosticStatus.WARN, \
+                f'{self.skip_note}; {self.skipped} samples skipped since start'
+        elif self.pause_reason:
             level, message = DiagnosticStatus.WARN, f'paused: {self.pause_reason}'
         elif self.saturated.any():
             level, message = DiagnosticStatus.WARN, 'publishing; output saturated at times'

@@ -1,0 +1,204 @@
+"""
+Publish each computed message at its own instant, and record it off the publishing path.
+
+The sensor thread (:mod:`qfa_ros.ros.stream`) computes the model ahead of the clock in
+batches and hands the serialized messages to a :class:`Pacer`; the pacer's thread sleeps
+until each message's stamp and publishes it then (never before), so a subscriber sees one
+sample per sample period instead of a burst per batch. What it published goes to a
+:class:`RecordingQueue` whose thread does the flight recorder's disk work (chunking,
+compression, fsync) away from the publishing thread.
+"""
+
+import collections
+import threading
+import time
+
+SIM_POLL_S = 0.001
+"""Wall-time poll period of the pacer while the node clock follows ``/clock`` [s]."""
+
+MAX_SLEEP_S = 0.1
+"""Longest single sleep of the pacer: it re-checks a stop or a cleared queue this often."""
+
+LATE_NS = 5_000_000
+"""A message published more than this after its stamp counts as late [ns]."""
+
+RECORD_PERIOD_S = 0.05
+"""How often the recording thread writes what was published meanwhile [s]."""
+
+
+class Pacer:
+    """
+    Publish serialized messages, each as soon as the node clock reaches its stamp.
+
+    :param node: The node (its clock: system time, or ``/clock`` with ``use_sim_time``).
+    :param on_published: Called on the pacer thread with ``(topic, msgtype, data, time_ns)``
+        after each publication (the recording hook), or None.
+    :param on_empty: Called on the pacer thread when it has published everything it was
+        given (it asks the sensor thread for more), or None.
+    """
+
+    def __init__(self, node, on_published=None, on_empty=None):
+        self._node = node
+        self._on_published = on_published
+        self._on_empty = on_empty
+        # _condition protects _queue and _generation (sensor thread puts and clears, the
+        # pacer thread takes); everything else is written by the pacer thread only.
+        self._condition = threading.Condition()
+        self._queue = collections.deque()
+        self._generation = 0
+        self._stop = False
+        self.published = 0
+        self.late = 0
+        self.max_delay_ns = 0
+        self.last_stamp_ns = None
+        # The messages taken off the queue, being published (pacer thread only).
+        self._hand, self._hand_index = (), 0
+        self._thread = threading.Thread(target=self._loop, name='qfa_pacer', daemon=True)
+
+    def start(self):
+        """Start the publishing thread."""
+        self._thread.start()
+
+    def stop(self, timeout_s=10.0):
+        """Stop the publishing thread (messages stamped later are not published)."""
+        with self._condition:
+            self._stop = True
+            self._condition.notify()
+        if self._thread.is_alive():
+            self._thread.join(timeout=timeout_s)
+
+    def put(self, items):
+        """
+        Queue ``(stamp_ns, publisher, msgtype, data)`` items, in stamp order.
+
+        Their stamps must not precede those already queued.
+        """
+        if not items:
+            return
+        with self._condition:
+            self._queue.extend(items)
+            self._condition.notify()
+
+    def clear(self):
+        """Forget every queued message (the clock went back: they will never be due)."""
+        with self._condition:
+            self._queue.clear()
+            self._generation += 1
+            self.last_stamp_ns = None
+
+    @property
+    def pending(self):
+        """Return how many messages wait for their instant."""
+        return len(self._queue) + len(self._hand) - self._hand_index
+
+    # Pacer thread ------------------------------------------------------------------------
+    def _loop(self):
+        clock = self._node.get_clock()
+        while True:
+            with self._condition:
+                while not self._queue and not self._stop:
+                    self._condition.wait()
+                if self._stop:
+                    return
+                # Take every queued message at once: one lock round per batch, not per sample.
+                self._hand, self._hand_index = list(self._queue), 0
+                self._queue.clear()
+                generation = self._generation
+            self._publish_hand(clock, generation)
+            self._hand, self._hand_index = (), 0
+            if self._on_empty is not None and not self._queue:
+                self._on_empty()
+
+    def _publish_hand(self, clock, generation):
+        """Publish the messages in hand, each at its stamp, until done, cleared or stopped."""
+        on_published = self._on_published
+        for index, (stamp, publisher, msgtype, data) in enumerate(self._hand):
+            self._hand_index = index
+            now = self._wait_until(clock, stamp, generation)
+            if now is None:
+                return
+            publisher.publish(data)
+            self.published += 1
+            self.last_stamp_ns = stamp
+            delay = now - stamp
+            if delay > LATE_NS:
+                self.late += 1
+            if delay > self.max_delay_ns:
+                self.max_delay_ns = delay
+            if on_published is not None:
+                on_published(publisher.topic_name, msgtype, data, now)
+
+    def _wait_until(self, clock, stamp, generation):
+        """
+        Sleep until the node clock reaches ``stamp``; return the clock then [ns].
+
+        Return None if the pacer was stopped or its queue cleared meanwhile.
+        """
+        while True:
+            if self._stop or generation != self._generation:
+                return None
+            if clock.ros_time_is_active:
+                now = clock.now().nanoseconds
+                if now >= stamp:
+                    return now
+                time.sleep(SIM_POLL_S)
+                continue
+            # The node clock is the system clock (CLOCK_REALTIME, as time.time_ns) unless
+            # use_sim_time made it follow /clock; time.time_ns costs far less than Clock.now.
+            now = time.time_ns()
+            if now >= stamp:
+                return now
+            time.sleep(min(stamp - now, MAX_SLEEP_S * 1e9) / 1e9)
+
+
+class RecordingQueue:
+    """
+    Write what the pacer published into the flight recording, on a thread of its own.
+
+    The pacer only appends to a queue; every ``RECORD_PERIOD_S`` this thread takes the node
+    lock (the :class:`~qfa_ros.ros.recording.StreamRecording` contract) and records the
+    queued messages, so chunking, compression and fsync never delay a publication.
+
+    :param lock: The node lock.
+    :param recording: :class:`~qfa_ros.ros.recording.StreamRecording`.
+    """
+
+    def __init__(self, lock, recording):
+        self._lock = lock
+        self._recording = recording
+        # deque.append and popleft are atomic: the pacer appends, the writer pops.
+        self._queue = collections.deque()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name='qfa_recorder', daemon=True)
+
+    def start(self):
+        """Start the recording thread."""
+        self._thread.start()
+
+    def stop(self, timeout_s=10.0):
+        """Stop the recording thread after it has recorded everything queued."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=timeout_s)
+        with self._lock:
+            self.flush()
+
+    def append(self, topic, msgtype, data, time_ns):
+        """Queue one published message (any thread; never blocks)."""
+        if self._recording.active:
+            self._queue.append((topic, msgtype, data, time_ns))
+
+    def flush(self):
+        """Record every queued message now (call with the node lock held)."""
+        queue = self._queue
+        recording = self._recording
+        while queue:
+            topic, msgtype, data, time_ns = queue.popleft()
+            if recording.active:
+                recording.record(topic, msgtype, data, time_ns)
+
+    def _loop(self):
+        while not self._stop.wait(RECORD_PERIOD_S):
+            if self._queue:
+                with self._lock:
+                    self.flush()

@@ -1,0 +1,165 @@
+"""Delivery as a sensor-data subscriber sees it: each sample at its instant, skips announced."""
+
+import signal
+import struct
+import time
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from node_helpers import Client, domain_id, NodeProcess
+import numpy as np
+import pytest
+from rclpy.qos import HistoryPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu
+
+# Batches of 10 samples: published as one burst, half of each would be lost by a keep-last-5
+# subscriber; paced, the node and the subscriber may each be held up for 50 ms without a loss
+# (a busy machine).
+RATE = 100.0
+BATCH = {'stream.batch_s': 0.1, 'stream.lead_s': 0.2}
+PERIOD_NS = int(1e9 / RATE)
+STARTUP = 200
+STAMP = struct.Struct('<iI')
+
+
+class Stamps:
+    """
+    Stamps, publication and receive times of raw ``imu/data_raw`` messages.
+
+    The publication time is the DDS source timestamp the node's writer puts on each
+    message (system clock, as the stamps): unlike the receive time, it does not depend on
+    when this (possibly starved) process gets to read the message.
+    """
+
+    def __init__(self, client, qos):
+        self.stamps = []
+        self.published = []
+        self.received = []
+        client.node.create_subscription(Imu, 'imu/data_raw', self.callback, qos, raw=True)
+
+    def callback(self, data, info):
+        self.received.append(time.time_ns())
+        self.published.append(info['source_timestamp'])
+        sec, nanosec = STAMP.unpack_from(data, 4)
+        self.stamps.append(sec * 1_000_000_000 + nanosec)
+
+    def clear(self):
+        self.stamps, self.published, self.received = [], [], []
+
+
+@pytest.fixture(scope='module')
+def setup(tmp_path_factory):
+    directory = tmp_path_factory.mktemp('delivery')
+    domain = domain_id('delivery')
+    # The subscribers exist before the node: they see its very first samples.
+    client = Client(domain)
+    sensor_data = Stamps(client, qos_profile_sensor_data)
+    everything = Stamps(client, QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
+                                           reliability=ReliabilityPolicy.RELIABLE))
+    diagnostics = []
+    client.subscribe(DiagnosticArray, '/diagnostics', diagnostics.append, depth=10)
+    node = NodeProcess(domain, directory, {
+        'sample_rate_hz': RATE, **BATCH, 'qos_overrides./imu/data_raw.publisher.depth': 10000,
+        'state_file': str(directory / 'state.json'), 'trace_dir': str(directory / 'traces')})
+    yield {'node': node, 'client': client, 'sensor_data': sensor_data,
+           'everything': everything, 'diagnostics': diagnostics}
+    client.close()
+    node.stop(signal.SIGKILL)
+
+
+def stream_status(diagnostics):
+    return next(s for s in diagnostics[-1].status if s.name.endswith('stream'))
+
+
+def test_first_samples_arrive_spread_like_their_stamps(setup):
+    client, everything = setup['client'], setup['everything']
+    client.spin_until(lambda: len(everything.stamps) >= STARTUP, 120, 'the first samples')
+    stamps = np.asarray(everything.stamps[:STARTUP], dtype=np.int64)
+    published = np.asarray(everything.published[:STARTUP], dtype=np.int64)
+    assert np.all(np.diff(stamps) == PERIOD_NS), 'first samples not consecutive'
+    assert np.all(published >= stamps), 'a sample was published before its instant'
+    # A burst publishes many samples within microseconds, late by up to its length; paced
+    # samples leave one period apart (a preempted node catches up now and then).
+    spacing = np.diff(published)
+    assert np.median(spacing) > 0.5 * PERIOD_NS, 'first samples published in bursts'
+    assert published[-1] - published[0] > 0.5 * (stamps[-1] - stamps[0])
+    assert np.median(published[:50] - stamps[:50]) < 0.1e9, 'first samples published late'
+
+
+def test_sensor_data_subscriber_loses_no_sample(setup):
+    client, sensor_data = setup['client'], setup['sensor_data']
+    client.spin_until(lambda: len(sensor_data.stamps) > STARTUP, 60, 'samples')
+    sensor_data.clear()
+    client.spin_for(3.0)
+    stamps = np.asarray(sensor_data.stamps, dtype=np.int64)
+    assert len(stamps) > 0.5 * 3.0 * RATE
+    gaps = np.diff(stamps)
+    assert np.all(gaps > 0), 'samples out of order or duplicated'
+    lost = int(np.sum(gaps // PERIOD_NS - 1))
+    delay = (np.asarray(sensor_data.published) - stamps) / 1e6
+    assert lost == 0, f'{lost} samples lost by a best-effort depth-5 subscriber ' \
+        f'(publication delay max {delay.max():.1f} ms; the subscriber read them up to ' \
+        f'{(np.asarray(sensor_data.received) - stamps).max() / 1e6:.1f} ms late)'
+
+
+def test_a_stall_that_skips_samples_is_a_warning(setup):
+    node, client, everything = setup['node'], setup['client'], setup['everything']
+    diagnostics = setup['diagnostics']
+    everything.clear()
+    client.spin_until(lambda: len(everything.stamps) > 10 and diagnostics, 60, 'the stream')
+    assert stream_status(diagnostics).level == DiagnosticStatus.OK
+    node.process.send_signal(signal.SIGSTOP)
+    try:
+        time.sleep(2.0)  # the stall itself: longer than the 1 s the node ever catches up
+    finally:
+        node.process.send_signal(signal.SIGCONT)
+    everything.clear()
+    diagnostics.clear()
+    client.spin_until(lambda: diagnostics and 'skipped' in stream_status(diagnostics).message,
+                      30, 'the skip in the stream diagnostic')
+    status = stream_status(diagnostics)
+    assert status.level == DiagnosticStatus.WARN
+    values = {kv.key: kv.value for kv in status.values}
+    assert int(values['samples skipped']) > 0
+    assert 'skipped' in node.log()
+    # Across the stall the stamps stay on the grid; after it the stream goes on as before.
+    stamps = np.asarray(everything.stamps, dtype=np.int64)
+    assert np.all(np.diff(stamps) % PERIOD_NS == 0) and np.all(np.diff(stamps) > 0)
+    after = time.time_ns()
+    client.spin_until(lambda: sum(s >= after for s in everything.stamps) > 100, 30,
+                      'samples after the stall')
+    assert np.all(np.diff([s for s in everything.stamps if s >= after]) == PERIOD_NS)
+
+
+def test_a_simulated_clock_paces_the_stream(tmp_path):
+    domain = domain_id('delivery sim')
+    client = Client(domain)
+    samples = Stamps(client, QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
+                                        reliability=ReliabilityPolicy.RELIABLE))
+    clock_publisher = client.node.create_publisher(Clock, '/clock', 10)
+    published = []
+
+    def tick():
+        # Simulated time from 1000 s, at half the wall-clock rate.
+        now = 1000 * 10**9 + len(published) * 5_000_000
+        published.append((time.time_ns(), now))
+        clock_publisher.publish(Clock(clock=Time(sec=now // 10**9, nanosec=now % 10**9)))
+
+    node = NodeProcess(domain, tmp_path, {'sample_rate_hz': RATE, **BATCH,
+                                          'use_sim_time': True, 'state_file': ''})
+    try:
+        client.node.create_timer(0.01, tick)
+        client.spin_until(lambda: len(samples.stamps) > 100, 120, 'samples on the sim clock')
+    finally:
+        client.close()
+        node.stop(signal.SIGKILL)
+    stamps = np.asarray(samples.stamps, dtype=np.int64)
+    assert np.all(np.diff(stamps) == PERIOD_NS)
+    assert 1000 * 10**9 < stamps[0] < published[-1][1]
+    # Never published before the simulated clock reached the stamp.
+    wall, sim = np.asarray(published, dtype=np.int64).T
+    clock_at_receipt = sim[np.searchsorted(wall, samples.received, side='right') - 1]
+    assert np.all(stamps <= clock_at_receipt)
+    # The writer's (system) clock at publication is no use here: only the sim clock counts.
+    assert len(samples.published) == len(stamps)
