@@ -246,15 +246,12 @@ class ScheduleService:
         run.abort(f'{run.kind} cancelled through ~/cancel: loops, loop words and calibration '
                   'state restored as before the call; nothing saved', ScheduleCancelledError)
         self._snapshot.restore()
-        if run.fast and stream.grid.start_ns is not None:
-            # As at the end of a fast schedule: the samples due meanwhile had no valid
-            # output; the stream goes on from the present instant of its grid.
-            due = stream.grid.due(self._node.get_clock().now().nanoseconds)
-            stream.withheld += max(0, due - stream.grid.next_index)
-            stream.grid.next_index = max(stream.grid.next_index, due)
-        stream.end_schedule()
-        if stream.on_schedule_end is not None:
-            stream.on_schedule_end()
+        if run.fast:
+            stream.finish_fast_schedule()
+        else:
+            stream.end_schedule()
+            if stream.on_schedule_end is not None:
+                stream.on_schedule_end()
         return True, f'{run.kind} schedule cancelled; sensor restored, stream resuming'
 
     def _failed(self, response, kind, error, before):

@@ -293,15 +293,21 @@ class SampleStream:
             output = self._triad.run(n, self._ground_truth.held_force(n))
             self.saturated += output.saturated.sum(axis=0)
             if run.feed(output):
-                # The stream keeps its grid: the samples due while the schedule computed
-                # are not published (the sensor had no valid output), the next one
-                # follows the node clock again.
-                if self.grid.start_ns is not None:
-                    due = self.grid.due(self._now_ns())
-                    self.withheld += max(0, due - self.grid.next_index)
-                    self.grid.next_index = max(self.grid.next_index, due)
-                self._schedule_ended()
+                self.finish_fast_schedule()
                 return
+
+    def finish_fast_schedule(self):
+        """
+        End a fast schedule (finished or cancelled) and resume the stream at the present.
+
+        The stream keeps its grid: the samples due while the schedule computed are not
+        published (the sensor had no valid output), the next one follows the clock again.
+        """
+        if self.grid.start_ns is not None:
+            due = self.grid.due(self._now_ns())
+            self.withheld += max(0, due - self.grid.next_index)
+            self.grid.next_index = max(self.grid.next_index, due)
+        self._schedule_ended()
 
     def _schedule_ended(self):
         self.end_schedule()
