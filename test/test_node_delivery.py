@@ -61,7 +61,8 @@ def setup(tmp_path_factory):
     client.subscribe(DiagnosticArray, '/diagnostics', diagnostics.append, depth=10)
     node = NodeProcess(domain, directory, {
         'sample_rate_hz': RATE, **BATCH, 'qos_overrides./imu/data_raw.publisher.depth': 10000,
-        'state_file': str(directory / 'state.json'), 'trace_dir': str(directory / 'traces')})
+        'state_file': str(directory / 'state.json'), 'output_dir': str(directory),
+        'trace_dir': str(directory / 'traces')})
     yield {'node': node, 'client': client, 'sensor_data': sensor_data,
            'everything': everything, 'diagnostics': diagnostics}
     client.close()
@@ -147,7 +148,8 @@ def test_a_simulated_clock_paces_the_stream(tmp_path):
         clock_publisher.publish(Clock(clock=Time(sec=now // 10**9, nanosec=now % 10**9)))
 
     node = NodeProcess(domain, tmp_path, {'sample_rate_hz': RATE, **BATCH,
-                                          'use_sim_time': True, 'state_file': ''})
+                                          'use_sim_time': True, 'state_file': '',
+                                          'output_dir': str(tmp_path)})
     try:
         client.node.create_timer(0.01, tick)
         client.spin_until(lambda: len(samples.stamps) > 100, 120, 'samples on the sim clock')

@@ -75,7 +75,8 @@ def stop_and_time(node, signum):
 
 def test_node_answers_and_streams_after_hundreds_of_participants(tmp_path, busy_core):
     domain = domain_id('churn')
-    node = NodeProcess(domain, tmp_path, {'qos_overrides./imu/data_raw.publisher.depth': 1000})
+    node = NodeProcess(domain, tmp_path, {'qos_overrides./imu/data_raw.publisher.depth': 1000,
+                                          'output_dir': str(tmp_path)})
     try:
         client = Client(domain)
         imu = ImuCollector(client)
@@ -107,7 +108,8 @@ def test_sigterm_during_a_realtime_schedule_stops_within_seconds(tmp_path):
     domain = domain_id('stop-schedule')
     node = NodeProcess(domain, tmp_path, {
         'estimation.realtime': True, 'state_file': str(tmp_path / 'state.json'),
-        'recorder.enabled': True, 'recorder.directory': str(tmp_path / 'recordings')})
+        'output_dir': str(tmp_path), 'recorder.enabled': True,
+        'recorder.directory': str(tmp_path / 'recordings')})
     client = Client(domain)
     try:
         diagnostics = []

@@ -327,8 +327,10 @@ def test_recorder_stops_before_the_free_space_floor(tmp_path, monkeypatch):
     assert not recording.active
     assert recording.problem_level == DiagnosticStatus.ERROR
     assert 'recording stopped' in recording.problem and 'min_free_bytes' in recording.problem
-    files = sorted((tmp_path / 'recordings').iterdir())
-    assert files == [path], 'a partial file or a file under another name'
+    # One bag directory (rosbag2 layout): its metadata and the finished file, no .part.
+    bag, = (tmp_path / 'recordings').iterdir()
+    assert sorted(p.name for p in bag.iterdir()) == sorted([path.name, 'metadata.yaml']), \
+        'a partial file or a file under another name'
     with AnyReader([path]) as reader:
         assert sum(c.msgcount for c in reader.connections) == 3
     # Below the floor a recording does not even start.
