@@ -10,6 +10,7 @@ import numpy as np
 from qfa_ros.model import kernel
 from qfa_ros.model.design import design_controller, pendulum_matrices
 from qfa_ros.model.drift import DriftModel
+from qfa_ros.model.gyro import GyroConfig, GyroTriad
 from qfa_ros.model.hardware import AxisHardware, counts_to_accel, loop_gains, STANDARD_GRAVITY
 from qfa_ros.model.noise import MICRO_G, NoiseConfig, NoiseSource
 from qfa_ros.model.profiles import StaticProfile
@@ -54,6 +55,9 @@ class TriadConfig:
         Thermal model (ambient, body lag, temperature sensor, zero bias and
         scale-factor error versus temperature, seed 2); None keeps the sensor at the
         drift model's reference temperature with no thermal errors.
+    gyro : GyroConfig or None
+        Error model of the gyro triad beside the accelerometers
+        (:mod:`qfa_ros.model.gyro`); None: no gyros (``TriadOutput.gyro`` is NaN).
     """
 
     hardware: AxisHardware = field(default_factory=AxisHardware)
@@ -69,6 +73,7 @@ class TriadConfig:
     open_loop_cref_sensitivity: float = 1.0
     settle_time: float = 0.05
     thermal: object = None
+    gyro: object = field(default_factory=GyroConfig)
 
     def __post_init__(self):
         for name in ('loop_rate_hz', 'sample_rate_hz', 'settle_time', 'crossover_hz'):
@@ -163,6 +168,11 @@ class TriadOutput:
         Sensor body temperature [degC].
     v_temp : float64[n]
         On-board temperature-sensor reading [V] (NaN without a thermal model).
+    gyro : float64[n, 3]
+        Gyro triad output [rad/s] (NaN without gyros).
+    rate_truth : float64[n, 3]
+        True angular rate w.r.t. inertial space, body axes, averaged over each
+        sample [rad/s].
     """
 
     stamps_ns: np.ndarray
@@ -173,9 +183,11 @@ class TriadOutput:
     truth: np.ndarray
     temperature: np.ndarray
     v_temp: np.ndarray
+    gyro: np.ndarray
+    rate_truth: np.ndarray
 
     FIELDS = ('stamps_ns', 'accel', 'counts', 'flags', 'valid', 'truth', 'temperature',
-              'v_temp')
+              'v_temp', 'gyro', 'rate_truth')
 
     @property
     def saturated(self):
@@ -279,6 +291,8 @@ class QfaTriad:
         Source of every random number (an int is a seed).
     profile : object with ``evaluate(t) -> (n, 3)``, optional
         Input specific force [m/s^2] as a function of sensor time [s]; default level.
+        A :class:`qfa_ros.model.trajectory.Trajectory` (it has ``sample_means``) also
+        gives the angular rate the gyros see; other profiles rotate with no rate.
     """
 
     def __init__(self, config=None, rng=None, profile=None):
@@ -299,6 +313,11 @@ class QfaTriad:
         self.thermal = None
         if self.config.thermal is not None:
             self.thermal = ThermalModel(self.config.thermal, rng.spawn(1)[0])
+        self.gyro = None
+        if self.config.gyro is not None:
+            # Spawned after the accelerometers' streams: their draws do not change.
+            self.gyro = GyroTriad(self.config.gyro, self.config.sample_rate_hz,
+                                  rng.spawn(1)[0])
         self.temperature_compensators = None
         self.temperature_compensation = False
         self.scale = counts_to_accel(self.config.hardware)
@@ -405,7 +424,26 @@ class QfaTriad:
         a = specific_force @ self._misalignment.T
         return self._bias + a + self._k2 * a * a
 
-    def run(self, n_samples, specific_force=None):
+    # Motion (trajectory, gyros) -------------------------------------------------------
+    def is_at_rest(self):
+        """Return None when the input is a body at rest, else why it is not."""
+        if hasattr(self.profile, 'is_static') and not self.profile.is_static:
+            return f'the sensor is moving ({self.profile.name}): self-estimation needs it ' \
+                'at rest'
+        return None
+
+    def _motion(self, n_samples):
+        # Per-sample mean specific force and angular rate of a trajectory, else None.
+        if not hasattr(self.profile, 'sample_means'):
+            return None, np.zeros((n_samples, 3))
+        return self.profile.sample_means(self.time, self.sample_period, n_samples)
+
+    def _gyro_output(self, rate, truth, temperature):
+        if self.gyro is None:
+            return np.full((len(truth), 3), np.nan)
+        return self.gyro.run(rate, truth, temperature)[0]
+
+    def run(self, n_samples, specific_force=None, angular_rate=None):
         """
         Advance ``n_samples`` output samples and return a :class:`TriadOutput`.
 
@@ -416,15 +454,24 @@ class QfaTriad:
         specific_force : array_like, optional
             True specific force in the sensor frame [m/s^2], shape (n_samples, 3) (held
             over each sample) or (n_samples * decimation, 3) (per loop step). Default:
-            the profile evaluated at every loop step.
+            the profile evaluated at every loop step (a trajectory: its mean over each
+            sample, held).
+        angular_rate : array_like, optional
+            True angular rate w_ib^b [rad/s] per sample, shape (n_samples, 3), with
+            ``specific_force``; default: the trajectory's, or zero.
         """
         if int(n_samples) != n_samples or n_samples < 0:
             raise ValueError(f'n_samples must be a non-negative integer, got {n_samples!r}')
         n_samples = int(n_samples)
         n_steps = n_samples * self.decimation
+        rate = None
         if specific_force is None:
-            t = self.time + np.arange(n_steps) * self.dt
-            force = self.profile.evaluate(t)
+            force, rate = self._motion(n_samples)
+            if force is not None:
+                force = np.repeat(force, self.decimation, axis=0)
+            else:
+                t = self.time + np.arange(n_steps) * self.dt
+                force = self.profile.evaluate(t)
         else:
             force = np.asarray(specific_force, dtype=float)
             if force.shape == (n_samples, 3):
@@ -434,6 +481,12 @@ class QfaTriad:
                                  f'({n_steps}, 3), got {force.shape}')
             if not np.all(np.isfinite(force)):
                 raise ValueError('specific_force must be finite')
+        if angular_rate is not None:
+            rate = np.asarray(angular_rate, dtype=float)
+            if rate.shape != (n_samples, 3) or not np.all(np.isfinite(rate)):
+                raise ValueError(f'angular_rate must be finite, shape ({n_samples}, 3)')
+        elif rate is None:
+            rate = np.zeros((n_samples, 3))
         sensed = self._sensed(force)
         if self.thermal is not None:
             chunk = self.thermal.run(n_samples, self.sample_period)
@@ -466,7 +519,9 @@ class QfaTriad:
                 accel[:, i] -= compensator.evaluate_fixed(v_temp, clip=True)
         return TriadOutput(stamps_ns=self.stamp_ns(index), accel=accel,
                            counts=counts.T.copy(), flags=flags.T.copy(), valid=valid,
-                           truth=truth, temperature=temperature, v_temp=v_temp)
+                           truth=truth, temperature=temperature, v_temp=v_temp,
+                           gyro=self._gyro_output(rate, truth, temperature),
+                           rate_truth=rate)
 
     def run_for(self, duration_s, chunk_samples=1000):
         """Run ``duration_s`` seconds in chunks and return the concatenated output."""
@@ -490,6 +545,6 @@ def concatenate(outputs):
         empty = np.empty((0, 3))
         return TriadOutput(np.empty(0, np.int64), empty, empty.copy(),
                            np.empty((0, 3), np.int8), np.empty((0, 3), bool), empty.copy(),
-                           np.empty(0), np.empty(0))
+                           np.empty(0), np.empty(0), empty.copy(), empty.copy())
     return TriadOutput(*(np.concatenate([getattr(o, f) for o in outputs])
                          for f in TriadOutput.FIELDS))
