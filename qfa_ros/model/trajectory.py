@@ -287,8 +287,10 @@ def six_position_tumble(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0,
 def rate_table_turn(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, rate_deg_s=10.0,
                     turns=2, ramp_s=5.0, dwell_s=10.0, yaw=math.pi / 2):
     """
-    Return a level rate-table run: rest, ramp to ``rate_deg_s`` about z, ``turns`` full
-    turns at constant rate, ramp down, rest.
+    Return a level rate-table run about z.
+
+    Rest, a smooth ramp to ``rate_deg_s``, ``turns`` full turns at constant rate, a
+    ramp down, rest.
     """
     location = _location(latitude_deg, longitude_deg, height_m)
     rate = math.radians(rate_deg_s)
@@ -416,8 +418,10 @@ def sculling(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0
              displacement_m=0.001, frequency_hz=10.0, duration_s=60.0, yaw=math.pi / 2,
              knots_per_cycle=32):
     """
-    Return sculling: roll = A sin(2 pi f t) with an in-phase vertical vibration of
-    ``displacement_m`` amplitude (a rectified specific force along body y).
+    Return sculling: roll = A sin(2 pi f t) with an in-phase vertical vibration.
+
+    The vibration of ``displacement_m`` amplitude along the ENU up axis, in phase with
+    the roll, rectifies into a mean specific force along body y.
     """
     location = _location(latitude_deg, longitude_deg, height_m)
     amplitude, w = math.radians(amplitude_deg), 2 * math.pi * frequency_hz
