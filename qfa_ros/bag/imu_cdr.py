@@ -48,6 +48,7 @@ class ImuEncoder:
             else [float(v) for v in rate_covariance]
         if len(rate_covariance) != 9:
             raise ValueError(f'rate_covariance must have 9 elements, got {len(rate_covariance)}')
+        self.frame_id = frame_id
         name = frame_id.encode('utf-8')
         # Offsets count from the end of the encapsulation header (CDR alignment origin).
         string_end = 12 + len(name) + 1

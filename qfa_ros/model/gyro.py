@@ -84,7 +84,7 @@ class GyroConfig:
     bias_tc: float = 0.0003 * DEG_PER_HOUR
     scale_factor_tc: float = 0.5 * PPM
     reference_c: float = 25.0
-    quantization: float = 0.01 * ARCSEC
+    quantization: float = 1e-9
     range: float = math.radians(490.0)
 
     def __post_init__(self):

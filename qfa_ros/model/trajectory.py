@@ -67,6 +67,16 @@ def dcm_to_quaternion(dcm):
     return np.stack([x, y, z, w], axis=-1)
 
 
+def quaternion_to_dcm(quaternion):
+    """Return the rotation matrix of unit quaternions (x, y, z, w), shape (..., 3, 3)."""
+    x, y, z, w = np.moveaxis(np.asarray(quaternion, dtype=float), -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)],
+        -2)
+
+
 def ecef_to_enu_matrix(latitude, longitude):
     """Return C_e^n, the rotation from ECEF to the local ENU frame, shape (..., 3, 3)."""
     sl, cl = np.sin(latitude), np.cos(latitude)
@@ -110,6 +120,13 @@ class Trajectory:
         values = poly(np.array([self.start, self.end]))
         self._still = bool(np.all(poly.c[:-1] == 0.0)) and np.allclose(values[0], values[1])
         self._rest_cache = None
+
+    def shifted(self, start_s):
+        """Return the same motion starting at time ``start_s`` [s] instead of its own."""
+        if start_s == self.start:
+            return self
+        poly = PPoly(self.poly.c, self.poly.x - self.start + start_s, extrapolate=False)
+        return Trajectory(poly, self.name)
 
     @property
     def duration(self):
