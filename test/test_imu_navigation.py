@@ -78,6 +78,15 @@ def test_trajectory_kinematics_are_consistent_with_the_pose():
     skew = np.einsum('nji,njk->nik', k['dcm'], dcm_dot)
     assert_allclose(skew[:, 2, 1], k['body_rate'][:, 0], atol=1e-7)
     assert_allclose(skew[:, 1, 0], k['body_rate'][:, 2], atol=1e-7)
+    # The compiled per-sample means equal the two-point Gauss means of the kinematics.
+    period, start = 0.005, 87.3
+    force, rate = drive.sample_means(start, period, 4)
+    centres = start + (np.arange(4) + 0.5) * period
+    nodes = [drive.kinematics(centres + sign * period / (2 * math.sqrt(3))) for sign in (-1, 1)]
+    assert_allclose(force, 0.5 * (nodes[0]['specific_force'] + nodes[1]['specific_force']),
+                    rtol=0, atol=1e-12)
+    assert_allclose(rate, 0.5 * (nodes[0]['angular_rate'] + nodes[1]['angular_rate']),
+                    rtol=0, atol=1e-15)
     assert drive.duration > 600.0
     assert np.ptp(drive.kinematics(np.arange(0, 600, 1.0))['velocity'][:, 0]) > 20.0
 

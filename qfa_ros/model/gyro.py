@@ -17,15 +17,19 @@ with ``dT`` the body temperature minus ``reference_c`` (the accelerometers' ther
 model drives both triads) and ``f`` the specific force [m/s^2]. Noise per sample:
 ``n_ARW ~ N(0, N^2 / T)``; ``n_BI`` a sum of first-order Gauss-Markov processes scaled
 to the Allan floor ``B`` (as :mod:`qfa_ros.model.noise` does for the accelerometers);
-``n_RRW`` a random walk with steps ``N(0, K^2 T)``. ``s, a, b, M, G, b_T, s_T`` are drawn
-once per unit from zero-mean normal laws with the configured 1-sigma spreads.
+``n_RRW`` a random walk with steps ``N(0, K^2 T)``. The two slow processes advance
+once per block of ``m`` samples (``m T`` at most a tenth of the shortest correlation
+time, and 10 ms) and hold over it: their Allan deviation is unchanged from ``m T`` on,
+where the ARW dwarfs them anyway, and they cost ``1/m`` of the random numbers.
+``s, a, b, M, G, b_T, s_T`` are drawn once per unit from zero-mean normal laws with the
+configured 1-sigma spreads.
 """
 
 from dataclasses import dataclass
 import math
 
+from numba import njit
 import numpy as np
-from scipy.signal import lfilter
 
 from qfa_ros.model.noise import flicker_component_variance
 
@@ -168,12 +172,18 @@ class GyroTriad:
         self.unit = GyroUnit.draw(config, unit_stream)
         self._white, self._flicker, self._walk = white, flicker, walk
         self._white_std = config.arw / math.sqrt(self.dt)
-        self._phi = np.exp(-self.dt / np.asarray(config.correlation_times, dtype=float))
+        block_s = min(0.1 * min(config.correlation_times), 0.01)
+        self._block = max(1, int(block_s / self.dt))
+        period = self._block * self.dt
+        self._phi = np.exp(-period / np.asarray(config.correlation_times, dtype=float))
         variance = flicker_component_variance(config)
         self._innovation_std = np.sqrt(variance * (1.0 - self._phi ** 2))
         self._flicker_state = flicker.standard_normal((3, len(self._phi))) * math.sqrt(variance)
         self._walk_state = np.zeros(3)
-        self._walk_std = config.rate_random_walk * math.sqrt(self.dt)
+        self._walk_std = config.rate_random_walk * math.sqrt(period)
+        self._slow = self._flicker_state.sum(axis=1) if config.bias_instability > 0 \
+            else np.zeros(3)
+        self._slow_left = self._block  # samples the current slow value still holds
         self._angle_residual = np.zeros(3)
         self._sensing = np.eye(3) + self.unit.misalignment
 
@@ -183,22 +193,35 @@ class GyroTriad:
         return c.arw ** 2 / self.dt + c.bias_instability ** 2 \
             + (c.quantization / self.dt) ** 2 / 6.0
 
-    def _noise(self, n):
-        noise = np.zeros((n, 3))
-        if self._white_std > 0:
-            noise += self._white.standard_normal((n, 3)) * self._white_std
+    def _slow_blocks(self, count):
+        """Advance the bias-instability and rate-random-walk processes ``count`` blocks."""
+        values = np.zeros((count, 3))
         if self.config.bias_instability > 0:
-            drive = self._flicker.standard_normal((n, 3, len(self._phi))) * self._innovation_std
-            for j, phi in enumerate(self._phi):
-                out, zf = lfilter([1.0], [1.0, -phi], drive[:, :, j], axis=0,
-                                  zi=(phi * self._flicker_state[:, j])[None, :])
-                noise += out
-                self._flicker_state[:, j] = zf[0]
+            drive = self._flicker.standard_normal((count, 3, len(self._phi))) \
+                * self._innovation_std
+            _gauss_markov(drive, self._phi, self._flicker_state, values)
         if self._walk_std > 0:
             walk = self._walk_state + np.cumsum(
-                self._walk.standard_normal((n, 3)) * self._walk_std, axis=0)
-            noise += walk
+                self._walk.standard_normal((count, 3)) * self._walk_std, axis=0)
+            values += walk
             self._walk_state = walk[-1]
+        return values
+
+    def _noise(self, n):
+        noise = np.empty((n, 3))
+        held = min(n, self._slow_left)
+        noise[:held] = self._slow
+        rest = n - held
+        if rest > 0:
+            count = -(-rest // self._block)
+            values = self._slow_blocks(count)
+            noise[held:] = np.repeat(values, self._block, axis=0)[:rest]
+            self._slow = values[-1]
+            self._slow_left = count * self._block - rest
+        else:
+            self._slow_left -= held
+        if self._white_std > 0:
+            noise += self._white.standard_normal((n, 3)) * self._white_std
         return noise
 
     def run(self, rate, specific_force, temperature):
@@ -215,23 +238,55 @@ class GyroTriad:
         temperature : array_like, (n,)
             Body temperature per sample [degC].
         """
-        rate = np.asarray(rate, dtype=float)
+        rate = np.ascontiguousarray(rate, dtype=float)
+        force = np.ascontiguousarray(specific_force, dtype=float)
         n = len(rate)
-        if rate.shape != (n, 3) or np.shape(specific_force) != (n, 3):
+        if rate.shape != (n, 3) or force.shape != (n, 3):
             raise ValueError('rate and specific_force must have shape (n, 3)')
         u = self.unit
-        d_t = (np.asarray(temperature, dtype=float) - self.config.reference_c)[:, None]
-        sensed = rate @ self._sensing.T
-        output = sensed * (1.0 + u.scale_factor + u.scale_factor_tc * d_t
-                           + u.asymmetry * np.sign(sensed)) \
-            + u.bias + u.bias_tc * d_t + np.asarray(specific_force) @ u.g_sensitivity.T \
-            + self._noise(n)
-        q = self.config.quantization
-        if q > 0:
-            # Whole angle quanta per sample; the remainder stays for the next sample.
-            angle = np.cumsum(output * self.dt, axis=0) + self._angle_residual
-            counts = np.floor(angle / q)
-            self._angle_residual = angle[-1] - counts[-1] * q
-            output = np.diff(counts, axis=0, prepend=0.0) * (q / self.dt)
-        saturated = np.abs(output) > self.config.range
-        return np.clip(output, -self.config.range, self.config.range), saturated
+        d_t = np.asarray(temperature, dtype=float) - self.config.reference_c
+        output = self._noise(n)
+        saturated = np.empty((n, 3), dtype=np.bool_)
+        _output_equation(rate, force, d_t, self._sensing, u.scale_factor, u.scale_factor_tc,
+                         u.asymmetry, u.bias, u.bias_tc, u.g_sensitivity,
+                         self.config.quantization, self.dt, self.config.range,
+                         self._angle_residual, output, saturated)
+        return output, saturated
+
+
+@njit(cache=True, nogil=True)
+def _gauss_markov(drive, phi, state, out):
+    """Add the sum over components j of ``b_j[k] = phi_j b_j[k-1] + drive[k, axis, j]``."""
+    for axis in range(drive.shape[1]):
+        for j in range(drive.shape[2]):
+            value = state[axis, j]
+            for k in range(drive.shape[0]):
+                value = phi[j] * value + drive[k, axis, j]
+                out[k, axis] += value
+            state[axis, j] = value
+
+
+@njit(cache=True, nogil=True)
+def _output_equation(rate, force, d_t, sensing, sf, sf_tc, asymmetry, bias, bias_tc, g_sens,
+                     quantum, dt, limit, residual, out, saturated):
+    """
+    Add the output equation of the module docstring to the noise in ``out`` (n, 3).
+
+    Then quantize the angle (``residual`` carries the remainder between calls) and clip.
+    """
+    for k in range(rate.shape[0]):
+        for i in range(3):
+            sensed = sensing[i, 0] * rate[k, 0] + sensing[i, 1] * rate[k, 1] \
+                + sensing[i, 2] * rate[k, 2]
+            sign = 1.0 if sensed > 0 else (-1.0 if sensed < 0 else 0.0)
+            value = out[k, i] + sensed * (1.0 + sf[i] + sf_tc[i] * d_t[k] + asymmetry[i] * sign) \
+                + bias[i] + bias_tc[i] * d_t[k] + g_sens[i, 0] * force[k, 0] \
+                + g_sens[i, 1] * force[k, 1] + g_sens[i, 2] * force[k, 2]
+            if quantum > 0:
+                # Whole angle quanta per sample; the remainder stays for the next sample.
+                angle = value * dt + residual[i]
+                counts = math.floor(angle / quantum)
+                residual[i] = angle - counts * quantum
+                value = counts * quantum / dt
+            saturated[k, i] = abs(value) > limit
+            out[k, i] = min(max(value, -limit), limit)

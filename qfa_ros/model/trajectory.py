@@ -33,6 +33,7 @@ scripts already are.
 import csv
 import math
 
+from numba import njit
 import numpy as np
 from scipy.interpolate import CubicSpline, PPoly
 
@@ -40,7 +41,6 @@ from qfa_ros.model import earth
 
 CSV_COLUMNS = ('time_s', 'latitude_deg', 'longitude_deg', 'height_m', 'roll_deg',
                'pitch_deg', 'yaw_deg')
-_GAUSS = 0.5 / math.sqrt(3.0)
 
 
 def euler_to_dcm(roll, pitch, yaw):
@@ -203,11 +203,9 @@ class Trajectory:
                 self._rest_cache = (k['specific_force'][0], k['angular_rate'][0])
             force, rate = self._rest_cache
             return np.tile(force, (n, 1)), np.tile(rate, (n, 1))
-        centres = start + (np.arange(n) + 0.5) * period
-        nodes = np.concatenate([centres - _GAUSS * period, centres + _GAUSS * period])
-        k = self.kinematics(nodes)
-        force = 0.5 * (k['specific_force'][:n] + k['specific_force'][n:])
-        rate = 0.5 * (k['angular_rate'][:n] + k['angular_rate'][n:])
+        force = np.empty((n, 3))
+        rate = np.empty((n, 3))
+        _sample_means(self.poly.c, self.poly.x, float(start), float(period), force, rate)
         return force, rate
 
     def local_pose(self, t):
@@ -229,6 +227,90 @@ class Trajectory:
         dcm0 = c_e_n0 @ c_n_e @ k['dcm']
         velocity_body = np.einsum('nji,nj->ni', k['dcm'], k['velocity'])
         return position, dcm_to_quaternion(dcm0), velocity_body, k['body_rate']
+
+
+@njit(cache=True, nogil=True)
+def _sensed(c, x, t, out_force, out_rate, index, p, d1, d2):
+    """
+    Add f^b and w_ib^b at time ``t`` to row ``index`` of the outputs.
+
+    The compiled twin of :meth:`Trajectory.kinematics` (the tests hold it to it).
+    """
+    inside = x[0] <= t <= x[-1]
+    t = min(max(t, x[0]), x[-1])
+    i = min(max(np.searchsorted(x, t, side='right') - 1, 0), x.shape[0] - 2)
+    s = t - x[i]
+    for ch in range(6):
+        value, first, second = c[0, i, ch], 0.0, 0.0
+        for j in range(1, c.shape[0]):
+            second = second * s + first
+            first = first * s + value
+            value = value * s + c[j, i, ch]
+        p[ch] = value
+        d1[ch] = first if inside else 0.0
+        d2[ch] = 2.0 * second if inside else 0.0
+    lat, h = p[0], p[2]
+    sl, cl = math.sin(lat), math.cos(lat)
+    e2 = earth.ECCENTRICITY_SQUARED
+    a = earth.SEMI_MAJOR_AXIS
+    s2 = sl * sl
+    w2 = 1.0 - e2 * s2
+    w = math.sqrt(w2)
+    r_e = a / w
+    r_n = r_e * (1.0 - e2) / w2
+    dr_e = r_e * e2 * sl * cl / w2
+    dr_n = 3.0 * r_n * e2 * sl * cl / w2
+    dlat, dlon, dh = d1[0], d1[1], d1[2]
+    ve = (r_e + h) * cl * dlon
+    vn = (r_n + h) * dlat
+    vu = dh
+    ae = (dr_e * dlat + dh) * cl * dlon - (r_e + h) * sl * dlat * dlon + (r_e + h) * cl * d2[1]
+    an = (dr_n * dlat + dh) * dlat + (r_n + h) * d2[0]
+    au = d2[2]
+    omega = earth.EARTH_RATE
+    we, wn, wu = 0.0, omega * cl, omega * sl
+    te, tn = -vn / (r_n + h), ve / (r_e + h)
+    tu = tn * sl / cl
+    ce, cn, cu = 2.0 * we + te, 2.0 * wn + tn, 2.0 * wu + tu
+    gamma = earth.GAMMA_EQUATOR * (1.0 + earth.SOMIGLIANA_K * s2) / w
+    gamma *= 1.0 - 2.0 / a * (1.0 + earth.FLATTENING + earth.GRAVITY_RATIO_M
+                              - 2.0 * earth.FLATTENING * s2) * h + 3.0 * h * h / (a * a)
+    fe = ae + cn * vu - cu * vn
+    fn = an + cu * ve - ce * vu
+    fu = au + ce * vn - cn * ve + gamma
+    roll, pitch, yaw = p[3], p[4], p[5]
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    # Columns of C_b^n = R_z R_y R_x: rows of C_n^b.
+    b0 = (cy * cp, sy * cp, -sp)
+    b1 = (cy * sp * sr - sy * cr, sy * sp * sr + cy * cr, cp * sr)
+    b2 = (cy * sp * cr + sy * sr, sy * sp * cr - cy * sr, cp * cr)
+    ie, inn, iu = we + te, wn + tn, wu + tu
+    droll, dpitch, dyaw = d1[3], d1[4], d1[5]
+    out_force[index, 0] += b0[0] * fe + b0[1] * fn + b0[2] * fu
+    out_force[index, 1] += b1[0] * fe + b1[1] * fn + b1[2] * fu
+    out_force[index, 2] += b2[0] * fe + b2[1] * fn + b2[2] * fu
+    out_rate[index, 0] += b0[0] * ie + b0[1] * inn + b0[2] * iu + droll - dyaw * sp
+    out_rate[index, 1] += b1[0] * ie + b1[1] * inn + b1[2] * iu + dpitch * cr + dyaw * sr * cp
+    out_rate[index, 2] += b2[0] * ie + b2[1] * inn + b2[2] * iu - dpitch * sr \
+        + dyaw * cr * cp
+
+
+@njit(cache=True, nogil=True)
+def _sample_means(c, x, start, period, out_force, out_rate):
+    """Two-point Gauss-Legendre means of f^b and w_ib^b over consecutive samples."""
+    offset = 0.5 / math.sqrt(3.0)
+    p, d1, d2 = np.empty(6), np.empty(6), np.empty(6)
+    for k in range(out_force.shape[0]):
+        out_force[k] = 0.0
+        out_rate[k] = 0.0
+        centre = start + (k + 0.5) * period
+        _sensed(c, x, centre - offset * period, out_force, out_rate, k, p, d1, d2)
+        _sensed(c, x, centre + offset * period, out_force, out_rate, k, p, d1, d2)
+        for j in range(3):
+            out_force[k, j] *= 0.5
+            out_rate[k, j] *= 0.5
 
 
 def quintic_poly(times, values, rates, accelerations):
