@@ -1,4 +1,8 @@
-"""Digital closed-loop QFA triad: three simulated loops, decimated output (pure model)."""
+"""Digital closed-loop QFA triad: three simulated loops, decimated output (pure model).
+
+With the gyro triad and the motion input beside the loops it is the whole sensor
+assembly; one module because every run advances all of it together (hence its length).
+"""
 
 from dataclasses import dataclass, field
 from fractions import Fraction
