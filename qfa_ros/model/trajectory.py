@@ -28,6 +28,9 @@ row, joined by a C2 cubic spline. A pose log is what Gazebo, a reference INS/GNS
 survey exports and is the quantity an INS is scored against; a command script (the
 gnss-ins-sim motion definition) would be a second way to write what the built-in
 scripts already are.
+
+One cohesive module: the pose representation, its exact kinematics (and their compiled
+twin, held equal by the tests), the scripts and the file format that build it.
 """
 
 import csv

@@ -1,7 +1,8 @@
 """Digital closed-loop QFA triad: three simulated loops, decimated output (pure model).
 
 With the gyro triad and the motion input beside the loops it is the whole sensor
-assembly; one module because every run advances all of it together (hence its length).
+assembly: one cohesive thing, because every run advances all of it together (hence its
+length).
 """
 
 from dataclasses import dataclass, field
@@ -24,6 +25,8 @@ AXES = ('x', 'y', 'z')
 NS_PER_S = 1_000_000_000
 FLAG_DA2_CLIPPED, FLAG_ADC_CLIPPED, FLAG_OVER_RANGE = 1, 2, 4
 MAX_CONTROLLER_GAIN = 4.0
+GYRO_SPAWN_KEY = 0x6779726F
+"""Spawn key of the gyro triad's random stream ('gyro')."""
 
 
 @dataclass(frozen=True)
@@ -319,9 +322,13 @@ class QfaTriad:
             self.thermal = ThermalModel(self.config.thermal, rng.spawn(1)[0])
         self.gyro = None
         if self.config.gyro is not None:
-            # Spawned after the accelerometers' streams: their draws do not change.
+            # A child keyed apart from rng.spawn()'s counter: every stream the
+            # accelerometer model spawns, now or later, stays what it was without gyros.
+            seq = rng.bit_generator.seed_seq
+            gyro_seq = np.random.SeedSequence(seq.entropy, pool_size=seq.pool_size,
+                                              spawn_key=seq.spawn_key + (GYRO_SPAWN_KEY,))
             self.gyro = GyroTriad(self.config.gyro, self.config.sample_rate_hz,
-                                  rng.spawn(1)[0])
+                                  np.random.default_rng(gyro_seq))
         self.temperature_compensators = None
         self.temperature_compensation = False
         self.scale = counts_to_accel(self.config.hardware)

@@ -1,6 +1,6 @@
 """Parameters of the QFA node: declarations, validation and mapping onto the model.
 
-One module on purpose: the table of every parameter and the functions that map those
+One cohesive module on purpose: the table of every parameter and the functions that map those
 values onto model objects belong together (``python -m qfa_ros.ros.params`` renders the
 YAML and the documentation from it), hence its length.
 """
