@@ -15,7 +15,7 @@ from qfa_ros.model import earth
 from qfa_ros.model import trajectory as tr
 from qfa_ros.model.allan import allan_deviation
 from qfa_ros.model.gyro import DEG_PER_HOUR, GyroConfig, GyroTriad
-from qfa_ros.model.noise import MICRO_G, NoiseConfig
+from qfa_ros.model.noise import flicker_component_variance, MICRO_G, NoiseConfig
 from qfa_ros.model.triad import QfaTriad, TriadConfig
 
 sys.path.insert(0, os.path.dirname(__file__))
@@ -55,10 +55,12 @@ def test_static_level_north_pointing_sees_earth_rate_and_normal_gravity():
     gravity = float(earth.normal_gravity(LAT45))
     assert gravity == pytest.approx(9.806199, abs=2e-6)
     noise = config.noise
-    accel_tolerance = 3 * math.hypot(noise.bias_instability,
-                                     noise.noise_density / math.sqrt(30.0))
+    # The bias-instability process (a Gauss-Markov sum) barely averages over 30 s: its
+    # stationary standard deviation, not the Allan floor, bounds the mean.
+    bias_std = math.sqrt(flicker_component_variance(noise) * len(noise.correlation_times))
+    accel_tolerance = 3 * math.hypot(bias_std, noise.noise_density / math.sqrt(30.0))
     assert_allclose(out.accel.mean(axis=0), [0.0, 0.0, gravity], atol=accel_tolerance)
-    assert accel_tolerance < 15 * MICRO_G
+    assert accel_tolerance < 30 * MICRO_G
     # The reason the schedules refuse to run is absent at rest, present when moving.
     assert triad.is_at_rest() is None
     moving = QfaTriad(TriadConfig(), rng=0, profile=tr.rate_table_turn())

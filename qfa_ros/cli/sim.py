@@ -27,7 +27,6 @@ from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.gyro import DEG_PER_HOUR
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.parallel import run_chains
-from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 
@@ -51,11 +50,12 @@ def static_sensor():
     Return (config, profile) of the sensor ``qfa-node`` publishes with its defaults.
 
     The thermal model is on (constant 25 degC ambient, the body at ambient, so the zero
-    bias is the double exponential's value at 25 degC), default noise, level.
+    bias is the double exponential's value at 25 degC), default noise and gyros, level at
+    the default location (latitude 45 deg: WGS-84 normal gravity and the Earth rate).
     ``test_loop_model`` checks that this equals the node's parameter defaults.
     """
     return (TriadConfig(thermal=ThermalConfig(ambient_profile='constant')),
-            StaticProfile.level())
+            trajectories.static(45.0, 0.0, 0.0, yaw=0.0))
 
 
 def run_static(args, out=None):

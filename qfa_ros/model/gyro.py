@@ -76,7 +76,7 @@ class GyroConfig:
         Rate range [rad/s]; beyond it the output is clipped and flagged.
     """
 
-    arw: float = 0.002 * math.pi / 180.0 / 60.0
+    arw: float = 0.002 * (math.pi / 180.0 / 60.0)
     bias_instability: float = 0.003 * DEG_PER_HOUR
     correlation_times: tuple = (1.0, 10.0, 100.0, 1000.0, 10000.0)
     rate_random_walk: float = 0.003 * DEG_PER_HOUR / 60.0

@@ -458,7 +458,7 @@ def triad_config(values):
     if values['gyro.enabled']:
         with _named('gyro'):
             gyro = _GYRO.with_errors(
-                arw=values['gyro.arw_deg_per_rthr'] * math.pi / 180.0 / 60.0,
+                arw=values['gyro.arw_deg_per_rthr'] * (math.pi / 180.0 / 60.0),
                 bias_instability=values['gyro.bias_instability_deg_per_hr'] * DEG_PER_HOUR,
                 rate_random_walk=values['gyro.rate_random_walk_deg_per_hr_per_rthr']
                 * DEG_PER_HOUR / 60.0,
