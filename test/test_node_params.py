@@ -61,7 +61,7 @@ def test_defaults_are_consistent():
     ('drift.forward_ppm', [math.nan, 0.0, 0.0], 'finite'),
     ('drift.feedback_ppm', [1.0, 2.0], 'exactly 3'),
     ('sample_rate_hz', -1000.0, 'in [1'),
-    ('input.mode', 'flying', 'one of static, profile, topic'),
+    ('input.mode', 'flying', 'one of static, profile, trajectory, topic'),
     ('estimation.forward.order', 'random', 'one of'),
     ('frame_id', '', 'must not be empty'),
     ('drift.time_acceleration', math.inf, 'finite'),

@@ -1,6 +1,7 @@
 """The node's services over real DDS: refusals, drift and self-calibration, state, traces."""
 
 import json
+import math
 from pathlib import Path
 import signal
 import time
@@ -14,9 +15,10 @@ from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
 from qfa_ros.bag.trace import key_values_to_dict
+from qfa_ros.model.earth import normal_gravity
 
 NODE = '/qfa_node'
-G = 9.80665
+G = float(normal_gravity(math.radians(45.0)))  # the default latitude_deg
 FORWARD_PPM = [-200.0, 300.0, 500.0]
 FEEDBACK_PPM = [1000.0, -800.0, 1200.0]
 # The default feedback schedule (10 s segments) estimates within about +-10 ppm (1 sigma,

@@ -17,12 +17,15 @@ import pytest
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import Temperature
 from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
 
 from qfa_ros.bag.reader import BagSource
+from qfa_ros.model.earth import EARTH_RATE, normal_gravity
 from qfa_ros.model.noise import flicker_component_variance, NoiseConfig
 
 RATE = 1000.0
-G = 9.80665
+LATITUDE = math.radians(45.0)  # the default latitude_deg
+G = float(normal_gravity(LATITUDE))
 BIAS_UG = (20.0, -30.0, 50.0)  # integral: typed as integers below
 # Configured IEEE 1293 bias plus the thermal zero bias at the constant 25 degC ambient.
 ZERO_BIAS = np.asarray(BIAS_UG) * 9.80665e-6 + thermal_zero_bias()
@@ -76,7 +79,13 @@ def test_stream_delivers_every_sample_evenly_spaced(setup):
     message = imu.last_message
     assert message.header.frame_id == 'qfa_imu'
     assert message.orientation_covariance[0] == -1.0
-    assert message.angular_velocity_covariance[0] == -1.0
+    # The gyros see the Earth rate: level, x east (input.yaw 0), y north at 45 deg.
+    rate_covariance = np.asarray(message.angular_velocity_covariance).reshape(3, 3)
+    assert np.all(np.diag(rate_covariance) > 0)
+    sigma = math.sqrt(rate_covariance[0, 0])
+    rate = message.angular_velocity
+    expected = (0.0, EARTH_RATE * math.cos(LATITUDE), EARTH_RATE * math.sin(LATITUDE))
+    assert np.all(np.abs(np.array([rate.x, rate.y, rate.z]) - expected) < 6 * sigma + 1e-7)
     covariance = np.asarray(message.linear_acceleration_covariance).reshape(3, 3)
     assert np.all(np.diag(covariance) > 0)
     assert np.count_nonzero(covariance - np.diag(np.diag(covariance))) == 0
@@ -142,6 +151,20 @@ def test_integer_arrays_are_accepted_as_doubles_and_validated(setup):
     assert not result.successful and 'must be in' in result.reason
     result, = client.set_parameters({'drift.feedback_ppm': [0, 0, 0]})
     assert result.successful, result.reason
+
+
+def test_a_moving_sensor_refuses_self_estimation(setup):
+    client = setup['client']
+    results = client.set_parameters({'input.trajectory': 'rate-table',
+                                      'input.mode': 'trajectory'})
+    assert all(result.successful for result in results), results
+    try:
+        response = client.call(Trigger, '/qfa_node/capture_reference', Trigger.Request())
+        assert not response.success
+        assert 'moving' in response.message and 'rest' in response.message
+    finally:
+        result, = client.set_parameters({'input.mode': 'static'})
+        assert result.successful
 
 
 def test_orientation_changes_the_running_sensor_at_once(setup):

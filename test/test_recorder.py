@@ -590,7 +590,7 @@ def test_finish_is_idempotent_and_errors_abort(tmp_path):
     (lambda b: b.write('/b', {'dat': True}, 1), KeyError, "no field 'dat'"),
     (lambda b: b.write('/nope', {'data': True}, 1), KeyError, 'not registered'),
     (lambda b: b.add_topic('/b', 'std_msgs/msg/String'), ValueError, 'already carries'),
-    (lambda b: b.add_topic('/x', 'nav_msgs/msg/Odometry'), ValueError, 'no message definition'),
+    (lambda b: b.add_topic('/x', 'nav_msgs/msg/Path'), ValueError, 'no message definition'),
     (lambda b: b.add_topic('bad topic', 'std_msgs/msg/Bool'), ValueError, 'invalid topic'),
     (lambda b: b.write_serialized('/b', b'\x01\x02', 1), ValueError, 'not CDR'),
 ])

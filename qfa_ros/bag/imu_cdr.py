@@ -1,4 +1,4 @@
-"""Batch CDR encoding of REP-145 accelerometer samples as ``sensor_msgs/msg/Imu`` (no ROS)."""
+"""Batch CDR encoding of REP-145 IMU samples as ``sensor_msgs/msg/Imu`` (no ROS)."""
 
 import struct
 
@@ -8,8 +8,10 @@ NS_PER_S = 1_000_000_000
 ENCAPSULATION = b'\x00\x01\x00\x00'
 """CDR encapsulation header: plain CDR, little endian (what rmw and rosbag2 write)."""
 
-_DOUBLES_BEFORE_ACCEL = 4 + 9 + 3 + 9
-"""orientation, orientation_covariance, angular_velocity, angular_velocity_covariance."""
+_DOUBLES_BEFORE_RATE = 4 + 9
+"""orientation, orientation_covariance."""
+_DOUBLES_BEFORE_ACCEL = _DOUBLES_BEFORE_RATE + 3 + 9
+"""... then angular_velocity, angular_velocity_covariance."""
 
 UNKNOWN_COVARIANCE = (-1.0,) + (0.0,) * 8
 """REP-145: element 0 = -1 marks a quantity the sensor does not measure."""
@@ -17,14 +19,14 @@ UNKNOWN_COVARIANCE = (-1.0,) + (0.0,) * 8
 
 class ImuEncoder:
     """
-    Encode accelerometer samples as serialized ``sensor_msgs/msg/Imu`` (CDR) messages.
+    Encode IMU samples as serialized ``sensor_msgs/msg/Imu`` (CDR) messages.
 
-    The messages of one stream differ only in ``header.stamp`` and
-    ``linear_acceleration``, so the encoder serializes one template message and writes
-    those two fields of every sample into copies of it with numpy; the bytes equal
-    ``rclpy.serialization.serialize_message`` of the same message. The orientation and
-    angular velocity are marked unknown (REP-145: covariance element 0 = -1), the
-    orientation quaternion is the identity.
+    The messages of one stream differ only in ``header.stamp``, ``angular_velocity``
+    and ``linear_acceleration``, so the encoder serializes one template message and
+    writes those fields of every sample into copies of it with numpy; the bytes equal
+    ``rclpy.serialization.serialize_message`` of the same message. The orientation is
+    marked unknown (REP-145: covariance element 0 = -1, identity quaternion); so is
+    the angular velocity when no ``rate_covariance`` is given.
 
     Parameters
     ----------
@@ -32,31 +34,40 @@ class ImuEncoder:
         ``header.frame_id``.
     acceleration_covariance : sequence of 9 float
         ``linear_acceleration_covariance``, row major [(m/s^2)^2].
+    rate_covariance : sequence of 9 float or None
+        ``angular_velocity_covariance``, row major [(rad/s)^2]; None: no gyros.
     """
 
-    def __init__(self, frame_id, acceleration_covariance):
+    def __init__(self, frame_id, acceleration_covariance, rate_covariance=None):
         covariance = [float(v) for v in acceleration_covariance]
         if len(covariance) != 9:
             raise ValueError('acceleration_covariance must have 9 elements, '
                              f'got {len(covariance)}')
+        self.has_rate = rate_covariance is not None
+        rate_covariance = UNKNOWN_COVARIANCE if rate_covariance is None \
+            else [float(v) for v in rate_covariance]
+        if len(rate_covariance) != 9:
+            raise ValueError(f'rate_covariance must have 9 elements, got {len(rate_covariance)}')
+        self.frame_id = frame_id
         name = frame_id.encode('utf-8')
         # Offsets count from the end of the encapsulation header (CDR alignment origin).
         string_end = 12 + len(name) + 1
         orientation = (string_end + 7) // 8 * 8
         self.accel_offset = len(ENCAPSULATION) + orientation + 8 * _DOUBLES_BEFORE_ACCEL
+        self.rate_offset = len(ENCAPSULATION) + orientation + 8 * _DOUBLES_BEFORE_RATE
         body = bytearray(ENCAPSULATION)
         body += struct.pack('<iII', 0, 0, len(name) + 1) + name + b'\x00'
         body += bytes(orientation - string_end)
         body += struct.pack('<4d', 0.0, 0.0, 0.0, 1.0)
         body += struct.pack('<9d', *UNKNOWN_COVARIANCE)
         body += struct.pack('<3d', 0.0, 0.0, 0.0)
-        body += struct.pack('<9d', *UNKNOWN_COVARIANCE)
+        body += struct.pack('<9d', *rate_covariance)
         body += struct.pack('<3d', 0.0, 0.0, 0.0)
         body += struct.pack('<9d', *covariance)
         self.template = np.frombuffer(bytes(body), dtype=np.uint8)
         self.size = len(body)
 
-    def encode(self, stamps_ns, accel):
+    def encode(self, stamps_ns, accel, rate=None):
         """
         Return one serialized message (``bytes``) per sample.
 
@@ -66,6 +77,8 @@ class ImuEncoder:
             ``header.stamp`` of each sample [ns since the epoch], >= 0.
         accel : float array_like, shape (n, 3)
             Specific force per sample [m/s^2].
+        rate : float array_like, shape (n, 3), optional
+            Angular rate per sample [rad/s] (encoders built with ``rate_covariance``).
         """
         stamps = np.asarray(stamps_ns, dtype=np.int64)
         accel = np.asarray(accel, dtype='<f8')
@@ -81,6 +94,12 @@ class ImuEncoder:
         buffer[:, start:start + 8] = stamp.view(np.uint8).reshape(count, 8)
         buffer[:, self.accel_offset:self.accel_offset + 24] = \
             np.ascontiguousarray(accel).view(np.uint8).reshape(count, 24)
+        if rate is not None:
+            rate = np.asarray(rate, dtype='<f8')
+            if rate.shape != (count, 3):
+                raise ValueError(f'rate must have shape ({count}, 3), got {rate.shape}')
+            buffer[:, self.rate_offset:self.rate_offset + 24] = \
+                np.ascontiguousarray(rate).view(np.uint8).reshape(count, 24)
         data = buffer.tobytes()
         size = self.size
         return [data[i * size:(i + 1) * size] for i in range(count)]

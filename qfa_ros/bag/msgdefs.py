@@ -242,6 +242,65 @@ MESSAGE_TEXTS = {
         '\n'
         'string data\n'
     ),
+    'geometry_msgs/msg/Point': (
+        '# This contains the position of a point in free space\n'
+        'float64 x\n'
+        'float64 y\n'
+        'float64 z\n'
+    ),
+    'geometry_msgs/msg/Pose': (
+        '# A representation of pose in free space, composed of position and orientation.\n'
+        '\n'
+        'Point position\n'
+        'Quaternion orientation\n'
+    ),
+    'geometry_msgs/msg/PoseWithCovariance': (
+        '# This represents a pose in free space with uncertainty.\n'
+        '\n'
+        'Pose pose\n'
+        '\n'
+        '# Row-major representation of the 6x6 covariance matrix\n'
+        '# The orientation parameters use a fixed-axis representation.\n'
+        '# In order, the parameters are:\n'
+        '# (x, y, z, rotation about X axis, rotation about Y axis, rotation about Z axis)\n'
+        'float64[36] covariance\n'
+    ),
+    'geometry_msgs/msg/Twist': (
+        '# This expresses velocity in free space broken into its linear and angular parts.\n'
+        '\n'
+        'Vector3  linear\n'
+        'Vector3  angular\n'
+    ),
+    'geometry_msgs/msg/TwistWithCovariance': (
+        '# This expresses velocity in free space with uncertainty.\n'
+        '\n'
+        'Twist twist\n'
+        '\n'
+        '# Row-major representation of the 6x6 covariance matrix\n'
+        '# The orientation parameters use a fixed-axis representation.\n'
+        '# In order, the parameters are:\n'
+        '# (x, y, z, rotation about X axis, rotation about Y axis, rotation about Z axis)\n'
+        'float64[36] covariance\n'
+    ),
+    'nav_msgs/msg/Odometry': (
+        '# This represents an estimate of a position and velocity in free space.\n'
+        '# The pose in this message should be specified in the coordinate frame given by'
+        ' header.frame_id\n'
+        '# The twist in this message should be specified in the coordinate frame given by the'
+        ' child_frame_id\n'
+        '\n'
+        '# Includes the frame id of the pose parent.\n'
+        'std_msgs/Header header\n'
+        '\n'
+        '# Frame id the pose points to. The twist is in this coordinate frame.\n'
+        'string child_frame_id\n'
+        '\n'
+        '# Estimated pose that is typically relative to a fixed world frame.\n'
+        'geometry_msgs/PoseWithCovariance pose\n'
+        '\n'
+        '# Estimated linear and angular velocity relative to child_frame_id.\n'
+        'geometry_msgs/TwistWithCovariance twist\n'
+    ),
 }
 """Own text of each message definition, without its dependencies."""
 
@@ -284,6 +343,7 @@ MESSAGE_DEFINITIONS = {name: compose_definition(name) for name in (
     'diagnostic_msgs/msg/KeyValue',
     'geometry_msgs/msg/AccelStamped',
     'geometry_msgs/msg/Vector3Stamped',
+    'nav_msgs/msg/Odometry',
     'rosgraph_msgs/msg/Clock',
     'sensor_msgs/msg/Imu',
     'sensor_msgs/msg/Temperature',
@@ -308,6 +368,8 @@ TYPE_HASHES = {
         'RIHS01_ef1df9eabae0a708cc049a061ebcddc4e2a5f745730100ba680e086a9698b165',
     'geometry_msgs/msg/Vector3Stamped':
         'RIHS01_d4829622288cbb443886e7ea94ea5671a3b1be6bab4ad04224432a65f7d7887a',
+    'nav_msgs/msg/Odometry':
+        'RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0',
     'rosgraph_msgs/msg/Clock':
         'RIHS01_692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564',
     'sensor_msgs/msg/Imu':

@@ -11,6 +11,7 @@ from qfa_ros.bag.writer import McapBagWriter
 from qfa_ros.model.noise import acceleration_variance
 
 IMU_TOPIC = '/imu/data_raw'
+TRUTH_TOPIC = '/qfa/truth/odometry'
 TEMPERATURE_TOPIC = '/imu/temperature'
 PHASE_TOPIC = '/qfa/scenario/phase'
 
@@ -27,19 +28,27 @@ class ScenarioBag:
     The output of a ``qfa-sim`` scenario: IMU stream, temperature, phases and traces.
 
     Topics: ``/imu/data_raw`` (sensor_msgs/Imu, REP-145, log time = header stamp =
-    the triad's stamps [ns]: :data:`SIM_START_NS` + sensor time in ``qfa-sim``),
+    the triad's stamps [ns]: :data:`SIM_START_NS` + sensor time in ``qfa-sim``; angular
+    velocity from the gyros when ``rate_variance`` is given), ``/qfa/truth/odometry``
+    (nav_msgs/Odometry, see :meth:`write_truth`),
     ``/imu/temperature`` (sensor_msgs/Temperature [degC]),
     ``/qfa/scenario/phase`` (std_msgs/String naming the phase that starts at its log
     time) and estimation traces under ``/qfa/trace/<run>/...`` (see
     :mod:`qfa_ros.bag.traces`). A context manager with an idempotent ``finish()``.
     """
 
-    def __init__(self, path, noise, sample_rate_hz, frame_id='imu_link'):
+    def __init__(self, path, noise, sample_rate_hz, frame_id='imu_link', rate_variance=None,
+                 truth_frame_id=None):
         self.bag = McapBagWriter(path, compression='zstd')
         self.frame_id = frame_id
         variance = acceleration_variance(noise, sample_rate_hz)
+        rate_covariance = None if rate_variance is None else \
+            list(np.diag(np.broadcast_to(rate_variance, 3)).ravel())
         self._imu = ImuEncoder(frame_id, [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0,
-                                          variance])
+                                          variance], rate_covariance)
+        self.truth_frame_id = truth_frame_id
+        if truth_frame_id is not None:
+            self.bag.add_topic(TRUTH_TOPIC, 'nav_msgs/msg/Odometry', QOS_SENSOR_DATA)
         self.bag.add_topic(IMU_TOPIC, 'sensor_msgs/msg/Imu', QOS_SENSOR_DATA)
         self.bag.add_topic(TEMPERATURE_TOPIC, 'sensor_msgs/msg/Temperature', QOS_SENSOR_DATA)
         self.bag.add_topic(PHASE_TOPIC, 'std_msgs/msg/String', QOS_LATCHED)
@@ -58,9 +67,33 @@ class ScenarioBag:
         """Write the valid samples of a ``TriadOutput`` to ``/imu/data_raw``."""
         valid = output.valid.all(axis=1)
         stamps = output.stamps_ns[valid]
+        rate = output.gyro[valid] if self._imu.has_rate else None
         for time_ns, data in zip(stamps.tolist(),
-                                 self._imu.encode(stamps, output.accel[valid])):
+                                 self._imu.encode(stamps, output.accel[valid], rate)):
             self.bag.write_serialized(IMU_TOPIC, data, time_ns)
+
+    def write_truth(self, stamps_ns, position, orientation, velocity, body_rate):
+        """
+        Write the true pose and twist on ``/qfa/truth/odometry`` (nav_msgs/Odometry).
+
+        ``header.frame_id`` is the ENU tangent plane of the trajectory's start,
+        ``child_frame_id`` the IMU frame; position [m] and orientation (x, y, z, w) in
+        the tangent plane, linear velocity [m/s] and angular rate (w.r.t. the local
+        ENU frame) [rad/s] in IMU axes, as the message defines; covariances zero.
+        """
+        zero = [0.0] * 36
+        for k, time_ns in enumerate(np.asarray(stamps_ns).tolist()):
+            p, q, v, w = (np.asarray(a[k], dtype=float).tolist()
+                          for a in (position, orientation, velocity, body_rate))
+            self.bag.write(TRUTH_TOPIC, {
+                'header': {'stamp': stamp(time_ns), 'frame_id': self.truth_frame_id},
+                'child_frame_id': self.frame_id,
+                'pose': {'pose': {'position': dict(zip('xyz', p)),
+                                  'orientation': dict(zip('xyzw', q))},
+                         'covariance': zero},
+                'twist': {'twist': {'linear': dict(zip('xyz', v)),
+                                    'angular': dict(zip('xyz', w))},
+                          'covariance': zero}}, time_ns)
 
     def write_temperature(self, stamps_ns, celsius, variance=0.0):
         """Write sensor temperatures [degC] at ``stamps_ns``."""

@@ -198,8 +198,14 @@ def run_schedule(triad, schedule, chunk_samples=1000):
     Drive a schedule generator offline, as fast as possible; return its result.
 
     The generator yields how many samples it needs; the driver runs the triad for that
-    many (in chunks of at most ``chunk_samples``) and sends back the output.
+    many (in chunks of at most ``chunk_samples``) and sends back the output. A triad
+    moving along a trajectory is refused with :class:`EstimationError`: self-estimation
+    needs the sensor at rest.
     """
+    moving = triad.is_at_rest() if hasattr(triad, 'is_at_rest') else None
+    if moving:
+        schedule.close()
+        raise EstimationError(moving)
     try:
         request = next(schedule)
         while True:

@@ -3,13 +3,17 @@ Offline simulator: ``qfa-sim SCENARIO [--duration S] [--seed N] [--out FILE.mcap
 
 Runs without ROS or DDS, as fast as it can. Bags start at ``--start-time`` (default
 2026-01-01T00:00:00Z, :data:`qfa_ros.bag.scenario_bag.SIM_START_NS`): a realistic date on
-a timeline, the same for every run.
+a timeline, the same for every run. ``qfa-sim trajectory --motion drive``
+(or ``--trajectory-file poses.csv``) moves the full IMU (QFA accelerometers and gyros)
+along a trajectory on the WGS-84 Earth and writes the stream with its ground truth
+(nav_msgs/Odometry on ``/qfa/truth/odometry``) so that an INS can be scored.
 """
 
 import argparse
 import contextlib
 import datetime
 import functools
+import math
 import sys
 import time
 
@@ -17,15 +21,17 @@ import numpy as np
 from tqdm import tqdm
 
 from qfa_ros.calibration.schedule import sensor_time_ns
+from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
+from qfa_ros.model.gyro import DEG_PER_HOUR
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.parallel import run_chains
-from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 
 STATIC_CHUNK_SECONDS = 30.0
+TRAJECTORY_CHUNK_SECONDS = 1.0
 """Sensor time per :meth:`QfaTriad.run` call of the static scenario [s]."""
 
 
@@ -44,11 +50,12 @@ def static_sensor():
     Return (config, profile) of the sensor ``qfa-node`` publishes with its defaults.
 
     The thermal model is on (constant 25 degC ambient, the body at ambient, so the zero
-    bias is the double exponential's value at 25 degC), default noise, level.
+    bias is the double exponential's value at 25 degC), default noise and gyros, level at
+    the default location (latitude 45 deg: WGS-84 normal gravity and the Earth rate).
     ``test_loop_model`` checks that this equals the node's parameter defaults.
     """
     return (TriadConfig(thermal=ThermalConfig(ambient_profile='constant')),
-            StaticProfile.level())
+            trajectories.static(45.0, 0.0, 0.0, yaw=0.0))
 
 
 def run_static(args, out=None):
@@ -99,6 +106,69 @@ def run_static(args, out=None):
     offset = np.zeros(len(AXES)) if reference is None else reference
     print_summary(triad, phase, offset + mean, std, truth / count, saturated,
                   temperature / count, out)
+    return 0
+
+
+def build_trajectory(args):
+    """Return the :class:`~qfa_ros.model.trajectory.Trajectory` the arguments name."""
+    if args.trajectory_file:
+        return trajectories.load_csv(args.trajectory_file)
+    return trajectories.SCRIPTS[args.motion](
+        latitude_deg=args.latitude, longitude_deg=args.longitude, height_m=args.height,
+        yaw=math.radians(args.yaw))
+
+
+def run_trajectory(args, out=None):
+    """Move the full IMU along a trajectory; write the stream and its ground truth."""
+    out = out or sys.stdout
+    try:
+        motion = build_trajectory(args)
+    except (OSError, ValueError) as error:
+        print(f'qfa-sim: {error}', file=sys.stderr)
+        return 2
+    duration = args.duration if args.duration is not None else max(motion.duration, 60.0)
+    config = TriadConfig(sample_rate_hz=args.rate)
+    triad = QfaTriad(config, rng=args.seed, profile=motion, start_ns=args.start_ns)
+    chunk = int(round(TRAJECTORY_CHUNK_SECONDS * config.sample_rate_hz))
+    total = int(round(duration * config.sample_rate_hz))
+    truth_every = max(1, int(round(config.sample_rate_hz / args.truth_rate)))
+    accel_error = np.zeros(3)
+    gyro_error = np.zeros(3)
+    done = 0
+    bag = None
+    if args.out is not None:
+        from qfa_ros.bag.scenario_bag import ScenarioBag
+        bag = ScenarioBag(args.out, config.noise, config.sample_rate_hz,
+                          rate_variance=triad.gyro.variance(), truth_frame_id='enu_origin')
+    with bag if bag else contextlib.nullcontext():
+        if bag:
+            bag.write_phase(motion.name, args.start_ns)
+        while done < total:
+            part = triad.run(min(chunk, total - done))
+            accel_error += (part.accel - part.truth).sum(axis=0)
+            gyro_error += (part.gyro - part.rate_truth).sum(axis=0)
+            if bag:
+                bag.write_imu(part)
+                index = done + np.arange(len(part.stamps_ns))
+                picked = (index + 1) % truth_every == 0
+                if picked.any():
+                    stamps = part.stamps_ns[picked]
+                    # The trajectory runs on sensor time; the stamps start at --start-time.
+                    bag.write_truth(stamps, *motion.local_pose((stamps - args.start_ns) / 1e9))
+                bag.write_temperature(part.stamps_ns[-1:], part.temperature[-1:])
+            done += len(part.stamps_ns)
+    end = motion.local_pose(np.array([duration]))[0][0]
+    print(f'qfa-sim trajectory: {motion.name}, {duration:g} s at {config.sample_rate_hz:g} Hz '
+          f'(loop {config.loop_rate_hz:g} Hz), seed {args.seed}', file=out)
+    print(f'end position in the start ENU plane: E {end[0]:.1f} m, N {end[1]:.1f} m, '
+          f'U {end[2]:.1f} m', file=out)
+    print(f'{"axis":>4} {"accel error ug":>15} {"gyro error deg/h":>17}', file=out)
+    for i, name in enumerate(AXES):
+        print(f'{name:>4} {accel_error[i] / total / MICRO_G:15.2f} '
+              f'{gyro_error[i] / total / DEG_PER_HOUR:17.4f}', file=out)
+    if args.out is not None:
+        print(f'wrote {args.out}: /imu/data_raw (Imu with angular velocity), '
+              f'/qfa/truth/odometry at {config.sample_rate_hz / truth_every:g} Hz', file=out)
     return 0
 
 
@@ -229,6 +299,7 @@ SCENARIOS = {
     'static': run_static,
     'paper-2019': run_paper_2019,
     'temperature-cycle': run_temperature_cycle,
+    'trajectory': run_trajectory,
 }
 
 
@@ -239,10 +310,26 @@ def build_parser():
     parser.add_argument('scenario', choices=sorted(SCENARIOS), help='what to simulate')
     parser.add_argument('--duration', type=float, default=None,
                         help='sensor time to simulate [s] (static: default 60; '
-                             'temperature-cycle: the cycle period, default 3600)')
+                             'temperature-cycle: the cycle period, default 3600; '
+                             'trajectory: its length, at least 60)')
     parser.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
     parser.add_argument('--trials', type=int, default=6,
                         help='paper-2019: number of trials (default 6, as seed 1)')
+    motion = parser.add_argument_group('trajectory scenario')
+    motion.add_argument('--motion', choices=sorted(trajectories.SCRIPTS), default='drive',
+                        help='built-in motion script (default drive)')
+    motion.add_argument('--trajectory-file', metavar='POSES.csv',
+                        help='CSV of time_s, latitude_deg, longitude_deg, height_m, '
+                             'roll_deg, pitch_deg, yaw_deg (instead of --motion)')
+    motion.add_argument('--latitude', type=float, default=45.0, help='[deg] (default 45)')
+    motion.add_argument('--longitude', type=float, default=0.0, help='[deg] (default 0)')
+    motion.add_argument('--height', type=float, default=0.0, help='[m] (default 0)')
+    motion.add_argument('--yaw', type=float, default=90.0,
+                        help='initial heading, ENU yaw [deg] (default 90: x north)')
+    motion.add_argument('--rate', type=float, default=1000.0,
+                        help='IMU sample rate [Hz] (default 1000; 10 kHz / rate integer)')
+    motion.add_argument('--truth-rate', type=float, default=100.0,
+                        help='ground-truth odometry rate [Hz] (default 100)')
     parser.add_argument('--out', metavar='FILE.mcap',
                         help='write the scenario as a rosbag2-compatible MCAP file')
     from qfa_ros.bag.scenario_bag import SIM_START_NS
@@ -268,9 +355,9 @@ def parse_start_time(text):
 def main(argv=None):
     """Run the simulator command line."""
     args = build_parser().parse_args(argv)
-    if args.duration is None:
+    if args.duration is None and args.scenario != 'trajectory':
         args.duration = 3600.0 if args.scenario == 'temperature-cycle' else 60.0
-    if not args.duration > 0:
+    if args.duration is not None and not args.duration > 0:
         print('qfa-sim: --duration must be positive', file=sys.stderr)
         return 2
     if args.trials < 1:

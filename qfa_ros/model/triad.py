@@ -1,4 +1,9 @@
-"""Digital closed-loop QFA triad: three simulated loops, decimated output (pure model)."""
+"""Digital closed-loop QFA triad: three simulated loops, decimated output (pure model).
+
+With the gyro triad and the motion input beside the loops it is the whole sensor
+assembly: one cohesive thing, because every run advances all of it together (hence its
+length).
+"""
 
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -10,6 +15,7 @@ import numpy as np
 from qfa_ros.model import kernel
 from qfa_ros.model.axis import AxisLoop, run_axes
 from qfa_ros.model.drift import DriftModel
+from qfa_ros.model.gyro import GyroConfig, GyroTriad
 from qfa_ros.model.hardware import AxisHardware, counts_to_accel, STANDARD_GRAVITY
 from qfa_ros.model.noise import MICRO_G, NoiseConfig, NoiseSource
 from qfa_ros.model.parallel import available_cores
@@ -20,6 +26,8 @@ AXES = ('x', 'y', 'z')
 NS_PER_S = 1_000_000_000
 FLAG_DA2_CLIPPED, FLAG_ADC_CLIPPED, FLAG_OVER_RANGE = 1, 2, 4
 MAX_CONTROLLER_GAIN = 4.0
+GYRO_SPAWN_KEY = 0x6779726F
+"""Spawn key of the gyro triad's random stream ('gyro')."""
 
 
 @dataclass(frozen=True)
@@ -55,6 +63,9 @@ class TriadConfig:
         Thermal model (ambient, body lag, temperature sensor, zero bias and
         scale-factor error versus temperature, seed 2); None keeps the sensor at the
         drift model's reference temperature with no thermal errors.
+    gyro : GyroConfig or None
+        Error model of the gyro triad beside the accelerometers
+        (:mod:`qfa_ros.model.gyro`); None: no gyros (``TriadOutput.gyro`` is NaN).
     """
 
     hardware: AxisHardware = field(default_factory=AxisHardware)
@@ -70,6 +81,7 @@ class TriadConfig:
     open_loop_cref_sensitivity: float = 1.0
     settle_time: float = 0.05
     thermal: object = None
+    gyro: object = field(default_factory=GyroConfig)
 
     def __post_init__(self):
         for name in ('loop_rate_hz', 'sample_rate_hz', 'settle_time', 'crossover_hz'):
@@ -164,6 +176,11 @@ class TriadOutput:
         Sensor body temperature [degC].
     v_temp : float64[n]
         On-board temperature-sensor reading [V] (NaN without a thermal model).
+    gyro : float64[n, 3]
+        Gyro triad output [rad/s] (NaN without gyros).
+    rate_truth : float64[n, 3]
+        True angular rate w.r.t. inertial space, body axes, averaged over each
+        sample [rad/s].
     """
 
     stamps_ns: np.ndarray
@@ -174,9 +191,11 @@ class TriadOutput:
     truth: np.ndarray
     temperature: np.ndarray
     v_temp: np.ndarray
+    gyro: np.ndarray
+    rate_truth: np.ndarray
 
     FIELDS = ('stamps_ns', 'accel', 'counts', 'flags', 'valid', 'truth', 'temperature',
-              'v_temp')
+              'v_temp', 'gyro', 'rate_truth')
 
     @property
     def saturated(self):
@@ -206,8 +225,10 @@ class QfaTriad:
         Source of every random number (an int is a seed).
     profile : object with ``evaluate(t) -> (n, 3)``, optional
         Input specific force [m/s^2] as a function of sensor time [s]; default level.
-        A :class:`StaticProfile` is applied as one value per chunk; other profiles are
-        evaluated at every loop step.
+        A :class:`StaticProfile` is applied as one value per chunk; a
+        :class:`qfa_ros.model.trajectory.Trajectory` (it has ``sample_means``) as its mean
+        over each sample, with the angular rate the gyros see; other profiles are
+        evaluated at every loop step and rotate with no rate.
     start_ns : int, optional
         Origin of the sample stamps [ns] (default 0), e.g. an epoch for a recording;
         the physics runs on :attr:`time` from 0.
@@ -242,6 +263,15 @@ class QfaTriad:
         self.thermal = None
         if self.config.thermal is not None:
             self.thermal = ThermalModel(self.config.thermal, rng.spawn(1)[0])
+        self.gyro = None
+        if self.config.gyro is not None:
+            # A child keyed apart from rng.spawn()'s counter: every stream the
+            # accelerometer model spawns, now or later, stays what it was without gyros.
+            seq = rng.bit_generator.seed_seq
+            gyro_seq = np.random.SeedSequence(seq.entropy, pool_size=seq.pool_size,
+                                              spawn_key=seq.spawn_key + (GYRO_SPAWN_KEY,))
+            self.gyro = GyroTriad(self.config.gyro, self.config.sample_rate_hz,
+                                  np.random.default_rng(gyro_seq))
         self.temperature_compensators = None
         self.temperature_compensation = False
         self.scale = counts_to_accel(self.config.hardware)
@@ -367,7 +397,26 @@ class QfaTriad:
         a = specific_force @ self._misalignment.T
         return self._bias + a + self._k2 * a * a
 
-    def run(self, n_samples, specific_force=None):
+    # Motion (trajectory, gyros) -------------------------------------------------------
+    def is_at_rest(self):
+        """Return None when the input is a body at rest, else why it is not."""
+        if hasattr(self.profile, 'is_static') and not self.profile.is_static:
+            return f'the sensor is moving ({self.profile.name}): self-estimation needs it ' \
+                'at rest'
+        return None
+
+    def _motion(self, n_samples):
+        # Per-sample mean specific force and angular rate of a trajectory, else None.
+        if not hasattr(self.profile, 'sample_means'):
+            return None, np.zeros((n_samples, 3))
+        return self.profile.sample_means(self.time, self.sample_period, n_samples)
+
+    def _gyro_output(self, rate, truth, temperature):
+        if self.gyro is None:
+            return np.full((len(truth), 3), np.nan)
+        return self.gyro.run(rate, truth, temperature)[0]
+
+    def run(self, n_samples, specific_force=None, angular_rate=None):
         """
         Advance ``n_samples`` output samples and return a :class:`TriadOutput`.
 
@@ -378,12 +427,16 @@ class QfaTriad:
         specific_force : array_like, optional
             True specific force in the sensor frame [m/s^2], shape (n_samples, 3) (held
             over each sample) or (n_samples * decimation, 3) (per loop step). Default:
-            the profile evaluated at every loop step.
+            the profile evaluated at every loop step (a trajectory: its mean over each
+            sample, held).
+        angular_rate : array_like, optional
+            True angular rate w_ib^b [rad/s] per sample, shape (n_samples, 3), with
+            ``specific_force``; default: the trajectory's, or zero.
         """
         if int(n_samples) != n_samples or n_samples < 0:
             raise ValueError(f'n_samples must be a non-negative integer, got {n_samples!r}')
         n_samples = int(n_samples)
-        force, truth = self._input(n_samples, specific_force)
+        force, truth, rate = self._input(n_samples, specific_force, angular_rate)
         # Rows per axis: one value for the chunk, one per sample or one per loop step.
         sensed = np.ascontiguousarray(self._sensed(force).T)
         if self.thermal is not None:
@@ -415,17 +468,23 @@ class QfaTriad:
                 accel[:, i] -= compensator.evaluate_fixed(v_temp, clip=True)
         return TriadOutput(stamps_ns=self.stamp_ns(index), accel=accel,
                            counts=counts.T.copy(), flags=flags.T.copy(), valid=valid,
-                           truth=truth, temperature=temperature, v_temp=v_temp)
+                           truth=truth, temperature=temperature, v_temp=v_temp,
+                           gyro=self._gyro_output(rate, truth, temperature),
+                           rate_truth=rate)
 
-    def _input(self, n_samples, specific_force):
+    def _input(self, n_samples, specific_force, angular_rate=None):
         # Return the specific force at the rate it changes ((1, 3), (n_samples, 3) or
-        # (n_steps, 3)) and its mean per sample (truth).
+        # (n_steps, 3)), its mean per sample (truth) and the angular rate per sample.
         n_steps = n_samples * self.decimation
+        rate = None
         if specific_force is None:
             if isinstance(self.profile, StaticProfile):
                 force = np.asarray(self.profile.specific_force, dtype=float)[None, :]
-                return force, np.repeat(force, n_samples, axis=0)
-            force = self.profile.evaluate(self.time + np.arange(n_steps) * self.dt)
+                return force, np.repeat(force, n_samples, axis=0), \
+                    self._rate(n_samples, angular_rate)
+            force, rate = self._motion(n_samples)
+            if force is None:
+                force = self.profile.evaluate(self.time + np.arange(n_steps) * self.dt)
         else:
             force = np.asarray(specific_force, dtype=float)
             if force.shape not in ((n_samples, 3), (n_steps, 3)):
@@ -433,12 +492,23 @@ class QfaTriad:
                                  f'({n_steps}, 3), got {force.shape}')
             if not np.all(np.isfinite(force)):
                 raise ValueError('specific_force must be finite')
+        rate = self._rate(n_samples, rate if angular_rate is None else angular_rate)
         if len(force) == n_samples:
-            return force, force.copy()
+            return force, force.copy(), rate
         blocks = force.reshape(n_samples, self.decimation, 3)
         if np.array_equal(blocks, np.broadcast_to(blocks[:, :1], blocks.shape)):
-            return blocks[:, 0], blocks[:, 0].copy()  # held over each sample
-        return force, blocks.mean(axis=1)
+            return blocks[:, 0], blocks[:, 0].copy(), rate  # held over each sample
+        return force, blocks.mean(axis=1), rate
+
+    @staticmethod
+    def _rate(n_samples, angular_rate):
+        # The angular rate per sample [rad/s], zero when none is given.
+        if angular_rate is None:
+            return np.zeros((n_samples, 3))
+        rate = np.asarray(angular_rate, dtype=float)
+        if rate.shape != (n_samples, 3) or not np.all(np.isfinite(rate)):
+            raise ValueError(f'angular_rate must be finite, shape ({n_samples}, 3)')
+        return rate
 
     def run_for(self, duration_s, chunk_samples=1000):
         """Run ``duration_s`` seconds in chunks and return the concatenated output."""
@@ -462,6 +532,6 @@ def concatenate(outputs):
         empty = np.empty((0, 3))
         return TriadOutput(np.empty(0, np.int64), empty, empty.copy(),
                            np.empty((0, 3), np.int8), np.empty((0, 3), bool), empty.copy(),
-                           np.empty(0), np.empty(0))
+                           np.empty(0), np.empty(0), empty.copy(), empty.copy())
     return TriadOutput(*(np.concatenate([getattr(o, f) for o in outputs])
                          for f in TriadOutput.FIELDS))

@@ -1,10 +1,12 @@
-"""Ground-truth input: specific force from a topic, held onto the sample grid."""
+"""Ground-truth input: specific force and angular rate from a topic, held onto the grid."""
 
 import math
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 
+from qfa_ros.model import earth
+from qfa_ros.model.trajectory import quaternion_to_dcm
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.params import static_profile
 
@@ -13,8 +15,13 @@ MAX_PENDING_INPUTS = 10000
 
 class GroundTruthInput:
     """
-    Specific force from ``input/imu`` or ``input/accel`` (``input.mode: topic``).
+    Specific force and angular rate from a topic (``input.mode: topic``).
 
+    ``input/imu`` (sensor_msgs/Imu: linear_acceleration, and angular_velocity unless
+    its covariance[0] is -1), ``input/accel`` (geometry_msgs/AccelStamped: specific
+    force only) or ``input/odometry`` (nav_msgs/Odometry, e.g. Gazebo's ground truth:
+    see :meth:`accept_odometry`). Rates are w.r.t. inertial space in body axes; where a
+    topic gives none, the static body's (the Earth rate at the location) stands in.
     Inputs are queued in stamp order; each sample takes the latest input stamped at or
     before it (sample and hold) and is stale once that input is older than
     ``input.timeout_s``. Before the first input the static orientation stands in.
@@ -29,15 +36,29 @@ class GroundTruthInput:
         self.held = None
         self.rejected = 0
         self.problem = None
+        self._odometry = None  # (time_ns, world velocity) of the previous odometry message
 
     @property
     def active(self):
         """Return True when the input comes from the topic."""
         return self._values['input.mode'] == 'topic'
 
-    def accept(self, time_ns, value):
-        """Queue one input ``value`` (m/s^2, x y z) stamped ``time_ns``; refuse bad ones."""
-        if not all(math.isfinite(v) for v in value):
+    def _static(self):
+        """Return the static body's (specific force, angular rate), each 3 floats."""
+        motion = static_profile(self._values)
+        k = motion.kinematics(np.zeros(1))
+        return tuple(k['specific_force'][0]), tuple(k['angular_rate'][0])
+
+    def accept(self, time_ns, value, rate=None):
+        """
+        Queue one input stamped ``time_ns``; refuse bad ones.
+
+        ``value``: specific force (m/s^2, x y z); ``rate``: angular rate (rad/s, x y z)
+        or None (the static body's stands in).
+        """
+        value = tuple(value) + (tuple(rate) if rate is not None else (math.nan,) * 3)
+        if not all(math.isfinite(v) for v in value[:3]) or \
+                (rate is not None and not all(math.isfinite(v) for v in value[3:])):
             self.rejected += 1
             self.problem = f'non-finite ground-truth input rejected: {value}'
             return
@@ -50,14 +71,49 @@ class GroundTruthInput:
             # Inputs stamped ahead of the stream (another clock) must not pile up.
             self.held = self.pending.pop(0)
 
-    def force(self, stamps):
-        """Return (specific force per sample, stale mask) in topic mode, else (None, None)."""
+    def accept_odometry(self, time_ns, position, orientation, linear, angular):
+        """
+        Queue the specific force and rate implied by one ``nav_msgs/Odometry``.
+
+        ``orientation`` (x, y, z, w): body in a local-level world frame (z up, as
+        Gazebo's ENU world); ``linear``, ``angular``: twist in body axes. The world
+        acceleration is the backward difference of the world velocity between
+        consecutive messages (zero for the first), so it lags by half a message period;
+        ``f^b = C^T (a^w + (0, 0, gamma))`` with WGS-84 normal gravity at the location,
+        ``w_ib^b = w + C^T w_ie^n`` (the world frame does not rotate with the Earth).
+        """
+        values = tuple(position) + tuple(orientation) + tuple(linear) + tuple(angular)
+        norm = math.sqrt(sum(q * q for q in orientation))
+        if not all(math.isfinite(v) for v in values) or not 0.5 < norm < 1.5:
+            self.rejected += 1
+            self.problem = f'bad ground-truth odometry rejected: {values}'
+            return
+        dcm = quaternion_to_dcm(np.asarray(orientation) / norm)
+        velocity = dcm @ np.asarray(linear, dtype=float)
+        acceleration = np.zeros(3)
+        if self._odometry is not None and time_ns > self._odometry[0]:
+            acceleration = (velocity - self._odometry[1]) * NS_PER_S \
+                / (time_ns - self._odometry[0])
+        self._odometry = (time_ns, velocity)
+        latitude = math.radians(self._values['latitude_deg'])
+        gravity = float(earth.normal_gravity(latitude, self._values['height_m']))
+        force = dcm.T @ (acceleration + np.array([0.0, 0.0, gravity]))
+        rate = np.asarray(angular, dtype=float) + dcm.T @ earth.earth_rate_enu(latitude)
+        self.accept(time_ns, force, rate)
+
+    def inputs(self, stamps):
+        """
+        Return (specific force, angular rate, stale mask) per sample in topic mode.
+
+        Outside topic mode (None, None, None).
+        """
         if not self.active:
-            return None, None
+            return None, None, None
         count = len(stamps)
+        static_force, static_rate = self._static()
         fallback = self.held
         if fallback is None:
-            fallback = (None, tuple(static_profile(self._values).specific_force))
+            fallback = (None, static_force + static_rate)
         if not self.pending:
             force = np.tile(fallback[1], (count, 1))
             times = np.full(count, -1 if fallback[0] is None else fallback[0], dtype=np.int64)
@@ -77,15 +133,21 @@ class GroundTruthInput:
                 del self.pending[:last + 1]
         timeout_ns = int(self._values['input.timeout_s'] * NS_PER_S)
         stale = (times < 0) | (stamps - times > timeout_ns)
-        return force, stale
+        force = np.asarray(force, dtype=float)
+        rate = force[:, 3:].copy()
+        unknown = ~np.isfinite(rate)
+        rate[unknown] = np.broadcast_to(static_rate, rate.shape)[unknown]
+        return force[:, :3].copy(), rate, stale
 
-    def held_force(self, count):
-        """Return the latest input repeated ``count`` times (topic mode), else None."""
+    def held_inputs(self, count):
+        """Return the latest (force, rate) repeated ``count`` times (topic mode), else None."""
         if not self.active:
-            return None
-        value = self.pending[-1][1] if self.pending else (
-            self.held[1] if self.held else static_profile(self._values).specific_force)
-        return np.tile(np.asarray(value, dtype=float), (count, 1))
+            return None, None
+        static_force, static_rate = self._static()
+        value = np.asarray(self.pending[-1][1] if self.pending else (
+            self.held[1] if self.held else static_force + static_rate), dtype=float)
+        rate = np.where(np.isfinite(value[3:]), value[3:], static_rate)
+        return np.tile(value[:3], (count, 1)), np.tile(rate, (count, 1))
 
     def status(self, now_ns):
         """Return ``(level, message, key values)`` for the ``input`` diagnostic."""

@@ -10,6 +10,7 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import AccelStamped
+from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.exceptions import ParameterException
@@ -42,6 +43,7 @@ from qfa_ros.ros.params import (
     FEEDBACK_COMPONENT,
     FORWARD_COMPONENT,
     input_profile,
+    LOCATION_PARAMETERS,
     PARAMETERS,
     temperature_settings,
     THERMAL_RUNTIME_PARAMETERS,
@@ -142,6 +144,9 @@ class QfaNode(Node):
         input_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
         if values['input.topic_type'] == 'imu':
             self.create_subscription(Imu, 'input/imu', self.input_imu_callback, input_qos)
+        elif values['input.topic_type'] == 'odometry':
+            self.create_subscription(Odometry, 'input/odometry', self.input_odometry_callback,
+                                     input_qos)
         else:
             self.create_subscription(AccelStamped, 'input/accel', self.input_accel_callback,
                                      input_qos)
@@ -151,6 +156,10 @@ class QfaNode(Node):
             self, self._lock, self._triad, values, self._ground_truth, self._recording,
             imu_publisher, temperature_publisher,
             [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0, variance])
+        if self._triad.gyro is not None:
+            rate_variance = self._triad.gyro.variance()
+            self._stream.set_rate_covariance(
+                [rate_variance, 0.0, 0.0, 0.0, rate_variance, 0.0, 0.0, 0.0, rate_variance])
         self._schedules = ScheduleService(self, self._lock, values, self._stream, self._keeper)
         self._diagnostics = Diagnostics(self, values, [
             ('stream', self._stream.status),
@@ -219,8 +228,9 @@ class QfaNode(Node):
             try:
                 if names & DRIFT_PARAMETERS:
                     self._apply_drift()
-                if any(name.startswith('input.') for name in names):
-                    self._triad.profile = input_profile(self._values)
+                if any(name.startswith('input.') for name in names) \
+                        or names & LOCATION_PARAMETERS:
+                    self._triad.profile = input_profile(self._values, self._triad.time)
                 if 'frame_id' in names:
                     self._stream.set_frame_id(self._values['frame_id'])
                 if names & THERMAL_RUNTIME_PARAMETERS:
@@ -262,19 +272,38 @@ class QfaNode(Node):
 
     # Ground-truth input -----------------------------------------------------------------
     def input_imu_callback(self, message):
-        """Take the specific force of a ground-truth ``sensor_msgs/Imu``."""
-        self._accept_input(message.header.stamp, message.linear_acceleration)
+        """Take the specific force (and angular rate, if given) of a ground-truth Imu."""
+        rate = None
+        if message.angular_velocity_covariance[0] != -1.0:
+            w = message.angular_velocity
+            rate = (w.x, w.y, w.z)
+        self._accept_input(message.header.stamp, message.linear_acceleration, rate)
+
+    def input_odometry_callback(self, message):
+        """Take the specific force and rate implied by a ground-truth ``nav_msgs/Odometry``."""
+        pose, twist = message.pose.pose, message.twist.twist
+        with self._lock:
+            self._ground_truth.accept_odometry(
+                self._input_time_ns(message.header.stamp),
+                (pose.position.x, pose.position.y, pose.position.z),
+                (pose.orientation.x, pose.orientation.y, pose.orientation.z,
+                 pose.orientation.w),
+                (twist.linear.x, twist.linear.y, twist.linear.z),
+                (twist.angular.x, twist.angular.y, twist.angular.z))
+        self._stream.input_arrived()
 
     def input_accel_callback(self, message):
         """Take the specific force of a ground-truth ``geometry_msgs/AccelStamped``."""
         self._accept_input(message.header.stamp, message.accel.linear)
 
-    def _accept_input(self, stamp, vector):
+    def _input_time_ns(self, stamp):
         time_ns = stamp.sec * NS_PER_S + stamp.nanosec
-        if time_ns == 0:
-            time_ns = self.get_clock().now().nanoseconds
+        return time_ns if time_ns else self.get_clock().now().nanoseconds
+
+    def _accept_input(self, stamp, vector, rate=None):
+        time_ns = self._input_time_ns(stamp)
         with self._lock:
-            self._ground_truth.accept(time_ns, (vector.x, vector.y, vector.z))
+            self._ground_truth.accept(time_ns, (vector.x, vector.y, vector.z), rate)
         self._stream.input_arrived()
 
     # Services ---------------------------------------------------------------------------

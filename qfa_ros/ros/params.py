@@ -22,9 +22,11 @@ from qfa_ros.calibration.estimation import (
     ForwardSettings,
 )
 from qfa_ros.calibration.temperature import TemperatureSettings
+from qfa_ros.model import trajectory as trajectories
+from qfa_ros.model.gyro import DEG_PER_HOUR, GyroConfig
 from qfa_ros.model.hardware import STANDARD_GRAVITY
 from qfa_ros.model.noise import MICRO_G, NoiseConfig
-from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile, tumble_profile
+from qfa_ros.model.profiles import SineProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import TriadConfig
 from qfa_ros.ros.bounds import (
@@ -42,9 +44,12 @@ from qfa_ros.ros.bounds import (
     FORWARD_MAX_SETTLE_S,
 )
 
-INPUT_MODES = ('static', 'profile', 'topic')
+INPUT_MODES = ('static', 'profile', 'trajectory', 'topic')
+INPUT_TRAJECTORIES = tuple(sorted(trajectories.SCRIPTS)) + ('file',)
+LOCATION_PARAMETERS = frozenset({'latitude_deg', 'longitude_deg', 'height_m'})
+"""Parameters that move the sensor on the Earth (the input is rebuilt)."""
 INPUT_PROFILES = ('sine', 'tumble', 'steps')
-INPUT_TOPIC_TYPES = ('imu', 'accel')
+INPUT_TOPIC_TYPES = ('imu', 'accel', 'odometry')
 AMBIENT_PROFILES = ('constant', 'ramp', 'cycle', 'room')
 THERMAL_BIAS_MODELS = ('double_exp', 'none')
 
@@ -59,6 +64,7 @@ _FORWARD = ForwardSettings()
 _FEEDBACK = FeedbackSettings()
 _THERMAL = ThermalConfig()
 _CHAMBER = TemperatureSettings()
+_GYRO = GyroConfig()
 
 
 @dataclass(frozen=True)
@@ -165,13 +171,43 @@ PARAMETERS = (
     ParameterSpec('drift.time_acceleration', 1.0,
                   'Aging time-acceleration factor (3.15e7: a year per second)', False,
                   0.0, 1.0e12),
+    ParameterSpec('latitude_deg', 45.0,
+                  'Geodetic latitude of the sensor (WGS-84) [deg]: normal gravity and Earth '
+                  'rate follow', False, -89.9, 89.9),
+    ParameterSpec('longitude_deg', 0.0, 'Longitude of the sensor (WGS-84) [deg]', False,
+                  -180.0, 180.0),
+    ParameterSpec('height_m', 0.0, 'Height of the sensor above the WGS-84 ellipsoid [m]',
+                  False, -12000.0, 100000.0),
+    ParameterSpec('gyro.enabled', True,
+                  'Gyro triad (IEEE 952 FOG model): angular_velocity of imu/data_raw; false: '
+                  'angular_velocity_covariance[0] = -1', True),
+    ParameterSpec('gyro.arw_deg_per_rthr', _GYRO.arw / (math.pi / 180.0 / 60.0),
+                  'Gyro angle random walk [deg/sqrt(h)]', True, 0.0, 100.0),
+    ParameterSpec('gyro.bias_instability_deg_per_hr', _GYRO.bias_instability / DEG_PER_HOUR,
+                  'Gyro bias instability, flicker floor of the Allan deviation [deg/h]', True,
+                  0.0, 1000.0),
+    ParameterSpec('gyro.rate_random_walk_deg_per_hr_per_rthr',
+                  _GYRO.rate_random_walk * 60.0 / DEG_PER_HOUR,
+                  'Gyro rate random walk [deg/h/sqrt(h)]', True, 0.0, 1000.0),
+    ParameterSpec('gyro.turn_on_bias_deg_per_hr', _GYRO.turn_on_bias / DEG_PER_HOUR,
+                  'Spread (1 sigma) of the gyro turn-on bias drawn per unit [deg/h]', True,
+                  0.0, 10000.0),
     ParameterSpec('input.mode', 'static',
-                  'Input: static orientation, scripted profile, or ground-truth topic',
-                  choices=INPUT_MODES),
+                  'Input: static orientation, scripted profile, trajectory on the Earth, or '
+                  'ground-truth topic', choices=INPUT_MODES),
     ParameterSpec('input.roll', 0.0, 'Static roll [rad] (also the topic fallback)', False,
                   -math.pi, math.pi),
     ParameterSpec('input.pitch', 0.0, 'Static pitch [rad] (also the topic fallback)', False,
                   -math.pi / 2, math.pi / 2),
+    ParameterSpec('input.yaw', 0.0,
+                  'Static heading [rad], REP-103 ENU yaw (0: x east, pi/2: x north); also '
+                  'the initial heading of a trajectory', False, -math.pi, math.pi),
+    ParameterSpec('input.trajectory', 'drive',
+                  'Trajectory of input.mode trajectory: a built-in motion script or file '
+                  '(input.trajectory_file); it starts when selected', choices=INPUT_TRAJECTORIES),
+    ParameterSpec('input.trajectory_file', '',
+                  'CSV pose file of input.trajectory file: time_s, latitude_deg, '
+                  'longitude_deg, height_m, roll_deg, pitch_deg, yaw_deg'),
     ParameterSpec('input.profile', 'sine', 'Scripted profile of input.mode profile',
                   choices=INPUT_PROFILES),
     ParameterSpec('input.sine.frequency_hz', 5.0, 'Sine vibration frequency [Hz]', False,
@@ -191,8 +227,10 @@ PARAMETERS = (
                   'Step levels, x, y, z per entry of input.steps.times_s [m/s^2]', False,
                   -1000.0, 1000.0),
     ParameterSpec('input.topic_type', 'imu',
-                  'Ground-truth message: imu (sensor_msgs/Imu on input/imu) or accel '
-                  '(geometry_msgs/AccelStamped on input/accel)', True,
+                  'Ground-truth message: imu (sensor_msgs/Imu on input/imu, with its '
+                  'angular_velocity unless covariance[0] = -1), accel '
+                  '(geometry_msgs/AccelStamped on input/accel) or odometry (nav_msgs/Odometry '
+                  'on input/odometry, e.g. Gazebo ground truth)', True,
                   choices=INPUT_TOPIC_TYPES),
     ParameterSpec('input.timeout_s', 0.1,
                   'Ground-truth input older than this is stale: imu/data_raw pauses [s]',
@@ -416,12 +454,21 @@ def triad_config(values):
         noise = NoiseConfig(noise_density=values['noise.density_ug_per_rthz'] * MICRO_G,
                             bias_instability=values['noise.bias_instability_ug'] * MICRO_G,
                             adc_noise=values['noise.adc_counts'])
+    gyro = None
+    if values['gyro.enabled']:
+        with _named('gyro'):
+            gyro = _GYRO.with_errors(
+                arw=values['gyro.arw_deg_per_rthr'] * (math.pi / 180.0 / 60.0),
+                bias_instability=values['gyro.bias_instability_deg_per_hr'] * DEG_PER_HOUR,
+                rate_random_walk=values['gyro.rate_random_walk_deg_per_hr_per_rthr']
+                * DEG_PER_HOUR / 60.0,
+                turn_on_bias=values['gyro.turn_on_bias_deg_per_hr'] * DEG_PER_HOUR)
     with _named('sample_rate_hz / loop_rate_hz / model'):
         return TriadConfig.from_datasheet(
             bias_ug=tuple(values['model.bias_ug']),
             k2_ug_per_g2=tuple(values['model.k2_ug_per_g2']),
             loop_rate_hz=values['loop_rate_hz'], sample_rate_hz=values['sample_rate_hz'],
-            noise=noise, thermal=thermal)
+            noise=noise, thermal=thermal, gyro=gyro)
 
 
 def forward_settings(values):
@@ -447,12 +494,35 @@ def feedback_settings(values):
 
 
 def static_profile(values):
-    """Return the static orientation of ``input.roll`` / ``input.pitch``."""
-    return StaticProfile.orientation(values['input.roll'], values['input.pitch'])
+    """Return the body at rest at the location, ``input.roll`` / ``pitch`` / ``yaw``."""
+    with _named('latitude_deg / longitude_deg / height_m'):
+        return trajectories.static(values['latitude_deg'], values['longitude_deg'],
+                                   values['height_m'], values['input.roll'],
+                                   values['input.pitch'], values['input.yaw'])
 
 
-def input_profile(values):
-    """Return the profile that drives the model in ``static`` and ``profile`` modes."""
+def trajectory_input(values, start_s=0.0):
+    """Return the trajectory of ``input.trajectory``, starting at sensor time ``start_s``."""
+    kind = values['input.trajectory']
+    with _named(f'input.trajectory {kind}'):
+        if kind == 'file':
+            if not values['input.trajectory_file']:
+                raise ValueError('input.trajectory_file is empty')
+            motion = trajectories.load_csv(values['input.trajectory_file'])
+        else:
+            motion = trajectories.SCRIPTS[kind](
+                latitude_deg=values['latitude_deg'], longitude_deg=values['longitude_deg'],
+                height_m=values['height_m'], yaw=values['input.yaw'])
+    return motion.shifted(start_s)
+
+
+def input_profile(values, start_s=0.0):
+    """Return the input of the ``static``, ``profile`` and ``trajectory`` modes.
+
+    A trajectory starts at sensor time ``start_s`` (when it is selected).
+    """
+    if values['input.mode'] == 'trajectory':
+        return trajectory_input(values, start_s)
     if values['input.mode'] != 'profile':
         return static_profile(values)
     kind = values['input.profile']

@@ -165,6 +165,12 @@ class ScheduleService:
     async def _run(self, response, kind, make_schedule, fast):
         keeper = self._keeper
         with self._lock:
+            moving = keeper.triad.is_at_rest()
+            if moving:
+                response.success = False
+                response.message = f'{kind} refused: {moving}'
+                self.last_error = response.message
+                return response
             before = keeper.state.to_dict()
             self._snapshot = SensorSnapshot(keeper)
             try:

@@ -100,6 +100,7 @@ class SampleStream:
         self._imu_publisher = imu_publisher
         self._temperature_publisher = temperature_publisher
         self._acceleration_covariance = acceleration_covariance
+        self._rate_covariance = None
         self._temperature = Temperature()
         if triad.thermal is not None:
             self._temperature.variance = triad.thermal.reading_variance_c2
@@ -152,8 +153,14 @@ class SampleStream:
 
     def set_frame_id(self, frame_id):
         """Stamp every following message with ``frame_id``."""
-        self._imu_encoder = ImuEncoder(frame_id, self._acceleration_covariance)
+        self._imu_encoder = ImuEncoder(frame_id, self._acceleration_covariance,
+                                       self._rate_covariance)
         self._temperature.header.frame_id = frame_id
+
+    def set_rate_covariance(self, covariance):
+        """Publish the gyros' angular velocity with this row-major 3x3 covariance [(rad/s)^2]."""
+        self._rate_covariance = covariance
+        self.set_frame_id(self._imu_encoder.frame_id)
 
     def start_schedule(self, run, reason):
         """Hand ``run`` to the sensor thread; the stream pauses for ``reason``."""
@@ -276,8 +283,8 @@ class SampleStream:
             run = self.schedule
             chunk = count if run is None else min(count, run.remaining)
             stamps = grid.stamp_ns(np.arange(grid.next_index, grid.next_index + chunk))
-            force, stale = self._ground_truth.force(stamps)
-            output = self._triad.run(chunk, force)
+            force, rate, stale = self._ground_truth.inputs(stamps)
+            output = self._triad.run(chunk, force, angular_rate=rate)
             self._queue_samples(grid.next_index, stamps, output, stale)
             grid.next_index += chunk
             self.computed += chunk
@@ -290,7 +297,8 @@ class SampleStream:
         started = time.process_time()
         while time.process_time() - started < FAST_SLICE_S:
             n = min(FAST_CHUNK_SAMPLES, run.remaining)
-            output = self._triad.run(n, self._ground_truth.held_force(n))
+            force, rate = self._ground_truth.held_inputs(n)
+            output = self._triad.run(n, force, angular_rate=rate)
             self.saturated += output.saturated.sum(axis=0)
             if run.feed(output):
                 self.finish_fast_schedule()
@@ -333,7 +341,8 @@ class SampleStream:
         if valid.any():
             imu = self._imu_publisher
             valid_stamps = stamps[valid]
-            messages = self._imu_encoder.encode(valid_stamps, output.accel[valid])
+            rate = output.gyro[valid] if self._imu_encoder.has_rate else None
+            messages = self._imu_encoder.encode(valid_stamps, output.accel[valid], rate)
             items = [(stamp, 0, imu, IMU_TYPE, data)
                      for stamp, data in zip(valid_stamps.tolist(), messages)]
         self.withheld += int(len(valid) - np.count_nonzero(valid))

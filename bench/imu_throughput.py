@@ -1,0 +1,66 @@
+"""Benchmark the full IMU (QFA loops + gyros on a trajectory) against accelerometers alone.
+
+Run: ``.venv/bin/python bench/imu_throughput.py [--seconds S] [--repeat N]``. Prints
+Markdown. Both runs are ``qfa-sim``'s model loop (1 s chunks at the default 1 kHz
+output, 10 kHz loops), interleaved in one process so that machine load hits both alike:
+
+- *static, accelerometers only*: level, no gyros (``TriadConfig(gyro=None)``), the
+  ``qfa-sim static`` figure;
+- *drive, full IMU*: the gyro triad and the built-in vehicle drive on the WGS-84 Earth
+  (specific force and rate from the trajectory, ``qfa-sim trajectory --motion drive``).
+
+The acceptance figure is the ratio of their real-time multiples (issue 15: >= 0.90).
+"""
+
+import argparse
+import statistics
+import time
+
+
+def run(make, seconds):
+    """Return the real-time multiple of ``seconds`` of sensor time in 1 s chunks."""
+    triad = make()
+    triad.run(10)  # JIT and first-call costs outside the timing
+    chunk = int(round(triad.config.sample_rate_hz))
+    start = time.perf_counter()
+    for _ in range(int(seconds)):
+        triad.run(chunk)
+    return seconds / (time.perf_counter() - start)
+
+
+def main():
+    """Run the benchmark and print a Markdown table."""
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument('--seconds', type=float, default=60.0,
+                        help='sensor seconds per repetition')
+    parser.add_argument('--repeat', type=int, default=5)
+    args = parser.parse_args()
+
+    from qfa_ros.model import trajectory
+    from qfa_ros.model.triad import QfaTriad, TriadConfig
+
+    drive = trajectory.vehicle_drive()
+    cases = {
+        'static, accelerometers only': lambda: QfaTriad(TriadConfig(gyro=None), rng=0),
+        'drive, full IMU (gyros + trajectory)': lambda: QfaTriad(TriadConfig(), rng=0,
+                                                                 profile=drive),
+        'static on the Earth, full IMU': lambda: QfaTriad(
+            TriadConfig(), rng=0, profile=trajectory.static(45.0)),
+    }
+    results = {name: [] for name in cases}
+    for _ in range(args.repeat):
+        for name, make in cases.items():
+            results[name].append(run(make, args.seconds))
+    base = statistics.median(results['static, accelerometers only'])
+    print(f'{args.seconds:g} s of sensor time per run, {args.repeat} interleaved repetitions '
+          '(median; 1 kHz output, 10 kHz loops)\n')
+    print('| case | x real time (median) | min | max | ratio to static accel-only |')
+    print('|---|---|---|---|---|')
+    for name, values in results.items():
+        median = statistics.median(values)
+        print(f'| {name} | {median:.1f} | {min(values):.1f} | {max(values):.1f} | '
+              f'{median / base:.3f} |')
+
+
+if __name__ == '__main__':
+    main()

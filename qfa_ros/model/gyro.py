@@ -1,0 +1,292 @@
+"""Navigation-grade gyroscope triad (IEEE Std 952 FOG error model), drawn per unit.
+
+The output equation follows IEEE Std 952-1997 (interferometric fiber optic gyro), its
+model ``S0 dN/dt = (I + E + D)(1 + eps_k 1e-6)^-1`` written for a rate output: per
+axis ``i`` and published sample ``k`` (period ``T``)::
+
+    w_s   = (I + M) w_ib                                   misalignment M
+    y_i   = w_s,i (1 + s_i + s_T,i dT + a_i sgn(w_s,i))    scale factor, its temperature
+                                                           coefficient, asymmetry
+          + b_i + b_T,i dT + (G f)_i                       turn-on bias, bias temperature
+                                                           coefficient, g-sensitivity
+          + n_ARW + n_BI + n_RRW                           angle random walk, bias
+                                                           instability, rate random walk
+    y_i  -> angle quantization (residual carried), clipped at the rate range
+
+with ``dT`` the body temperature minus ``reference_c`` (the accelerometers' thermal
+model drives both triads) and ``f`` the specific force [m/s^2]. Noise per sample:
+``n_ARW ~ N(0, N^2 / T)``; ``n_BI`` a sum of first-order Gauss-Markov processes scaled
+to the Allan floor ``B`` (as :mod:`qfa_ros.model.noise` does for the accelerometers);
+``n_RRW`` a random walk with steps ``N(0, K^2 T)``. The two slow processes advance
+once per block of ``m`` samples (``m T`` at most a tenth of the shortest correlation
+time, and 10 ms) and hold over it: their Allan deviation is unchanged from ``m T`` on,
+where the ARW dwarfs them anyway, and they cost ``1/m`` of the random numbers.
+``s, a, b, M, G, b_T, s_T`` are drawn once per unit from zero-mean normal laws with the
+configured 1-sigma spreads.
+"""
+
+from dataclasses import dataclass
+import math
+
+from numba import njit
+import numpy as np
+
+from qfa_ros.model.noise import flicker_component_variance
+
+DEG_PER_HOUR = math.pi / 180.0 / 3600.0
+"""One degree per hour [rad/s]."""
+PPM = 1e-6
+ARCSEC = math.pi / 180.0 / 3600.0
+"""One arc second [rad]."""
+G0 = 9.80665
+
+
+@dataclass(frozen=True)
+class GyroConfig:
+    """
+    Error model of the gyro triad (SI units; 1-sigma spreads of the per-unit draws).
+
+    Defaults: the navigation-grade (1 nmi/h class) gyro of ``docs/model.md``.
+
+    Attributes
+    ----------
+    arw : float
+        Angle random walk N [rad/sqrt(s)]: Allan deviation N / sqrt(tau).
+    bias_instability : float
+        Allan floor B [rad/s] of the Gauss-Markov sum with ``correlation_times`` [s].
+    rate_random_walk : float
+        K [rad/s/sqrt(s)]: Allan deviation K sqrt(tau / 3).
+    turn_on_bias : float
+        Spread of the turn-on bias b [rad/s].
+    scale_factor : float
+        Spread of the scale-factor error s [dimensionless].
+    scale_factor_asymmetry : float
+        Spread of the asymmetry a [dimensionless].
+    misalignment : float
+        Spread of each element of M [rad].
+    g_sensitivity : float
+        Spread of each element of G [(rad/s)/(m/s^2)].
+    bias_tc, scale_factor_tc : float
+        Spreads of the temperature coefficients b_T [rad/s/K] and s_T [1/K].
+    reference_c : float
+        Temperature at which the temperature terms vanish [degC].
+    quantization : float
+        Angle quantum of the output [rad] (0: none).
+    range : float
+        Rate range [rad/s]; beyond it the output is clipped and flagged.
+    """
+
+    arw: float = 0.002 * (math.pi / 180.0 / 60.0)
+    bias_instability: float = 0.003 * DEG_PER_HOUR
+    correlation_times: tuple = (1.0, 10.0, 100.0, 1000.0, 10000.0)
+    rate_random_walk: float = 0.003 * DEG_PER_HOUR / 60.0
+    turn_on_bias: float = 0.003 * DEG_PER_HOUR
+    scale_factor: float = 5.0 * PPM
+    scale_factor_asymmetry: float = 1.0 * PPM
+    misalignment: float = 5.0 * ARCSEC
+    g_sensitivity: float = 0.001 * DEG_PER_HOUR / G0
+    bias_tc: float = 0.0003 * DEG_PER_HOUR
+    scale_factor_tc: float = 0.5 * PPM
+    reference_c: float = 25.0
+    quantization: float = 1e-9
+    range: float = math.radians(490.0)
+
+    def __post_init__(self):
+        for name in ('arw', 'bias_instability', 'rate_random_walk', 'turn_on_bias',
+                     'scale_factor', 'scale_factor_asymmetry', 'misalignment',
+                     'g_sensitivity', 'bias_tc', 'scale_factor_tc', 'quantization'):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                raise ValueError(f'gyro {name} must be finite and >= 0, got {value!r}')
+        if not math.isfinite(self.reference_c):
+            raise ValueError(f'gyro reference_c must be finite, got {self.reference_c!r}')
+        if not math.isfinite(self.range) or self.range <= 0:
+            raise ValueError(f'gyro range must be positive, got {self.range!r}')
+        if not self.correlation_times or any(
+                not math.isfinite(t) or t <= 0 for t in self.correlation_times):
+            raise ValueError('gyro correlation_times must be positive and finite')
+
+    @classmethod
+    def ideal(cls):
+        """Return a gyro with every error switched off (range kept)."""
+        return cls(arw=0.0, bias_instability=0.0, rate_random_walk=0.0, turn_on_bias=0.0,
+                   scale_factor=0.0, scale_factor_asymmetry=0.0, misalignment=0.0,
+                   g_sensitivity=0.0, bias_tc=0.0, scale_factor_tc=0.0, quantization=0.0)
+
+    def with_errors(self, **changes):
+        """Return a copy with ``changes`` applied (validated)."""
+        values = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        values.update(changes)
+        return GyroConfig(**values)
+
+
+@dataclass(frozen=True)
+class GyroUnit:
+    """The per-unit draw of a :class:`GyroConfig` (vectors per axis, matrices 3x3)."""
+
+    bias: np.ndarray
+    scale_factor: np.ndarray
+    asymmetry: np.ndarray
+    misalignment: np.ndarray
+    g_sensitivity: np.ndarray
+    bias_tc: np.ndarray
+    scale_factor_tc: np.ndarray
+
+    @classmethod
+    def draw(cls, config, rng):
+        """Draw one unit from ``config``'s spreads with ``rng``."""
+        def normal(sigma, shape):
+            return rng.standard_normal(shape) * sigma
+        return cls(bias=normal(config.turn_on_bias, 3),
+                   scale_factor=normal(config.scale_factor, 3),
+                   asymmetry=normal(config.scale_factor_asymmetry, 3),
+                   misalignment=normal(config.misalignment, (3, 3)) * (1 - np.eye(3)),
+                   g_sensitivity=normal(config.g_sensitivity, (3, 3)),
+                   bias_tc=normal(config.bias_tc, 3),
+                   scale_factor_tc=normal(config.scale_factor_tc, 3))
+
+
+class GyroTriad:
+    """
+    Three gyro axes advancing at the published sample rate ``dt = 1 / sample_rate_hz``.
+
+    Parameters
+    ----------
+    config : GyroConfig
+        Error model.
+    sample_rate_hz : float
+        Output rate [Hz].
+    rng : numpy.random.Generator or int
+        Source of the unit draw and of the noise (one child stream per source and
+        axis, so the output does not depend on the chunk lengths).
+    """
+
+    def __init__(self, config, sample_rate_hz, rng):
+        if not math.isfinite(sample_rate_hz) or sample_rate_hz <= 0:
+            raise ValueError(f'sample_rate_hz must be positive, got {sample_rate_hz!r}')
+        if not isinstance(rng, np.random.Generator):
+            rng = np.random.default_rng(rng)
+        self.config = config
+        self.dt = 1.0 / sample_rate_hz
+        unit_stream, white, flicker, walk = rng.spawn(4)
+        self.unit = GyroUnit.draw(config, unit_stream)
+        self._white, self._flicker, self._walk = white, flicker, walk
+        self._white_std = config.arw / math.sqrt(self.dt)
+        block_s = min(0.1 * min(config.correlation_times), 0.01)
+        self._block = max(1, int(block_s / self.dt))
+        period = self._block * self.dt
+        self._phi = np.exp(-period / np.asarray(config.correlation_times, dtype=float))
+        variance = flicker_component_variance(config)
+        self._innovation_std = np.sqrt(variance * (1.0 - self._phi ** 2))
+        self._flicker_state = flicker.standard_normal((3, len(self._phi))) * math.sqrt(variance)
+        self._walk_state = np.zeros(3)
+        self._walk_std = config.rate_random_walk * math.sqrt(period)
+        self._slow = self._flicker_state.sum(axis=1) if config.bias_instability > 0 \
+            else np.zeros(3)
+        self._slow_left = self._block  # samples the current slow value still holds
+        self._angle_residual = np.zeros(3)
+        self._sensing = np.eye(3) + self.unit.misalignment
+
+    def variance(self):
+        """Return the variance of one published sample per axis [(rad/s)^2] (REP-145)."""
+        c = self.config
+        return c.arw ** 2 / self.dt + c.bias_instability ** 2 \
+            + (c.quantization / self.dt) ** 2 / 6.0
+
+    def _slow_blocks(self, count):
+        """Advance the bias-instability and rate-random-walk processes ``count`` blocks."""
+        values = np.zeros((count, 3))
+        if self.config.bias_instability > 0:
+            drive = self._flicker.standard_normal((count, 3, len(self._phi))) \
+                * self._innovation_std
+            _gauss_markov(drive, self._phi, self._flicker_state, values)
+        if self._walk_std > 0:
+            walk = self._walk_state + np.cumsum(
+                self._walk.standard_normal((count, 3)) * self._walk_std, axis=0)
+            values += walk
+            self._walk_state = walk[-1]
+        return values
+
+    def _noise(self, n):
+        noise = np.empty((n, 3))
+        held = min(n, self._slow_left)
+        noise[:held] = self._slow
+        rest = n - held
+        if rest > 0:
+            count = -(-rest // self._block)
+            values = self._slow_blocks(count)
+            noise[held:] = np.repeat(values, self._block, axis=0)[:rest]
+            self._slow = values[-1]
+            self._slow_left = count * self._block - rest
+        else:
+            self._slow_left -= held
+        if self._white_std > 0:
+            noise += self._white.standard_normal((n, 3)) * self._white_std
+        return noise
+
+    def run(self, rate, specific_force, temperature):
+        """
+        Return (output rate [rad/s], saturated bool) per sample, each (n, 3).
+
+        Parameters
+        ----------
+        rate : array_like, (n, 3)
+            True angular rate of the body w.r.t. inertial space, body axes, averaged
+            over each sample [rad/s].
+        specific_force : array_like, (n, 3)
+            Specific force per sample [m/s^2] (g-sensitivity).
+        temperature : array_like, (n,)
+            Body temperature per sample [degC].
+        """
+        rate = np.ascontiguousarray(rate, dtype=float)
+        force = np.ascontiguousarray(specific_force, dtype=float)
+        n = len(rate)
+        if rate.shape != (n, 3) or force.shape != (n, 3):
+            raise ValueError('rate and specific_force must have shape (n, 3)')
+        u = self.unit
+        d_t = np.asarray(temperature, dtype=float) - self.config.reference_c
+        output = self._noise(n)
+        saturated = np.empty((n, 3), dtype=np.bool_)
+        _output_equation(rate, force, d_t, self._sensing, u.scale_factor, u.scale_factor_tc,
+                         u.asymmetry, u.bias, u.bias_tc, u.g_sensitivity,
+                         self.config.quantization, self.dt, self.config.range,
+                         self._angle_residual, output, saturated)
+        return output, saturated
+
+
+@njit(cache=True, nogil=True)
+def _gauss_markov(drive, phi, state, out):
+    """Add the sum over components j of ``b_j[k] = phi_j b_j[k-1] + drive[k, axis, j]``."""
+    for axis in range(drive.shape[1]):
+        for j in range(drive.shape[2]):
+            value = state[axis, j]
+            for k in range(drive.shape[0]):
+                value = phi[j] * value + drive[k, axis, j]
+                out[k, axis] += value
+            state[axis, j] = value
+
+
+@njit(cache=True, nogil=True)
+def _output_equation(rate, force, d_t, sensing, sf, sf_tc, asymmetry, bias, bias_tc, g_sens,
+                     quantum, dt, limit, residual, out, saturated):
+    """
+    Add the output equation of the module docstring to the noise in ``out`` (n, 3).
+
+    Then quantize the angle (``residual`` carries the remainder between calls) and clip.
+    """
+    for k in range(rate.shape[0]):
+        for i in range(3):
+            sensed = sensing[i, 0] * rate[k, 0] + sensing[i, 1] * rate[k, 1] \
+                + sensing[i, 2] * rate[k, 2]
+            sign = 1.0 if sensed > 0 else (-1.0 if sensed < 0 else 0.0)
+            value = out[k, i] + sensed * (1.0 + sf[i] + sf_tc[i] * d_t[k] + asymmetry[i] * sign) \
+                + bias[i] + bias_tc[i] * d_t[k] + g_sens[i, 0] * force[k, 0] \
+                + g_sens[i, 1] * force[k, 1] + g_sens[i, 2] * force[k, 2]
+            if quantum > 0:
+                # Whole angle quanta per sample; the remainder stays for the next sample.
+                angle = value * dt + residual[i]
+                counts = math.floor(angle / quantum)
+                residual[i] = angle - counts * quantum
+                value = counts * quantum / dt
+            saturated[k, i] = abs(value) > limit
+            out[k, i] = min(max(value, -limit), limit)

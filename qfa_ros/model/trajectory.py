@@ -1,0 +1,589 @@
+r"""Trajectories on the WGS-84 Earth: specific force and angular rate in the body frame.
+
+A :class:`Trajectory` is a piecewise polynomial of time (one
+:class:`scipy.interpolate.PPoly` with six channels): geodetic latitude and longitude
+[rad], height [m], and the REP-103 Euler angles roll, pitch, yaw [rad] of the body
+(x forward, y left, z up) in the local ENU frame, ``C_b^n = R_z(yaw) R_y(pitch)
+R_x(roll)``. Everything the sensors see follows from it by exact differentiation
+(Groves 2013, eq. 5.54, the local-navigation-frame equations)::
+
+    v^n   = ((R_E + h) cos(phi) lambda', (R_N + h) phi', h')             ENU velocity
+    f^b   = C_n^b (dv^n/dt + (2 w_ie^n + w_en^n) x v^n - g^n)           specific force
+    w_ib^b = C_n^b (w_ie^n + w_en^n) + w_nb^b                             angular rate
+    w_nb^b = (roll' - yaw' sin p,  pitch' cos r + yaw' sin r cos p,
+              -pitch' sin r + yaw' cos r cos p)
+
+with ``g^n`` the WGS-84 normal gravity (plumb bob: gravitation plus centrifugal), so
+the specific force and angular rate are consistent with the pose to rounding. Before
+the first knot and after the last one the body rests at the end pose.
+
+Built-in motion scripts: :func:`static`, :func:`six_position_tumble`,
+:func:`rate_table_turn`, :func:`vehicle_drive`, :func:`coning`, :func:`sculling`.
+Built-in scripts join their knots by quintic Hermite pieces through positions,
+rates and accelerations (C2), so dwells stay exactly still.
+
+Trajectory files are CSV (:func:`load_csv`): one header line, then
+``time_s, latitude_deg, longitude_deg, height_m, roll_deg, pitch_deg, yaw_deg`` per
+row, joined by a C2 cubic spline. A pose log is what Gazebo, a reference INS/GNSS or a
+survey exports and is the quantity an INS is scored against; a command script (the
+gnss-ins-sim motion definition) would be a second way to write what the built-in
+scripts already are.
+
+One cohesive module: the pose representation, its exact kinematics (and their compiled
+twin, held equal by the tests), the scripts and the file format that build it.
+"""
+
+import csv
+import math
+
+from numba import njit
+import numpy as np
+from scipy.interpolate import CubicSpline, PPoly
+
+from qfa_ros.model import earth
+
+CSV_COLUMNS = ('time_s', 'latitude_deg', 'longitude_deg', 'height_m', 'roll_deg',
+               'pitch_deg', 'yaw_deg')
+
+
+def euler_to_dcm(roll, pitch, yaw):
+    """Return C_b^n = R_z(yaw) R_y(pitch) R_x(roll), shape (..., 3, 3)."""
+    cr, sr = np.cos(roll), np.sin(roll)
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    return np.stack([
+        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+        np.stack([-sp, cp * sr, cp * cr], -1)], -2)
+
+
+def dcm_to_quaternion(dcm):
+    """Return the unit quaternion (x, y, z, w) of rotation matrices (..., 3, 3)."""
+    m = np.asarray(dcm, dtype=float)
+    w = 0.5 * np.sqrt(np.maximum(0.0, 1.0 + m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]))
+    x = 0.5 * np.sqrt(np.maximum(0.0, 1.0 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2]))
+    y = 0.5 * np.sqrt(np.maximum(0.0, 1.0 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2]))
+    z = 0.5 * np.sqrt(np.maximum(0.0, 1.0 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]))
+    x = np.copysign(x, m[..., 2, 1] - m[..., 1, 2])
+    y = np.copysign(y, m[..., 0, 2] - m[..., 2, 0])
+    z = np.copysign(z, m[..., 1, 0] - m[..., 0, 1])
+    return np.stack([x, y, z, w], axis=-1)
+
+
+def quaternion_to_dcm(quaternion):
+    """Return the rotation matrix of unit quaternions (x, y, z, w), shape (..., 3, 3)."""
+    x, y, z, w = np.moveaxis(np.asarray(quaternion, dtype=float), -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)],
+        -2)
+
+
+def ecef_to_enu_matrix(latitude, longitude):
+    """Return C_e^n, the rotation from ECEF to the local ENU frame, shape (..., 3, 3)."""
+    sl, cl = np.sin(latitude), np.cos(latitude)
+    so, co = np.sin(longitude), np.cos(longitude)
+    zero = np.zeros_like(sl)
+    return np.stack([np.stack([-so, co, zero], -1),
+                     np.stack([-sl * co, -sl * so, cl], -1),
+                     np.stack([cl * co, cl * so, sl], -1)], -2)
+
+
+def geodetic_to_ecef(latitude, longitude, height):
+    """Return ECEF positions [m], shape (..., 3)."""
+    _, r_e = earth.radii_of_curvature(latitude)
+    e2 = earth.ECCENTRICITY_SQUARED
+    return np.stack([(r_e + height) * np.cos(latitude) * np.cos(longitude),
+                     (r_e + height) * np.cos(latitude) * np.sin(longitude),
+                     (r_e * (1 - e2) + height) * np.sin(latitude)], axis=-1)
+
+
+class Trajectory:
+    """
+    Pose of the body as a piecewise polynomial of time, and what the sensors see.
+
+    Parameters
+    ----------
+    poly : scipy.interpolate.PPoly
+        Six channels (lat [rad], lon [rad], h [m], roll, pitch, yaw [rad]) over time [s].
+    name : str
+        What it is (printed by ``qfa-sim``).
+    """
+
+    def __init__(self, poly, name='trajectory'):
+        if poly.c.ndim != 3 or poly.c.shape[2] != 6:
+            raise ValueError('poly must have six channels')
+        self.poly = poly
+        self.name = name
+        self.start = float(poly.x[0])
+        self.end = float(poly.x[-1])
+        self._d1 = poly.derivative(1)
+        self._d2 = poly.derivative(2)
+        values = poly(np.array([self.start, self.end]))
+        self._still = bool(np.all(poly.c[:-1] == 0.0)) and np.allclose(values[0], values[1])
+        self._rest_cache = None
+
+    def shifted(self, start_s):
+        """Return the same motion starting at time ``start_s`` [s] instead of its own."""
+        if start_s == self.start:
+            return self
+        poly = PPoly(self.poly.c, self.poly.x - self.start + start_s, extrapolate=False)
+        return Trajectory(poly, self.name)
+
+    @property
+    def duration(self):
+        """Return the scripted duration [s] (the body rests afterwards)."""
+        return self.end - self.start
+
+    @property
+    def is_static(self):
+        """Return True when the body never moves."""
+        return self._still
+
+    def _channels(self, t):
+        t = np.asarray(t, dtype=float)
+        clamped = np.clip(t, self.start, self.end)
+        inside = ((t >= self.start) & (t <= self.end))[:, None]
+        return (self.poly(clamped), np.where(inside, self._d1(clamped), 0.0),
+                np.where(inside, self._d2(clamped), 0.0))
+
+    def kinematics(self, t):
+        """
+        Return a dict of the motion at times ``t`` [s] (arrays over ``t``).
+
+        Keys: ``latitude``, ``longitude``, ``height``, ``attitude`` (roll, pitch,
+        yaw), ``dcm`` (C_b^n), ``velocity`` (ENU [m/s]), ``specific_force`` (body
+        [m/s^2]), ``angular_rate`` (w_ib^b [rad/s]), ``body_rate`` (w_nb^b [rad/s]).
+        """
+        p, dp, ddp = self._channels(t)
+        lat, lon, h = p[:, 0], p[:, 1], p[:, 2]
+        dlat, dlon, dh = dp[:, 0], dp[:, 1], dp[:, 2]
+        r_n, r_e = earth.radii_of_curvature(lat)
+        dr_n, dr_e = earth.radii_derivatives(lat)
+        cl, sl = np.cos(lat), np.sin(lat)
+        velocity = np.stack([(r_e + h) * cl * dlon, (r_n + h) * dlat, dh], axis=-1)
+        acceleration = np.stack([
+            (dr_e * dlat + dh) * cl * dlon - (r_e + h) * sl * dlat * dlon
+            + (r_e + h) * cl * ddp[:, 1],
+            (dr_n * dlat + dh) * dlat + (r_n + h) * ddp[:, 0],
+            ddp[:, 2]], axis=-1)
+        w_ie = earth.earth_rate_enu(lat)
+        w_en = earth.transport_rate_enu(lat, h, velocity)
+        force_n = acceleration + np.cross(2.0 * w_ie + w_en, velocity) \
+            - earth.gravity_enu(lat, h)
+        roll, pitch, yaw = p[:, 3], p[:, 4], p[:, 5]
+        droll, dpitch, dyaw = dp[:, 3], dp[:, 4], dp[:, 5]
+        dcm = euler_to_dcm(roll, pitch, yaw)
+        cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+        body_rate = np.stack([droll - dyaw * sp, dpitch * cr + dyaw * sr * cp,
+                              -dpitch * sr + dyaw * cr * cp], axis=-1)
+        specific_force = np.einsum('nji,nj->ni', dcm, force_n)
+        angular_rate = np.einsum('nji,nj->ni', dcm, w_ie + w_en) + body_rate
+        return {'latitude': lat, 'longitude': lon, 'height': h, 'attitude': p[:, 3:],
+                'dcm': dcm, 'velocity': velocity, 'specific_force': specific_force,
+                'angular_rate': angular_rate, 'body_rate': body_rate}
+
+    def evaluate(self, t):
+        """Return the specific force f^b [m/s^2] at times ``t`` [s], shape (n, 3)."""
+        return self.kinematics(np.atleast_1d(t))['specific_force']
+
+    def angular_rate(self, t):
+        """Return w_ib^b [rad/s] at times ``t`` [s], shape (n, 3)."""
+        return self.kinematics(np.atleast_1d(t))['angular_rate']
+
+    def sample_means(self, start, period, n):
+        """
+        Return (mean f^b, mean w_ib^b) over ``n`` samples of ``period`` from ``start``.
+
+        Two-point Gauss-Legendre quadrature per sample: exact for cubics in time, so
+        the sample means are the integrals a strapdown algorithm expects (velocity and
+        angle increments divided by the period) to O(period^4).
+        """
+        if self._still:
+            if self._rest_cache is None:
+                k = self.kinematics(np.array([self.start]))
+                self._rest_cache = (k['specific_force'][0], k['angular_rate'][0])
+            force, rate = self._rest_cache
+            return np.tile(force, (n, 1)), np.tile(rate, (n, 1))
+        force = np.empty((n, 3))
+        rate = np.empty((n, 3))
+        _sample_means(self.poly.c, self.poly.x, float(start), float(period), force, rate)
+        return force, rate
+
+    def local_pose(self, t):
+        """
+        Return (position, quaternion, velocity, body rate) for an odometry message.
+
+        Position [m] in the ENU tangent plane at the trajectory's first point;
+        orientation (x, y, z, w) of the body in that plane; velocity [m/s] in body
+        axes; body rate w_nb^b [rad/s] in body axes.
+        """
+        k = self.kinematics(np.atleast_1d(t))
+        origin = self.poly(np.array([self.start]))[0]
+        c_e_n0 = ecef_to_enu_matrix(origin[0], origin[1])
+        delta = geodetic_to_ecef(k['latitude'], k['longitude'], k['height']) \
+            - geodetic_to_ecef(origin[0], origin[1], origin[2])
+        position = delta @ c_e_n0.T
+        # C_b^n0 = C_e^n0 C_n^e C_b^n.
+        c_n_e = np.swapaxes(ecef_to_enu_matrix(k['latitude'], k['longitude']), -1, -2)
+        dcm0 = c_e_n0 @ c_n_e @ k['dcm']
+        velocity_body = np.einsum('nji,nj->ni', k['dcm'], k['velocity'])
+        return position, dcm_to_quaternion(dcm0), velocity_body, k['body_rate']
+
+
+@njit(cache=True, nogil=True)
+def _sensed(c, x, t, out_force, out_rate, index, p, d1, d2):
+    """
+    Add f^b and w_ib^b at time ``t`` to row ``index`` of the outputs.
+
+    The compiled twin of :meth:`Trajectory.kinematics` (the tests hold it to it).
+    """
+    inside = x[0] <= t <= x[-1]
+    t = min(max(t, x[0]), x[-1])
+    i = min(max(np.searchsorted(x, t, side='right') - 1, 0), x.shape[0] - 2)
+    s = t - x[i]
+    for ch in range(6):
+        value, first, second = c[0, i, ch], 0.0, 0.0
+        for j in range(1, c.shape[0]):
+            second = second * s + first
+            first = first * s + value
+            value = value * s + c[j, i, ch]
+        p[ch] = value
+        d1[ch] = first if inside else 0.0
+        d2[ch] = 2.0 * second if inside else 0.0
+    lat, h = p[0], p[2]
+    sl, cl = math.sin(lat), math.cos(lat)
+    e2 = earth.ECCENTRICITY_SQUARED
+    a = earth.SEMI_MAJOR_AXIS
+    s2 = sl * sl
+    w2 = 1.0 - e2 * s2
+    w = math.sqrt(w2)
+    r_e = a / w
+    r_n = r_e * (1.0 - e2) / w2
+    dr_e = r_e * e2 * sl * cl / w2
+    dr_n = 3.0 * r_n * e2 * sl * cl / w2
+    dlat, dlon, dh = d1[0], d1[1], d1[2]
+    ve = (r_e + h) * cl * dlon
+    vn = (r_n + h) * dlat
+    vu = dh
+    ae = (dr_e * dlat + dh) * cl * dlon - (r_e + h) * sl * dlat * dlon + (r_e + h) * cl * d2[1]
+    an = (dr_n * dlat + dh) * dlat + (r_n + h) * d2[0]
+    au = d2[2]
+    omega = earth.EARTH_RATE
+    we, wn, wu = 0.0, omega * cl, omega * sl
+    te, tn = -vn / (r_n + h), ve / (r_e + h)
+    tu = tn * sl / cl
+    ce, cn, cu = 2.0 * we + te, 2.0 * wn + tn, 2.0 * wu + tu
+    gamma = earth.GAMMA_EQUATOR * (1.0 + earth.SOMIGLIANA_K * s2) / w
+    gamma *= 1.0 - 2.0 / a * (1.0 + earth.FLATTENING + earth.GRAVITY_RATIO_M
+                              - 2.0 * earth.FLATTENING * s2) * h + 3.0 * h * h / (a * a)
+    fe = ae + cn * vu - cu * vn
+    fn = an + cu * ve - ce * vu
+    fu = au + ce * vn - cn * ve + gamma
+    roll, pitch, yaw = p[3], p[4], p[5]
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    # Columns of C_b^n = R_z R_y R_x: rows of C_n^b.
+    b0 = (cy * cp, sy * cp, -sp)
+    b1 = (cy * sp * sr - sy * cr, sy * sp * sr + cy * cr, cp * sr)
+    b2 = (cy * sp * cr + sy * sr, sy * sp * cr - cy * sr, cp * cr)
+    ie, inn, iu = we + te, wn + tn, wu + tu
+    droll, dpitch, dyaw = d1[3], d1[4], d1[5]
+    out_force[index, 0] += b0[0] * fe + b0[1] * fn + b0[2] * fu
+    out_force[index, 1] += b1[0] * fe + b1[1] * fn + b1[2] * fu
+    out_force[index, 2] += b2[0] * fe + b2[1] * fn + b2[2] * fu
+    out_rate[index, 0] += b0[0] * ie + b0[1] * inn + b0[2] * iu + droll - dyaw * sp
+    out_rate[index, 1] += b1[0] * ie + b1[1] * inn + b1[2] * iu + dpitch * cr + dyaw * sr * cp
+    out_rate[index, 2] += b2[0] * ie + b2[1] * inn + b2[2] * iu - dpitch * sr \
+        + dyaw * cr * cp
+
+
+@njit(cache=True, nogil=True)
+def _sample_means(c, x, start, period, out_force, out_rate):
+    """Two-point Gauss-Legendre means of f^b and w_ib^b over consecutive samples."""
+    offset = 0.5 / math.sqrt(3.0)
+    p, d1, d2 = np.empty(6), np.empty(6), np.empty(6)
+    for k in range(out_force.shape[0]):
+        out_force[k] = 0.0
+        out_rate[k] = 0.0
+        centre = start + (k + 0.5) * period
+        _sensed(c, x, centre - offset * period, out_force, out_rate, k, p, d1, d2)
+        _sensed(c, x, centre + offset * period, out_force, out_rate, k, p, d1, d2)
+        for j in range(3):
+            out_force[k, j] *= 0.5
+            out_rate[k, j] *= 0.5
+
+
+def quintic_poly(times, values, rates, accelerations):
+    """
+    Return the C2 piecewise quintic through knot values, rates and accelerations.
+
+    ``times`` (m,) strictly increasing [s]; the others (m, channels). Per piece of
+    length ``h``, with the residuals ``D0 = y1 - y0 - y0' h - y0'' h^2/2``,
+    ``D1 = y1' - y0' - y0'' h``, ``D2 = y1'' - y0''``, the cubic to quintic
+    coefficients are ``(20 D0 - 8 D1 h + D2 h^2) / (2 h^3)``,
+    ``(-30 D0 + 14 D1 h - 2 D2 h^2) / (2 h^4)``, ``(12 D0 - 6 D1 h + D2 h^2) / (2 h^5)``.
+    """
+    x = np.asarray(times, dtype=float)
+    if x.ndim != 1 or len(x) < 2 or np.any(np.diff(x) <= 0):
+        raise ValueError('times must be at least two strictly increasing values')
+    y, d, a = (np.asarray(v, dtype=float) for v in (values, rates, accelerations))
+    h = np.diff(x)[:, None]
+    d0 = y[1:] - y[:-1] - d[:-1] * h - a[:-1] * h * h / 2
+    d1 = d[1:] - d[:-1] - a[:-1] * h
+    d2 = a[1:] - a[:-1]
+    c = np.empty((6,) + d0.shape)
+    c[5], c[4], c[3] = y[:-1], d[:-1], a[:-1] / 2
+    c[2] = (20 * d0 - 8 * d1 * h + d2 * h * h) / (2 * h ** 3)
+    c[1] = (-30 * d0 + 14 * d1 * h - 2 * d2 * h * h) / (2 * h ** 4)
+    c[0] = (12 * d0 - 6 * d1 * h + d2 * h * h) / (2 * h ** 5)
+    return PPoly(c, x, extrapolate=False)
+
+
+def _location(latitude_deg, longitude_deg, height_m):
+    earth.check_location(latitude_deg, longitude_deg, height_m)
+    return math.radians(latitude_deg), math.radians(longitude_deg), float(height_m)
+
+
+def _dwells(location, attitudes, dwell_s, move_s):
+    """Knots resting ``dwell_s`` at each attitude, moving ``move_s`` between them."""
+    times, poses = [], []
+    t = 0.0
+    for k, attitude in enumerate(attitudes):
+        if k:
+            t += move_s
+        for _ in range(2):
+            times.append(t)
+            poses.append(tuple(location) + tuple(attitude))
+            t += dwell_s
+        t -= dwell_s
+    poses = np.array(poses)
+    zero = np.zeros_like(poses)
+    return quintic_poly(times, poses, zero, zero)
+
+
+def static(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, roll=0.0, pitch=0.0,
+           yaw=math.pi / 2):
+    """Return a body at rest at a location, attitude in [rad] (yaw pi/2: x north)."""
+    location = _location(latitude_deg, longitude_deg, height_m)
+    pose = np.array([location + (roll, pitch, yaw)] * 2)
+    zero = np.zeros_like(pose)
+    return Trajectory(quintic_poly([0.0, 1.0], pose, zero, zero), 'static')
+
+
+TUMBLE_ATTITUDES = ((0.0, 0.0), (math.pi, 0.0), (0.0, -math.pi / 2), (0.0, math.pi / 2),
+                    (math.pi / 2, 0.0), (-math.pi / 2, 0.0))
+"""(roll, pitch) of the six positions: z up, z down, x up, x down, y up, y down."""
+
+
+def six_position_tumble(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0,
+                        dwell_s=10.0, move_s=4.0, yaw=math.pi / 2):
+    """Return the six-position tumble: each axis up then down, ``dwell_s`` at rest each."""
+    location = _location(latitude_deg, longitude_deg, height_m)
+    attitudes = [(r, p, yaw) for r, p in TUMBLE_ATTITUDES]
+    return Trajectory(_dwells(location, attitudes, dwell_s, move_s), 'six-position tumble')
+
+
+def rate_table_turn(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, rate_deg_s=10.0,
+                    turns=2, ramp_s=5.0, dwell_s=10.0, yaw=math.pi / 2):
+    """
+    Return a level rate-table run about z.
+
+    Rest, a smooth ramp to ``rate_deg_s``, ``turns`` full turns at constant rate, a
+    ramp down, rest.
+    """
+    location = _location(latitude_deg, longitude_deg, height_m)
+    rate = math.radians(rate_deg_s)
+    if rate == 0 or turns <= 0 or ramp_s <= 0 or dwell_s < 0:
+        raise ValueError('rate_deg_s and turns must be non-zero; ramp_s > 0, dwell_s >= 0')
+    # Smooth ramp (quintic Hermite of yaw): mean rate over the ramp is rate/2.
+    hold = 2 * math.pi * turns / abs(rate)
+    times = np.cumsum([0.0, dwell_s or 1e-3, ramp_s, hold, ramp_s, dwell_s or 1e-3])
+    yaw_k = np.cumsum([yaw, 0.0, rate * ramp_s / 2, rate * hold, rate * ramp_s / 2, 0.0])
+    rate_k = np.array([0.0, 0.0, rate, rate, 0.0, 0.0])
+    values = np.array([location + (0.0, 0.0, y) for y in yaw_k])
+    rates = np.zeros_like(values)
+    rates[:, 5] = rate_k
+    return Trajectory(quintic_poly(times, values, rates, np.zeros_like(values)),
+                      'rate-table turn')
+
+
+DRIVE_SCRIPT = (
+    # (duration s, along-track acceleration m/s^2, yaw rate deg/s, climb-angle rate deg/s)
+    (20.0, 0.0, 0.0, 0.0), (10.0, 1.5, 0.0, 0.0), (30.0, 0.0, 0.0, 0.0),
+    (9.0, 0.0, 10.0, 0.0), (40.0, 0.0, 0.0, 0.0), (5.0, 0.0, 0.0, 0.6),
+    (30.0, 0.0, 0.0, 0.0), (5.0, 0.0, 0.0, -0.6), (20.0, 0.5, 0.0, 0.0),
+    (18.0, 0.0, -10.0, 0.0), (60.0, 0.0, 0.0, 0.0), (10.0, -1.0, 5.0, 0.0),
+    (90.0, 0.0, 3.0, 0.0), (10.0, 1.0, 0.0, 0.0), (30.0, 0.0, -6.0, 0.0),
+    (60.0, 0.0, 0.0, 0.0), (5.0, 0.0, 0.0, -0.8), (40.0, 0.0, 0.0, 0.0),
+    (5.0, 0.0, 0.0, 0.8), (10.0, -1.5, 0.0, 0.0), (60.0, 0.0, 0.0, 0.0),
+    (22.5, 0.0, 8.0, 0.0), (10.0, -1.0, 0.0, 0.0), (20.0, 0.0, 0.0, 0.0),
+)
+"""A 10-minute drive: accelerations, turns both ways, a hill, a stop at the end."""
+
+
+def vehicle_drive(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, yaw=math.pi / 2,
+                  script=DRIVE_SCRIPT, ramp_s=1.0, knot_s=0.05):
+    """
+    Return a land-vehicle drive from a command script, gnss-ins-sim style.
+
+    Each row ``(duration, acceleration, yaw rate, climb-angle rate)`` holds its
+    commands; between rows they change smoothly over ``ramp_s`` (a C1 smoothstep),
+    the body follows its velocity vector (no side slip, no roll), pitch = -climb
+    angle (REP-103 pitch is nose down). The commands are integrated on a 1 kHz grid
+    and joined by quintic Hermite pieces every ``knot_s``.
+    """
+    lat0, lon0, h0 = _location(latitude_deg, longitude_deg, height_m)
+    script = np.asarray(script, dtype=float)
+    if script.ndim != 2 or script.shape[1] != 4 or np.any(script[:, 0] <= 0):
+        raise ValueError('script rows must be (duration > 0, accel, yaw rate, climb rate)')
+    dt = 1e-3
+    bounds = np.concatenate([[0.0], np.cumsum(script[:, 0])])
+    t = np.arange(0.0, bounds[-1] + dt / 2, dt)
+    commands = np.zeros((len(t), 3))
+    previous = np.zeros(3)
+    for (start, row) in zip(bounds[:-1], script):
+        target = row[1:] * np.array([1.0, math.pi / 180, math.pi / 180])
+        s = np.clip((t - start) / ramp_s, 0.0, 1.0)
+        blend = s * s * (3 - 2 * s)
+        active = t >= start
+        commands[active] = previous + (target - previous) * blend[active, None]
+        previous = target
+    # Integrate (trapezoid) speed, heading and climb angle, then position.
+    def integrate(rate, initial):
+        return initial + np.concatenate([[0.0], np.cumsum((rate[1:] + rate[:-1]) * dt / 2)])
+    speed = np.maximum(integrate(commands[:, 0], 0.0), 0.0)
+    heading = integrate(commands[:, 1], yaw)
+    climb = integrate(commands[:, 2], 0.0)
+    ve = speed * np.cos(climb) * np.cos(heading)
+    vn = speed * np.cos(climb) * np.sin(heading)
+    vu = speed * np.sin(climb)
+    h = integrate(vu, h0)
+    r_n, _ = earth.radii_of_curvature(lat0)
+    lat = integrate(vn / (r_n + h), lat0)
+    _, r_e = earth.radii_of_curvature(lat)
+    lon = integrate(ve / ((r_e + h) * np.cos(lat)), lon0)
+    channels = np.stack([lat, lon, h, np.zeros_like(t), -climb, heading], axis=-1)
+    step = int(round(knot_s / dt))
+    rates = np.gradient(channels, dt, axis=0)
+    accelerations = np.gradient(rates, dt, axis=0)
+    index = np.arange(0, len(t), step)
+    if index[-1] != len(t) - 1:
+        index = np.append(index, len(t) - 1)
+    rates[[0, -1]] = 0.0
+    accelerations[[0, -1]] = 0.0
+    return Trajectory(quintic_poly(t[index], channels[index], rates[index],
+                                   accelerations[index]), 'vehicle drive')
+
+
+def _vibration(location, duration_s, frequency_hz, knots_per_cycle, motion):
+    """Knots of a periodic ``motion(t) -> (values, rates, accelerations)`` (m, 6)."""
+    if not frequency_hz > 0 or not duration_s > 0:
+        raise ValueError('frequency_hz and duration_s must be positive')
+    t = np.arange(0.0, duration_s, 1.0 / (frequency_hz * knots_per_cycle))
+    t = np.append(t, duration_s)
+    values, rates, accelerations = motion(t)
+    values = values + np.array(location + (0.0, 0.0, 0.0))
+    # The body rests at the end poses before and after: the rates step there.
+    return Trajectory(quintic_poly(t, values, rates, accelerations))
+
+
+def coning(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0.5,
+           frequency_hz=10.0, duration_s=60.0, yaw=math.pi / 2, knots_per_cycle=32):
+    """
+    Return coning: roll = A sin(2 pi f t), pitch = A cos(2 pi f t) - A (90 deg apart).
+
+    The body axis z traces a cone; a strapdown algorithm without a coning correction
+    accumulates a z attitude drift of about ``pi f A^2`` [rad/s].
+    """
+    location = _location(latitude_deg, longitude_deg, height_m)
+    amplitude, w = math.radians(amplitude_deg), 2 * math.pi * frequency_hz
+
+    def motion(t):
+        values, rates, accelerations = (np.zeros((len(t), 6)) for _ in range(3))
+        s, c = np.sin(w * t), np.cos(w * t)
+        values[:, 3], rates[:, 3], accelerations[:, 3] = \
+            amplitude * s, amplitude * w * c, -amplitude * w * w * s
+        values[:, 4], rates[:, 4], accelerations[:, 4] = \
+            amplitude * (c - 1), -amplitude * w * s, -amplitude * w * w * c
+        values[:, 5] = yaw
+        return values, rates, accelerations
+
+    trajectory = _vibration(location, duration_s, frequency_hz, knots_per_cycle, motion)
+    trajectory.name = 'coning'
+    return trajectory
+
+
+def sculling(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0.5,
+             displacement_m=0.001, frequency_hz=10.0, duration_s=60.0, yaw=math.pi / 2,
+             knots_per_cycle=32):
+    """
+    Return sculling: roll = A sin(2 pi f t) with an in-phase vertical vibration.
+
+    The vibration of ``displacement_m`` amplitude along the ENU up axis, in phase with
+    the roll, rectifies into a mean specific force along body y.
+    """
+    location = _location(latitude_deg, longitude_deg, height_m)
+    amplitude, w = math.radians(amplitude_deg), 2 * math.pi * frequency_hz
+
+    def motion(t):
+        values, rates, accelerations = (np.zeros((len(t), 6)) for _ in range(3))
+        s, c = np.sin(w * t), np.cos(w * t)
+        values[:, 3], rates[:, 3], accelerations[:, 3] = \
+            amplitude * s, amplitude * w * c, -amplitude * w * w * s
+        values[:, 2], rates[:, 2], accelerations[:, 2] = \
+            displacement_m * s, displacement_m * w * c, -displacement_m * w * w * s
+        values[:, 5] = yaw
+        return values, rates, accelerations
+
+    trajectory = _vibration(location, duration_s, frequency_hz, knots_per_cycle, motion)
+    trajectory.name = 'sculling'
+    return trajectory
+
+
+def load_csv(path):
+    """Return the :class:`Trajectory` of a CSV pose file (see the module docstring)."""
+    with open(path, newline='') as handle:
+        reader = csv.reader(handle)
+        header = [name.strip() for name in next(reader)]
+        if tuple(header) != CSV_COLUMNS:
+            raise ValueError(f'{path}: header must be {",".join(CSV_COLUMNS)}, '
+                             f'got {",".join(header)}')
+        rows = [[float(v) for v in row] for row in reader if row]
+    data = np.asarray(rows, dtype=float)
+    if data.ndim != 2 or len(data) < 2 or data.shape[1] != 7:
+        raise ValueError(f'{path}: needs at least two rows of 7 numbers')
+    if not np.all(np.isfinite(data)) or np.any(np.diff(data[:, 0]) <= 0):
+        raise ValueError(f'{path}: values must be finite and times strictly increasing')
+    for lat, lon, h in data[:, 1:4]:
+        earth.check_location(lat, lon, h)
+    channels = np.radians(data[:, 1:])
+    channels[:, 2] = data[:, 3]
+    channels[:, 3:] = np.unwrap(channels[:, 3:], axis=0)
+    spline = CubicSpline(data[:, 0], channels, axis=0, bc_type='clamped')
+    return Trajectory(PPoly(spline.c, spline.x, extrapolate=False), f'file {path}')
+
+
+def save_csv(path, trajectory, rate_hz=100.0):
+    """Write ``trajectory`` sampled at ``rate_hz`` as a CSV pose file."""
+    t = np.arange(trajectory.start, trajectory.end + 0.5 / rate_hz, 1.0 / rate_hz)
+    k = trajectory.kinematics(t)
+    with open(path, 'w', newline='') as handle:
+        writer = csv.writer(handle)
+        writer.writerow(CSV_COLUMNS)
+        for row in zip(t, np.degrees(k['latitude']), np.degrees(k['longitude']), k['height'],
+                       *np.degrees(k['attitude']).T):
+            writer.writerow([f'{v:.12g}' for v in row])
+
+
+SCRIPTS = {
+    'static': static,
+    'tumble': six_position_tumble,
+    'rate-table': rate_table_turn,
+    'drive': vehicle_drive,
+    'coning': coning,
+    'sculling': sculling,
+}
+"""Built-in motion scripts by name (each takes latitude_deg, longitude_deg, height_m, yaw)."""
