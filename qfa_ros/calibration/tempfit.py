@@ -760,3 +760,78 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
         p2p_after_poly4=float(np.ptp(y_bins - poly4.evaluate(v_bins))),
         max_fixed_error=float(np.max(np.abs(fixed - fit.evaluate(v_bins)))),
         fit_seconds=fit_seconds, cancellation_bits=float(max(cancellation, 0.0)))
+
+
+# -- multi-position compensation (bias and scale factor per axis) ------------------------
+
+
+def _matrix(value, name):
+    array = np.asarray(value, dtype=float)
+    if array.shape != (3, 3) or not np.all(np.isfinite(array)):
+        raise ValueError(f'{name} must be a finite 3x3 matrix')
+    return array
+
+
+class ThermalCompensation:
+    r"""
+    Output compensation of a triad from a multi-position temperature calibration.
+
+    Per axis ``i``, with ``V`` the measured temperature-sensor voltage:
+    ``y'_i = (y_i - b_i(V)) (1 + c_i(V))`` where ``b_i`` is the zero bias and
+    ``c_i = 1/(1 + s_i) - 1`` the scale-factor correction, both evaluated on the
+    fixed-point CORDIC path (:class:`DoubleExpCompensator`); then the constant terms the
+    tumble measured: ``a = (I + M)^-1 y'`` (misalignment) and ``a_i - k2_i a_i^2``.
+
+    Parameters
+    ----------
+    bias, scale : list of TemperatureCalibration
+        Zero-bias [m/s^2] and scale-factor-correction [1] calibrations per axis.
+    misalignment : array_like
+        3x3 cross-coupling ``M`` (the diagonal is the scale factor's: zero here).
+    k2 : array_like
+        Second-order coefficient per axis [1/(m/s^2)].
+    """
+
+    def __init__(self, bias, scale, misalignment=np.zeros((3, 3)), k2=(0.0, 0.0, 0.0)):
+        if len(bias) != 3 or len(scale) != 3:
+            raise ValueError('bias and scale need one calibration per axis')
+        self.bias = list(bias)
+        self.scale = list(scale)
+        self.misalignment = _matrix(misalignment, 'misalignment')
+        self.k2 = np.asarray(k2, dtype=float)
+        if self.k2.shape != (3,) or not np.all(np.isfinite(self.k2)):
+            raise ValueError('k2 must be 3 finite numbers')
+        self._bias = [c.compensator() for c in self.bias]
+        self._scale = [c.compensator() for c in self.scale]
+        self._inverse = np.linalg.inv(np.eye(3) + self.misalignment)
+
+    def apply(self, accel, v_temp):
+        """Return the compensated output (n, 3) [m/s^2] of ``accel`` at ``v_temp`` [V]."""
+        out = np.empty_like(accel)
+        for i in range(3):
+            out[:, i] = (accel[:, i] - self._bias[i].evaluate_fixed(v_temp, clip=True)) * (
+                1.0 + self._scale[i].evaluate_fixed(v_temp, clip=True))
+        out = out @ self._inverse.T
+        return out - self.k2 * out * out
+
+    def to_dict(self):
+        """Return the JSON-serializable ROM record (``state.temperature``)."""
+        axes = ('x', 'y', 'z')
+        return {'format': 'multiposition/1',
+                'bias': {a: c.to_dict() for a, c in zip(axes, self.bias)},
+                'scale': {a: c.to_dict() for a, c in zip(axes, self.scale)},
+                'misalignment': self.misalignment.tolist(), 'k2': self.k2.tolist()}
+
+    @classmethod
+    def from_dict(cls, data):
+        """Rebuild from :meth:`to_dict` output; ValueError on a malformed record."""
+        axes = ('x', 'y', 'z')
+        try:
+            if data.get('format') != 'multiposition/1':
+                raise ValueError('temperature record: unknown format (run calibrate_temperature '
+                                 'again)')
+            return cls([TemperatureCalibration.from_dict(data['bias'][a]) for a in axes],
+                       [TemperatureCalibration.from_dict(data['scale'][a]) for a in axes],
+                       data['misalignment'], data['k2'])
+        except (KeyError, TypeError, AttributeError) as error:
+            raise ValueError(f'invalid temperature record: {error!r}') from error

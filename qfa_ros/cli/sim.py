@@ -116,11 +116,14 @@ def run_temperature_cycle(args, out=None):
                            int(part.stamps_ns[-1])))
         if bag:
             bag.write_phase('cycle', result.start_ns)
-            bag.write_temperature(result.blocks['time_ns'], result.blocks['temperature'])
+            bag.write_temperature(result.blocks['time_ns'], result.blocks['temperature'])  # noqa
             bag.write_trace(None, 'temperature', [result])
             bag.write_phase('verification', verify_ns)
             bag.write_temperature([b[2] for b in blocks], [b[1] for b in blocks])
-    before = _minute_means(result.blocks['zero'])
+    # the +z blocks of the calibration tumble, one per tumble: the uncompensated zero drift
+    level = np.all(result.blocks['force'] == [0.0, 0.0, result.blocks['force'][:, 2].max()],
+                   axis=1)
+    before = (result.blocks['output'] - result.blocks['force'])[level]
     after = _minute_means(np.array([b[0] for b in blocks]))
     print(f'qfa-sim temperature-cycle: {settings.low_c:g}..{settings.high_c:g} degC, period '
           f'{args.duration:g} s; calibration cycle, then a verification cycle compensated '

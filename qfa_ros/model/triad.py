@@ -299,8 +299,12 @@ class QfaTriad:
         self.thermal = None
         if self.config.thermal is not None:
             self.thermal = ThermalModel(self.config.thermal, rng.spawn(1)[0])
-        self.temperature_compensators = None
+        # Temperature compensation (issue 14): an object with ``apply(accel, v_temp)``
+        # that returns the compensated output, built by qfa_ros.calibration.tempfit.
+        self.temperature_compensator = None
         self.temperature_compensation = False
+        # Calibration fixture (dividing head): a profile replacing every input while set.
+        self.fixture = None
         self.scale = counts_to_accel(self.config.hardware)
         self.sample_index = 0
         self.settle_until = np.zeros(len(AXES), dtype=np.int64)
@@ -422,7 +426,9 @@ class QfaTriad:
             raise ValueError(f'n_samples must be a non-negative integer, got {n_samples!r}')
         n_samples = int(n_samples)
         n_steps = n_samples * self.decimation
-        if specific_force is None:
+        if self.fixture is not None:
+            force = self.fixture.evaluate(self.time + np.arange(n_steps) * self.dt)
+        elif specific_force is None:
             t = self.time + np.arange(n_steps) * self.dt
             force = self.profile.evaluate(t)
         else:
@@ -461,9 +467,8 @@ class QfaTriad:
         truth = force.reshape(n_samples, self.decimation, 3).mean(axis=1)
         self.sample_index += n_samples
         accel = counts.T * self.scale
-        if self.temperature_compensation and self.temperature_compensators:
-            for i, compensator in enumerate(self.temperature_compensators):
-                accel[:, i] -= compensator.evaluate_fixed(v_temp, clip=True)
+        if self.temperature_compensation and self.temperature_compensator is not None:
+            accel = self.temperature_compensator.apply(accel, v_temp)
         return TriadOutput(stamps_ns=self.stamp_ns(index), accel=accel,
                            counts=counts.T.copy(), flags=flags.T.copy(), valid=valid,
                            truth=truth, temperature=temperature, v_temp=v_temp)
