@@ -78,6 +78,10 @@ class TemperatureSettings:
         Fraction bits of the scale-factor compensator (24: its CORDIC error, 7.6e-8,
         is far below the 20 ppm the correction must reach; at 16 it is 2.4e-5 of each
         term).
+    stable_c_per_tumble : float
+        The extreme plateaus (``low_c``, ``high_c``) hold until the on-board reading
+        moves less than this from one tumble to the next (at most ten holds) [degC]: the
+        fits then cover the whole range instead of extrapolating to it.
     return_tolerance_c : float
         The soak at the end lasts until the on-board reading (tumble mean) is within
         this of where it was at the start [degC].
@@ -97,13 +101,14 @@ class TemperatureSettings:
     bins: int = 60
     m_bits: int = 16
     sf_m_bits: int = 24
+    stable_c_per_tumble: float = 0.02
     return_tolerance_c: float = 0.05
     max_soak_s: float = 6000.0
     apply: bool = True
 
     def __post_init__(self):
-        for name in ('low_c', 'high_c', 'period_s', 'block_s', 'step_c',
-                     'return_tolerance_c', 'max_soak_s'):
+        for name in ('low_c', 'high_c', 'period_s', 'block_s', 'step_c', 'settle_s',
+                     'stable_c_per_tumble', 'return_tolerance_c', 'max_soak_s'):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f'{name} must be a finite number, got {value!r}')
@@ -115,8 +120,10 @@ class TemperatureSettings:
             raise ValueError('block_s must be positive and at most period_s / 100')
         if not 0 < self.step_c <= self.high_c - self.low_c:
             raise ValueError('step_c must be positive and at most high_c - low_c')
-        if self.return_tolerance_c <= 0 or self.max_soak_s < 0:
-            raise ValueError('return_tolerance_c must be > 0 and max_soak_s >= 0')
+        if self.return_tolerance_c <= 0 or self.max_soak_s < 0 \
+                or not self.stable_c_per_tumble > 0:
+            raise ValueError('return_tolerance_c and stable_c_per_tumble must be > 0 and '
+                             'max_soak_s >= 0')
         for name, low, high in (('cycles', 1, 100), ('bins', 10, 10000), ('m_bits', 8, 30),
                                 ('sf_m_bits', 8, 30)):
             value = getattr(self, name)
@@ -279,9 +286,20 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
         for _ in range(settings.cycles):
             for index, chamber_c in enumerate(plateaus):
                 triad.thermal.set_ambient(ambient_profile='constant', ambient_c=chamber_c)
-                for _ in range(max(1, int(hold // tumble_s))):
+                extreme = chamber_c in (settings.low_c, settings.high_c)
+                count, last = 0, None
+                while True:
                     tumbles.append(len(blocks))
                     yield from tumble(triad, settings, blocks)
+                    count += 1
+                    reading = _reading(triad, np.mean([b[1] for b in blocks[-len(POSITIONS):]]))
+                    stable = last is not None and \
+                        abs(reading - last) <= settings.stable_c_per_tumble
+                    last = reading
+                    # the extremes soak until the reading is stable: the range is covered
+                    if count * tumble_s >= hold and (not extreme or stable
+                                                     or count * tumble_s >= 10 * hold):
+                        break
                 if at_plateau is not None:
                     # --- per-plateau hook: extra measurements at this chamber plateau ---
                     triad.fixture = _fixture(2, 1)
@@ -333,8 +351,9 @@ def fit_multiposition(blocks, tumbles, settings):
     First, per axis, one linear least squares over every block:
     ``y_i = B(V) + (1 + S(V)) f_i + M_ij f_j + M_il f_l + K2_i f_i^2`` with ``B`` and
     ``S`` Chebyshev series in the scaled V (degrees 6 and 4): the constant ``M`` and
-    ``K2``. Then per tumble, with those removed, ``y_i - f_i = b + b' (V - V_mean) +
-    s f_i``: the bias and scale-factor error at the tumble's mean reading. Last, seed
+    ``K2``. Then per tumble, with those removed, ``y_i - f_i = b + b' dV + s f_i +
+    s' dV f_i`` (``dV = V - V_mean``: the temperature moves during a tumble): the bias
+    and scale-factor error at the tumble's mean reading. Last, seed
     2's double exponential (linear baseline) through the tumbles' bias and through the
     scale-factor correction ``1/(1 + s) - 1``, and their fixed-point compensators.
     """
@@ -366,7 +385,8 @@ def fit_multiposition(blocks, tumbles, settings):
         b_row, s_row = [], []
         for i in range(3):
             f = force[rows, i]
-            design = np.column_stack([np.ones(n), vv - vv.mean(), f])
+            dv = vv - vv.mean()
+            design = np.column_stack([np.ones(n), dv, f, dv * f])
             c = np.linalg.lstsq(design, corrected[rows, i] - f, rcond=None)[0]
             b_row.append(c[0])
             s_row.append(c[2])

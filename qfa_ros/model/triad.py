@@ -299,8 +299,7 @@ class QfaTriad:
         self.thermal = None
         if self.config.thermal is not None:
             self.thermal = ThermalModel(self.config.thermal, rng.spawn(1)[0])
-        # Temperature compensation (issue 14): an object with ``apply(accel, v_temp)``
-        # that returns the compensated output, built by qfa_ros.calibration.tempfit.
+        # Temperature compensation: an object with apply(accel, v_temp) -> accel (tempfit).
         self.temperature_compensator = None
         self.temperature_compensation = False
         # Calibration fixture (dividing head): a profile replacing every input while set.
@@ -407,7 +406,7 @@ class QfaTriad:
 
     def _sensed(self, specific_force):
         a = specific_force @ self._misalignment.T
-        return self._bias + a + self._k2 * a * a
+        return self._bias + self.drift.bias_at(self.time) + a + self._k2 * a * a
 
     def run(self, n_samples, specific_force=None):
         """
@@ -426,11 +425,9 @@ class QfaTriad:
             raise ValueError(f'n_samples must be a non-negative integer, got {n_samples!r}')
         n_samples = int(n_samples)
         n_steps = n_samples * self.decimation
-        if self.fixture is not None:
-            force = self.fixture.evaluate(self.time + np.arange(n_steps) * self.dt)
-        elif specific_force is None:
-            t = self.time + np.arange(n_steps) * self.dt
-            force = self.profile.evaluate(t)
+        if self.fixture is not None or specific_force is None:
+            source = self.profile if self.fixture is None else self.fixture
+            force = source.evaluate(self.time + np.arange(n_steps) * self.dt)
         else:
             force = np.asarray(specific_force, dtype=float)
             if force.shape == (n_samples, 3):
