@@ -28,7 +28,8 @@ K2                              magnitude uniform in [10, 30] ug/g^2,         da
                                 random sign
 misalignment (off-diagonal)     normal, sigma 0.3 mrad, clipped to +-1 mrad   estimate
 bias hysteresis                 uniform in [0, 3] ug (heating vs cooling)     estimate
-temperature-probe lag           uniform in [1, 5] s                           estimate
+temperature-probe lag           uniform in [0.5, 2] s (sensor chip bonded     estimate
+                                to the accelerometer block)
 =============================  ===========================================  ============
 """
 
@@ -72,7 +73,7 @@ class UnitSpread:
     misalignment_sigma_mrad: float = 0.3
     misalignment_max_mrad: float = 1.0
     hysteresis_max_ug: float = 3.0
-    probe_tau_range_s: tuple = (1.0, 5.0)
+    probe_tau_range_s: tuple = (0.5, 2.0)
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
