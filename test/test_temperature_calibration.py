@@ -101,7 +101,8 @@ def test_per_plateau_hook_runs_at_every_plateau_with_the_head_at_rest(calibrated
     assert [c[0] for c in calls] == list(range(len(plateaus)))
     assert [c[1] for c in calls] == plateaus
     assert all(c[2][2] > 9.0 for c in calls)      # +z up
-    assert len(result.points['plateau_extra']) == len(plateaus)
+    assert len(result.plateau_extra) == len(plateaus)
+    assert all(0.1 < v < 1.5 for v in result.plateau_extra)    # what the hook returned
 
 
 def test_rom_round_trips_through_the_state_file(calibrated):

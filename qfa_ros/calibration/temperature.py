@@ -15,6 +15,7 @@ Only what the sensor can know is used: outputs, the temperature reading and the 
 fixture positions.
 """
 
+import dataclasses
 from dataclasses import asdict, dataclass
 import math
 
@@ -163,6 +164,8 @@ class TemperatureResult:
         Whether compensation was stored and switched on.
     soak_s : float
         Sensor time of the final soak back to the starting temperature [s].
+    plateau_extra : list
+        What the ``at_plateau`` hook returned at every plateau.
     start_ns, end_ns : int
         Sensor time span [ns].
     """
@@ -176,6 +179,12 @@ class TemperatureResult:
     soak_s: float
     start_ns: int
     end_ns: int
+    plateau_extra: list = dataclasses.field(default_factory=list)
+
+    @property
+    def residuals(self):
+        """Per tumble and axis: bias minus its fixed-point compensation [m/s^2]."""
+        return np.column_stack([self.points[f'compensated_{a}'] for a in AXES])
 
     @property
     def calibrations(self):
@@ -205,20 +214,26 @@ class TemperatureResult:
                    'soak_s': self.soak_s, 'start_ns': self.start_ns, 'end_ns': self.end_ns,
                    'summary': self.summary()}
         c = self.compensation
-        for quantity, calibrations in (('bias', c.bias), ('scale', c.scale)):
+        # bias keys as the single-position calibration had them (fit.<axis>, ...); the
+        # scale-factor correction's with a _scale suffix, in ppm
+        for suffix, calibrations, unit, scale in (('', c.bias, 'ug', MICRO_G),
+                                                  ('_scale', c.scale, 'ppm', PPM)):
             for axis, cal in zip(AXES, calibrations):
                 f = cal.fit
-                mapping[f'fit.{quantity}.{axis}'] = {
+                mapping[f'fit{suffix}.{axis}'] = {
                     'alpha1': f.alpha1, 'alpha2': f.alpha2, 'beta1': f.beta1,
                     'beta2': f.beta2, 'offset': f.offset, 'slope': f.slope, 'rmse': f.rmse,
                     'r_squared': f.r_squared, 'iterations': f.iterations,
                     'converged': f.converged}
-                mapping[f'poly4.{quantity}.{axis}'] = {'rmse': cal.poly4.rmse,
-                                                       'r_squared': cal.poly4.r_squared}
-                mapping[f'p2p_before.{quantity}.{axis}'] = cal.p2p_before
-                mapping[f'p2p_after.{quantity}.{axis}'] = cal.p2p_after
-                mapping[f'rom.{quantity}.{axis}'] = {**cal.compensator().rom(),
-                                                     'v_range': list(cal.v_range)}
+                mapping[f'poly3{suffix}.{axis}'] = {'rmse': cal.poly3.rmse,
+                                                    'r_squared': cal.poly3.r_squared}
+                mapping[f'poly4{suffix}.{axis}'] = {'rmse': cal.poly4.rmse,
+                                                    'r_squared': cal.poly4.r_squared}
+                mapping[f'p2p_before_{unit}{suffix}.{axis}'] = cal.p2p_before / scale
+                mapping[f'p2p_after_{unit}{suffix}.{axis}'] = cal.p2p_after / scale
+                mapping[f'cancellation_bits{suffix}.{axis}'] = cal.cancellation_bits
+                mapping[f'rom{suffix}.{axis}'] = {**cal.compensator().rom(),
+                                                  'v_range': list(cal.v_range)}
         mapping['misalignment'] = c.misalignment.tolist()
         mapping['k2'] = c.k2.tolist()
         return mapping
@@ -264,7 +279,7 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
         Extra measurements at the end of every plateau (the hook for, e.g., I_ref steps
         at chamber plateaus): ``at_plateau(triad, index, chamber_c)`` returns a generator
         of the same protocol, run with ``yield from`` while the head rests at +z; its
-        return values are collected in ``result.points['plateau_extra']``.
+        return values are collected in ``result.plateau_extra``.
     """
     if triad.thermal is None:
         raise EstimationError('the sensor has no thermal model (TriadConfig.thermal is None)')
@@ -324,20 +339,20 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
         triad.thermal.set_ambient(**previous)
         triad.temperature_compensation = was_compensating
     compensation, points = fit_multiposition(blocks, tumbles, settings)
-    points['plateau_extra'] = extra
     end_ns = sensor_time_ns(triad)
     if settings.apply:
         state.temperature = compensation.to_dict()
         triad.temperature_compensator = compensation
         triad.temperature_compensation = True
         state.updated_at_ns = end_ns
+    force = np.array([b[2] for b in blocks])
+    output = np.array([b[3] for b in blocks])
     raw = {'time_ns': np.array([b[0] for b in blocks], dtype=np.int64),
            'v_temp': np.array([b[1] for b in blocks]),
            'temperature': triad.thermal.reading_c(np.array([b[1] for b in blocks])),
-           'force': np.array([b[2] for b in blocks]),
-           'output': np.array([b[3] for b in blocks])}
+           'force': force, 'output': output, 'zero': output - force}
     return TemperatureResult('temperature', asdict(settings), compensation, points, raw,
-                             settings.apply, soak_s, start_ns, end_ns)
+                             settings.apply, soak_s, start_ns, end_ns, extra)
 
 
 def _chebyshev(u, degree):
@@ -404,6 +419,9 @@ def fit_multiposition(blocks, tumbles, settings):
     points = {'time_ns': np.array(times, dtype=np.int64), 'v_temp': v_mean}
     for i, name in enumerate(AXES):
         points[f'bias_{name}'] = bias[:, i]
+    for i, name in enumerate(AXES):
+        points[f'compensated_{name}'] = bias[:, i] - bias_cal[i].compensator().evaluate_fixed(
+            v_mean, clip=True)
     for i, name in enumerate(AXES):
         points[f'scale_{name}'] = scale[:, i]
     return ThermalCompensation(bias_cal, scale_cal, misalignment, k2), points
