@@ -217,7 +217,9 @@ def test_temperature_calibration_runs_accelerated_and_compensates_the_zero_bias(
         assert {'/qfa/trace/temperature/points', '/qfa/trace/result'} <= \
             {c.topic for c in reader.connections}
     state = json.loads((directory / 'state.json').read_text())
-    assert set(state['temperature']) == {'x', 'y', 'z'}
+    assert state['temperature']['format'] == 'multiposition/1'
+    assert set(state['temperature']['bias']) == set(state['temperature']['scale']) == \
+        {'x', 'y', 'z'}
     after = mean_accel(client, imu, 2000, settle_s=0.05)
     # The fixed-point compensation (bias, scale factor, misalignment, K2 from the six
     # positions) leaves the fit residual and the 3 ug bias instability.
