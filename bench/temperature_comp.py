@@ -32,7 +32,6 @@ from qfa_ros.calibration.state import CalibrationState  # noqa: E402
 from qfa_ros.calibration.temperature import (  # noqa: E402
     temperature_schedule,
     TemperatureSettings,
-    verify_cycle,
 )
 from qfa_ros.calibration.tempfit import (  # noqa: E402
     bin_by_temperature,
@@ -40,6 +39,7 @@ from qfa_ros.calibration.tempfit import (  # noqa: E402
     fit_double_exponential,
     fit_double_exponential_reference,
 )
+from qfa_ros.calibration.verification import verify_cycle  # noqa: E402
 from qfa_ros.model.thermal import STANDARD_GRAVITY, ThermalConfig, ThermalModel  # noqa: E402
 from qfa_ros.model.triad import TriadConfig  # noqa: E402
 from qfa_ros.model.unit import draw_unit  # noqa: E402

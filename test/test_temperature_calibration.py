@@ -15,9 +15,9 @@ from qfa_ros.calibration.temperature import (
     POSITIONS,
     temperature_schedule,
     TemperatureSettings,
-    verify_cycle,
 )
 from qfa_ros.calibration.tempfit import ThermalCompensation
+from qfa_ros.calibration.verification import verify_cycle
 from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.model.noise import MICRO_G, NoiseConfig
 from qfa_ros.model.profiles import StaticProfile

@@ -239,7 +239,8 @@ class TemperatureResult:
         return mapping
 
 
-def _fixture(axis, sign):
+def fixture_profile(axis, sign):
+    """Return the dividing head at ``axis`` up, ``sign`` as a static input profile."""
     return StaticProfile(tuple(float(v) for v in position_force(axis, sign)))
 
 
@@ -248,7 +249,7 @@ def tumble(triad, settings, blocks):
     keep_from = min(samples_for(triad, settings.settle_s),
                     samples_for(triad, settings.block_s) // 2)
     for axis, sign in POSITIONS:
-        triad.fixture = _fixture(axis, sign)
+        triad.fixture = fixture_profile(axis, sign)
         out = yield samples_for(triad, settings.block_s)
         if np.any(out.flags & (FLAG_DA2_CLIPPED | FLAG_ADC_CLIPPED)):
             raise EstimationError('output saturated during the tumble')
@@ -317,7 +318,7 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
                         break
                 if at_plateau is not None:
                     # --- per-plateau hook: extra measurements at this chamber plateau ---
-                    triad.fixture = _fixture(2, 1)
+                    triad.fixture = fixture_profile(2, 1)
                     extra.append((yield from at_plateau(triad, index, chamber_c)))
         # Back to the ambient it had; soak until the on-board reading has returned.
         triad.thermal.set_ambient(**previous)
@@ -425,79 +426,3 @@ def fit_multiposition(blocks, tumbles, settings):
     for i, name in enumerate(AXES):
         points[f'scale_{name}'] = scale[:, i]
     return ThermalCompensation(bias_cal, scale_cal, misalignment, k2), points
-
-
-@dataclass
-class VerificationResult:
-    """
-    Compensated output over a verification chamber cycle, per fixture position.
-
-    Attributes
-    ----------
-    zero_drift_p2p : float64[6, 3]
-        Per position (:data:`POSITIONS`) and axis: peak to peak over temperature bins of
-        the mean (output - fixture input) [m/s^2].
-    scale_residual : float64[3]
-        Per axis: largest |scale-factor error| of the +-g pairs, binned by
-        temperature [1].
-    bins_c : float64[k]
-        Centres of the temperature bins (on-board reading) [degC].
-    """
-
-    zero_drift_p2p: np.ndarray
-    scale_residual: np.ndarray
-    bins_c: np.ndarray
-
-
-def verify_cycle(triad, low_c=-40.0, high_c=70.0, period_s=2400.0, shape='sine',
-                 block_s=2.0, bin_c=10.0, progress=None):
-    """
-    Run a chamber cycle with the head tumbling and measure the compensated errors.
-
-    The cycle is a ``shape`` profile (default a sine, not the calibration's plateaus)
-    between ``low_c`` and ``high_c``; the head tumbles through the six positions in
-    the reverse order with ``block_s`` dwell. Errors are binned by the on-board
-    reading into ``bin_c`` bins. Runs offline (``triad.run``); ``progress`` is called
-    with the sensor seconds done, if given.
-    """
-    previous = {name: getattr(triad.thermal.config, name) for name in AMBIENT_FIELDS}
-    triad.thermal.set_ambient(ambient_profile='cycle', cycle_low_c=low_c, cycle_high_c=high_c,
-                              cycle_period_s=period_s, cycle_shape=shape)
-    n = samples_for(triad, block_s)
-    keep = min(samples_for(triad, 0.25), n // 2)
-    rows = []
-    try:
-        done = 0.0
-        while done < period_s:
-            for axis, sign in POSITIONS[::-1]:
-                triad.fixture = _fixture(axis, sign)
-                out = triad.run(n)
-                rows.append((out.v_temp[keep:].mean(), axis, sign,
-                             (out.accel[keep:] - out.truth[keep:]).mean(axis=0)))
-                done += block_s
-                if progress is not None:
-                    progress(block_s)
-    finally:
-        triad.fixture = None
-        triad.thermal.set_ambient(**previous)
-    reading = triad.thermal.reading_c(np.array([r[0] for r in rows]))
-    edges = np.arange(low_c, high_c + bin_c, bin_c)
-    which = np.digitize(reading, edges)
-    error = np.array([r[3] for r in rows])
-    position = np.array([POSITIONS.index((r[1], r[2])) for r in rows])
-    used = [b for b in np.unique(which) if np.sum(which == b) >= 6 * 3]
-    p2p = np.zeros((len(POSITIONS), 3))
-    for k in range(len(POSITIONS)):
-        means = np.array([error[(which == b) & (position == k)].mean(axis=0) for b in used])
-        p2p[k] = np.ptp(means, axis=0)
-    scale = np.zeros(3)
-    g = STANDARD_GRAVITY
-    for i in range(3):
-        up, down = POSITIONS.index((i, 1)), POSITIONS.index((i, -1))
-        for b in used:
-            e_up = error[(which == b) & (position == up), i].mean()
-            e_down = error[(which == b) & (position == down), i].mean()
-            scale[i] = max(scale[i], abs(e_up - e_down) / (2 * g))
-    centres = np.array([0.5 * (edges[max(b - 1, 0)] + edges[min(b, len(edges) - 1)])
-                        for b in used])
-    return VerificationResult(p2p, scale, centres)

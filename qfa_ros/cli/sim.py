@@ -18,8 +18,8 @@ from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import (
     temperature_schedule,
     TemperatureSettings,
-    verify_cycle,
 )
+from qfa_ros.calibration.verification import verify_cycle
 from qfa_ros.model.allan import allan_deviation
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.noise import MICRO_G
