@@ -206,18 +206,21 @@ PARAMETERS = (
                   'Temperature coefficient of I_ref for the co-regression [ppm/degC] '
                   '(0: the paper schedule)', False, -1.0e4, 1.0e4),
     ParameterSpec('temperature_calibration.low_c', _CHAMBER.low_c,
-                  'Chamber cycle low limit of calibrate_temperature [degC]', False,
+                  'Lowest chamber plateau of calibrate_temperature [degC]', False,
                   -60.0, 125.0),
     ParameterSpec('temperature_calibration.high_c', _CHAMBER.high_c,
-                  'Chamber cycle high limit of calibrate_temperature [degC]', False,
+                  'Highest chamber plateau of calibrate_temperature [degC]', False,
                   -60.0, 125.0),
     ParameterSpec('temperature_calibration.period_s', _CHAMBER.period_s,
-                  'Chamber cycle period of calibrate_temperature in sensor time [s] (always '
-                  'run as fast as the CPU allows)', False, 60.0, 1.0e6),
+                  'Chamber program of calibrate_temperature (all plateaus, six-position '
+                  'tumble) in sensor time [s], plus the soaks at the extremes and back to the '
+                  'starting temperature (always run as fast as the CPU allows)', False,
+                  60.0, 1.0e6),
     ParameterSpec('temperature_calibration.cycles', _CHAMBER.cycles,
-                  'Chamber cycles of calibrate_temperature', False, 1, 100),
+                  'Chamber programs of calibrate_temperature', False, 1, 100),
     ParameterSpec('temperature_calibration.m_bits', _CHAMBER.m_bits,
-                  'Fraction bits M of the fixed-point CORDIC compensator (seed 2: 16)', False,
+                  'Fraction bits M of the fixed-point CORDIC zero-bias compensator (seed 2: '
+                  '16; the scale factor uses 24)', False,
                   8, 30),
     ParameterSpec('trace_dir', '~/.ros/qfa_ros/traces',
                   'Directory of the estimation traces (MCAP), created when needed'),
