@@ -168,7 +168,8 @@ PARAMETERS = (
             -1.0e4, 1.0e4),
     ParameterSpec('model.misalignment_mrad', [0.0] * 9,
                   "Mounting misalignment / cross-coupling M added to the unit's, row-major "
-                  '3x3 (each loop senses ((I + M) f)_i) [mrad]', True, length=9),
+                  '3x3 (each loop senses ((I + M) f)_i) [mrad]', True, -100.0, 100.0,
+                  length=9),
     _vector('drift.forward_ppm', (0.0, 0.0, 0.0),
             'Step drift of the forward gain (in-amp gain resistor) per axis [ppm]',
             low=-1.0e5, high=1.0e5),
