@@ -17,7 +17,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from qfa_ros.model.thermal import ThermalConfig, ThermalModel
+from qfa_ros.model.unit import draw_unit
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES_FILE = ROOT / 'config' / 'fastdds_discovery.xml'
@@ -29,10 +29,17 @@ os.environ.setdefault('FASTDDS_DEFAULT_PROFILES_FILE', str(PROFILES_FILE))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 
-def thermal_zero_bias(temperature_c=25.0):
-    """Return the default sensor's thermal zero bias (x, y, z) at a steady temperature."""
-    model = ThermalModel(ThermalConfig(ambient_profile='constant'), np.random.default_rng(0))
-    return model.zero_bias(temperature_c)
+def unit_output(specific_force, seed=1, temperature_c=25.0, bias_ug=(0.0, 0.0, 0.0)):
+    """Return the static output (x, y, z) [m/s^2] of the node's drawn unit (``seed``).
+
+    The model's loop input at a steady body temperature: ``(bias + a + k2 a^2)(1 + e(T))
+    + b(T)`` with ``a = (I + M) f`` (:mod:`qfa_ros.model.unit`, :class:`QfaTriad`).
+    """
+    unit = draw_unit(seed)
+    a = (np.eye(3) + np.asarray(unit.misalignment)) @ np.asarray(specific_force, dtype=float)
+    sensed = np.asarray(bias_ug) * 9.80665e-6 + a + np.asarray(unit.k2) * a * a
+    return sensed * (1.0 + unit.scale_factor_error(temperature_c)) \
+        + unit.zero_bias(temperature_c)
 
 
 def domain_id(tag):

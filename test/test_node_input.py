@@ -12,7 +12,7 @@ from node_helpers import (
     ImuCollector,
     mean_accel,
     NodeProcess,
-    thermal_zero_bias,
+    unit_output,
 )
 import numpy as np
 import pytest
@@ -78,7 +78,7 @@ def test_loops_measure_the_ground_truth_and_reject_non_finite_input(setup):
     truth = GroundTruth(client)
     client.spin_until(lambda: len(imu.samples) > 50, 60, 'samples from the topic input')
     mean = mean_accel(client, imu, 500, settle_s=0.15)
-    assert mean == pytest.approx(np.add(INPUT, thermal_zero_bias()), abs=2e-3)
+    assert mean == pytest.approx(unit_output(INPUT), abs=2e-3)
 
     truth.value = (math.nan, 0.0, math.inf)
     imu.clear()

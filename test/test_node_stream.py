@@ -10,7 +10,7 @@ from node_helpers import (
     ImuCollector,
     mean_accel,
     NodeProcess,
-    thermal_zero_bias,
+    unit_output,
 )
 import numpy as np
 import pytest
@@ -28,7 +28,9 @@ LATITUDE = math.radians(45.0)  # the default latitude_deg
 G = float(normal_gravity(LATITUDE))
 BIAS_UG = (20.0, -30.0, 50.0)  # integral: typed as integers below
 # Configured IEEE 1293 bias plus the thermal zero bias at the constant 25 degC ambient.
-ZERO_BIAS = np.asarray(BIAS_UG) * 9.80665e-6 + thermal_zero_bias()
+# What the node's drawn unit (seed 1) outputs level and rolled 90 degrees at 25 degC.
+LEVEL = unit_output((0.0, 0.0, G), bias_ug=BIAS_UG)
+ROLLED = unit_output((0.0, G, 0.0), bias_ug=BIAS_UG)
 
 
 def stamp_ns(message):
@@ -92,15 +94,13 @@ def test_stream_delivers_every_sample_evenly_spaced(setup):
     # Per-sample scatter matches the advertised variance (white noise dominates).
     assert accel[:, 0].var() == pytest.approx(covariance[0, 0], rel=0.3)
 
-    bias = ZERO_BIAS
     mean = accel.mean(axis=0)
     # The bias-instability process barely averages over 10 s: three of its stationary
     # standard deviations on top of the white noise of the mean.
     noise = NoiseConfig()
     bias_std = math.sqrt(flicker_component_variance(noise) * len(noise.correlation_times))
     margin = 5 * math.sqrt(covariance[0, 0] / len(accel)) + 3 * bias_std
-    assert np.all(np.abs(mean - (bias + [0.0, 0.0, G])) < margin)
-    assert abs(np.linalg.norm(mean) - G) < abs(bias[2]) + margin
+    assert np.all(np.abs(mean - LEVEL) < margin)
 
     assert len(temperatures) >= 20
     assert temperatures[-1].header.frame_id == 'qfa_imu'
@@ -173,8 +173,8 @@ def test_orientation_changes_the_running_sensor_at_once(setup):
     assert result.successful, result.reason
     # The loops follow a 1 g step within a few ms; skip those samples.
     mean = mean_accel(client, imu, 500, settle_s=0.15)
-    assert mean[1] == pytest.approx(G + ZERO_BIAS[1], abs=2e-3)
-    assert mean[2] == pytest.approx(ZERO_BIAS[2], abs=2e-3)
+    assert mean[1] == pytest.approx(ROLLED[1], abs=2e-3)
+    assert mean[2] == pytest.approx(ROLLED[2], abs=2e-3)
     result, = client.set_parameters({'input.roll': 0.0})
     assert result.successful
 

@@ -751,7 +751,9 @@ def schedule_runs():
     runs['feedback'] = [run_schedule(triad, feedback_schedule(triad, state, feedback))]
     runs['self_calibrate'] = list(run_schedule(
         triad, self_calibrate(triad, state, forward, feedback)))
-    hot = QfaTriad(TriadConfig(thermal=ThermalConfig(ambient_profile='constant')), rng=3)
+    # a 30 s body time constant keeps the chamber program's soaks short
+    hot = QfaTriad(TriadConfig(thermal=ThermalConfig(ambient_profile='constant',
+                                                     sensor_tau_s=30.0)), rng=3)
     runs['temperature'] = [run_schedule(hot, temperature_schedule(
         hot, CalibrationState(), TemperatureSettings(period_s=240.0, bins=40)))]
     return runs
@@ -831,11 +833,12 @@ def test_estimation_trace_round_trip_through_rosbags(tmp_path, schedule_runs, ki
             blocks = by_topic[f'/qfa/trace/{r.kind}/blocks']
             assert [t for _, t, _ in blocks] == r.blocks['time_ns'].tolist()
             assert [d.label for d in blocks[0][2].layout.dim] == [
-                'v_temp', 'temperature', *(f'zero_{axis}' for axis in AXES)]
+                'v_temp', 'temperature', *(f'zero_{axis}' for axis in AXES),
+                *(f'force_{axis}' for axis in AXES)]
             np.testing.assert_array_equal(
                 [m.data for _, _, m in blocks],
                 np.column_stack([r.blocks['v_temp'], r.blocks['temperature'],
-                                 r.blocks['zero']]))
+                                 r.blocks['zero'], r.blocks['force']]))
 
     with open(path, 'rb') as stream:
         reader = make_reader(stream)
@@ -861,7 +864,9 @@ def test_temperature_trace_reproduces_the_fixed_point_compensator(tmp_path, sche
         fit = DoubleExpFit(values[f'temperature.fit.{axis}.alpha1'],
                            values[f'temperature.fit.{axis}.alpha2'],
                            values[f'temperature.fit.{axis}.beta1'],
-                           values[f'temperature.fit.{axis}.beta2'], 0.0, 0.0, 0, True)
+                           values[f'temperature.fit.{axis}.beta2'], 0.0, 0.0, 0, True,
+                           offset=values[f'temperature.fit.{axis}.offset'],
+                           slope=values[f'temperature.fit.{axis}.slope'])
         rebuilt = DoubleExpCompensator(
             fit, m_bits=rom['m_bits'], n_bits=rom['n_bits'], guard_bits=rom['guard_bits'],
             v_range=rom['v_range'], output_frac_bits=rom['output_frac_bits'])

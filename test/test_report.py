@@ -95,7 +95,8 @@ def scenario(tmp_path_factory):
 def temperature(tmp_path_factory):
     """Write a temperature-cycle scenario bag from a short real calibration."""
     path = tmp_path_factory.mktemp('temperature') / 'temperature.mcap'
-    config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant'))
+    # a 30 s body time constant keeps the chamber program's soaks short
+    config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant', sensor_tau_s=30.0))
     triad = QfaTriad(config, rng=3)
     settings = TemperatureSettings(period_s=240.0, bins=40)
     with ScenarioBag(path, config.noise, config.sample_rate_hz) as bag:

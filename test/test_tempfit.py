@@ -271,3 +271,40 @@ def test_calibration_json_round_trip_and_rom_check():
         TemperatureCalibration.from_dict(record)
     with pytest.raises(ValueError, match='invalid'):
         TemperatureCalibration.from_dict({'alpha': [1.0]})
+
+
+# -- linear baseline (issue 14: curves that are not the double exponential's shape) --------
+
+def _mixed_curve():
+    v = np.linspace(0.1, 1.2, 80)
+    t = (v - 0.75) / 0.01
+    x = t / 55.0
+    # an exponential under a cubic trend: what a drawn unit looks like (model/unit.py)
+    return v, 1e-3 * (0.4 * np.exp(2.5 * (v - 0.75)) + 0.8 * x - 0.3 * x ** 2 + 0.15 * x ** 3)
+
+
+def test_baseline_fits_a_curve_the_pure_model_cannot():
+    v, y = _mixed_curve()
+    pure = calibrate_zero_bias(v, y, n_bins=80)
+    lined = calibrate_zero_bias(v, y, n_bins=80, baseline=True)
+    assert lined.p2p_after < 0.01 * pure.p2p_before
+    assert lined.p2p_after < 0.2 * pure.p2p_after
+    assert lined.cancellation_bits < 8          # the fixed-point words keep their bits
+    fit = lined.fit
+    npt.assert_allclose(fit.evaluate(v), fit.alpha1 * np.exp(fit.beta1 * v)
+                        + fit.alpha2 * np.exp(fit.beta2 * v) + fit.offset + fit.slope * v)
+
+
+def test_baseline_compensator_is_bit_exact_with_its_scalar_reference_and_round_trips():
+    v, y = _mixed_curve()
+    calibration = calibrate_zero_bias(v, y, n_bins=80, baseline=True)
+    compensator = calibration.compensator()
+    assert 'line_mantissa' in compensator.rom()
+    words = compensator.quantize_v(v)
+    assert [compensator.evaluate_fixed_scalar(w) for w in words] == \
+        compensator.evaluate_fixed_q(words).tolist()
+    npt.assert_allclose(compensator.evaluate_fixed(v), calibration.fit.evaluate(v),
+                        atol=1e-3 * np.ptp(y))
+    restored = TemperatureCalibration.from_dict(json.loads(json.dumps(calibration.to_dict())))
+    assert restored.compensator().rom() == compensator.rom()
+    assert restored.fit.offset == calibration.fit.offset

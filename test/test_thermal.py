@@ -219,3 +219,68 @@ def test_probe_lags_the_body_like_two_first_order_stages(tau_s, tau_p):
     npt.assert_allclose(chunk.bias[:, 2], alpha[2, 0] * np.exp(beta[2, 0] * v_body)
                         + alpha[2, 1] * np.exp(beta[2, 1] * v_body), rtol=1e-9)
     npt.assert_allclose(chunk.scale_factor_error[:, 0], 80e-6 * (body - 25.0), atol=1e-13)
+
+
+# -- a unit is a draw (issue 14) ---------------------------------------------------------
+
+def _unit_curves(unit):
+    grid = np.linspace(-40.0, 70.0, 221)
+    return grid, unit.zero_bias(grid), unit.scale_factor_error(grid)
+
+
+def test_the_same_seed_is_the_same_unit_and_two_seeds_differ():
+    from qfa_ros.model.unit import draw_unit
+    assert draw_unit(7) == draw_unit(7)
+    a, b = draw_unit(7), draw_unit(8)
+    assert np.all(np.abs(np.subtract(a.turn_on_bias, b.turn_on_bias)) > 1e-6)
+    _, bias_a, sf_a = _unit_curves(a)
+    _, bias_b, sf_b = _unit_curves(b)
+    # different thermal curves, not only different offsets
+    assert np.all(np.ptp(bias_a - bias_b, axis=0) > 10 * MICRO_G)
+    assert np.all(np.ptp(sf_a - sf_b, axis=0) > 100e-6)
+    with pytest.raises(ValueError, match='seed'):
+        draw_unit(-1)
+
+
+def test_drawn_units_stay_within_the_datasheet_spreads():
+    from qfa_ros.model.unit import draw_unit
+    g = 9.80665
+    slopes, turn_on = [], []
+    for seed in range(30):
+        unit = draw_unit(seed)
+        grid, bias, sf = _unit_curves(unit)
+        npt.assert_allclose(unit.zero_bias(25.0), unit.turn_on_bias, atol=1e-12)
+        turn_on.append(unit.turn_on_bias)
+        slopes.append(np.abs(np.gradient(bias, grid, axis=0)).max(axis=0))
+        assert np.all(np.abs(np.gradient(sf, grid, axis=0)).max(axis=0) < 180e-6)
+        k2 = np.abs(unit.k2) * g ** 2 / MICRO_G
+        assert np.all((k2 >= 10.0) & (k2 <= 30.0))
+        assert np.abs(unit.misalignment).max() <= 1e-3
+        assert np.all(np.abs(unit.bias_aging_per_year) <= 160 * MICRO_G)
+        assert np.all(np.abs(unit.sf_aging_ppm_per_year) <= 310)
+        assert np.all(np.asarray(unit.hysteresis_m_s2) <= 3 * MICRO_G)
+    turn_on, slopes = np.array(turn_on), np.array(slopes)
+    assert np.all(np.abs(turn_on) < 4e-3 * g)
+    assert np.all(slopes < 30 * MICRO_G)
+    # a spread, not one shape: slopes and turn-on biases vary widely over 30 units
+    assert slopes.max() / slopes.min() > 2 and np.ptp(turn_on) > 2e-3 * g
+
+
+def test_a_units_config_reproduces_its_curves_and_ages():
+    from qfa_ros.model.triad import TriadConfig
+    from qfa_ros.model.unit import draw_unit
+    unit = draw_unit(3)
+    base = TriadConfig(thermal=ThermalConfig(ambient_profile='constant', ambient_c=10.0))
+    triad = unit.triad(base, rng=0)
+    assert triad.thermal.config.ambient_c == 10.0           # the ambient is kept
+    model = ThermalModel(triad.thermal.config, np.random.default_rng(0))
+    npt.assert_allclose(model.zero_bias(np.array([-20.0, 25.0, 60.0])),
+                    unit.zero_bias(np.array([-20.0, 25.0, 60.0])), atol=1e-15)
+    npt.assert_allclose(model.scale_factor_error(np.array([0.0, 50.0])),
+                    unit.scale_factor_error(np.array([0.0, 50.0])), atol=1e-15)
+    npt.assert_allclose(triad.config.misalignment, unit.misalignment)
+    # bias aging: a year of aged time gives the yearly rate; continuous across a change
+    # of the time acceleration
+    triad.drift.set_time_acceleration(3.15576e7)
+    npt.assert_allclose(triad.drift.bias_at(1.0), unit.bias_aging_per_year, rtol=1e-9)
+    assert triad.drift.rate[0, triad.drift.components.index('b')] != 0.0

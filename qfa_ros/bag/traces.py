@@ -50,9 +50,12 @@ def write_results(trace, kind, results, context=None):
             # The raw cycle behind the binned points (temperature calibration), so that
             # the fit can be redone from the trace alone.
             zero = np.asarray(blocks['zero'], dtype=float)
+            # the fixture's input per block (multi-position calibration), if any
+            force = np.asarray(blocks.get('force', np.zeros((0, 3))), dtype=float)
             trace.write_table(f'{r.kind}/blocks', {
                 'v_temp': blocks['v_temp'], 'temperature': blocks['temperature'],
-                **{f'zero_{axis}': zero[:, i] for i, axis in enumerate(AXES)}},
+                **{f'zero_{axis}': zero[:, i] for i, axis in enumerate(AXES)},
+                **{f'force_{axis}': force[:, i] for i, axis in enumerate(AXES) if len(force)}},
                 np.asarray(blocks['time_ns'], dtype=np.int64))
     summary = '; '.join(r.summary() for r in results)
     trace.write_result({r.kind: r.to_mapping() for r in results}, results[-1].end_ns,

@@ -193,14 +193,15 @@ def require_closed(sensor):
         raise EstimationError('a loop is open: another schedule is running')
 
 
-def run_schedule(triad, schedule, chunk_samples=1000):
+def run_schedule(triad, schedule, chunk_samples=1000, progress=None):
     """
     Drive a schedule generator offline, as fast as possible; return its result.
 
     The generator yields how many samples it needs; the driver runs the triad for that
     many (in chunks of at most ``chunk_samples``) and sends back the output. A triad
     moving along a trajectory is refused with :class:`EstimationError`: self-estimation
-    needs the sensor at rest.
+    needs the sensor at rest. ``progress``, if given, is called with the sensor seconds
+    of every chunk run.
     """
     moving = triad.is_at_rest() if hasattr(triad, 'is_at_rest') else None
     if moving:
@@ -215,6 +216,8 @@ def run_schedule(triad, schedule, chunk_samples=1000):
                 n = min(chunk_samples, remaining)
                 parts.append(triad.run(n))
                 remaining -= n
+                if progress is not None:
+                    progress(n / triad.config.sample_rate_hz)
             request = schedule.send(concatenate(parts))
     except StopIteration as stop:
         return stop.value

@@ -3,7 +3,7 @@
 from dataclasses import asdict, dataclass, field
 import math
 
-from qfa_ros.calibration.tempfit import TemperatureCalibration
+from qfa_ros.calibration.tempfit import ThermalCompensation
 from qfa_ros.model.triad import AXES
 
 
@@ -127,8 +127,8 @@ class CalibrationState:
 
 
 def install_compensation(triad, temperature_state):
-    """Load the per-axis ROMs of a calibration state into ``triad`` and switch them on."""
-    calibrations = [TemperatureCalibration.from_dict(temperature_state[axis]) for axis in AXES]
-    triad.temperature_compensators = [c.compensator() for c in calibrations]
+    """Load the temperature ROM of a calibration state into ``triad`` and switch it on."""
+    compensation = ThermalCompensation.from_dict(temperature_state)
+    triad.temperature_compensator = compensation
     triad.temperature_compensation = True
-    return calibrations
+    return compensation

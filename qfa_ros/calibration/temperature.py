@@ -1,5 +1,21 @@
-"""Temperature calibration of the zero bias: chamber cycle, fit, fixed-point ROM (seed 2)."""
+"""
+Multi-position temperature calibration: chamber plateaus, a tumbling dividing head, fits.
 
+As a lab calibrates a navigation accelerometer: the triad sits on a dividing head in a
+chamber; the chamber steps through plateaus from the ambient down to ``low_c``, up to
+``high_c`` and back to the ambient; all the while the head tumbles through the six
+positions +x, +y, +z, -z, -y, -x (a palindrome: every axis's +-g pair and zero-input
+blocks are centred on the tumble's middle, so a linear temperature trend cancels).
+Per axis the zero bias and the scale factor against the on-board temperature reading
+are fitted by seed 2's double exponential (with a linear baseline) and evaluated on the
+fixed-point CORDIC path; the constant misalignment and K2 the tumble measures are kept
+too. At the end the chamber returns to the ambient it had and the schedule soaks until
+the on-board reading is back where it started, so the sensor leaves as a lab would.
+Only what the sensor can know is used: outputs, the temperature reading and the known
+fixture positions.
+"""
+
+import dataclasses
 from dataclasses import asdict, dataclass
 import math
 
@@ -11,12 +27,26 @@ from qfa_ros.calibration.schedule import (
     samples_for,
     sensor_time_ns,
 )
-from qfa_ros.calibration.tempfit import calibrate_zero_bias
+from qfa_ros.calibration.tempfit import calibrate_zero_bias, ThermalCompensation
+from qfa_ros.model.hardware import STANDARD_GRAVITY
 from qfa_ros.model.noise import MICRO_G
+from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED
 
 AMBIENT_FIELDS = ('ambient_profile', 'ambient_c', 'cycle_low_c', 'cycle_high_c',
                   'cycle_period_s', 'cycle_shape', 'cycle_dwell_fraction')
+
+POSITIONS = ((0, 1), (1, 1), (2, 1), (2, -1), (1, -1), (0, -1))
+"""Tumble order as (axis up, sign): +x, +y, +z, -z, -y, -x."""
+
+PPM = 1e-6
+
+
+def position_force(axis, sign):
+    """Return the specific force [m/s^2] of the fixture position ``axis`` up, ``sign``."""
+    force = [0.0, 0.0, 0.0]
+    force[axis] = sign * STANDARD_GRAVITY
+    return np.array(force)
 
 
 @dataclass(frozen=True)
@@ -27,19 +57,37 @@ class TemperatureSettings:
     Attributes
     ----------
     low_c, high_c : float
-        Chamber cycle limits [degC].
+        Chamber limits [degC].
     period_s : float
-        Cycle period [s] (trapezoid, 30 % dwell on each plateau); it may be far
-        shorter than a real chamber's because the bias follows the body temperature,
-        which the on-board sensor reads without lag.
+        Sensor time of one chamber program (all plateaus) [s]; each plateau holds
+        ``period_s / plateaus``. Accelerated against a real chamber: the fits use the
+        on-board reading of every tumble, not settled plateaus.
     cycles : int
-        Number of cycles.
+        Number of chamber programs.
     block_s : float
-        Averaging block of the recorded points [s].
+        Dwell of the dividing head in each of the six positions [s].
+    settle_s : float
+        Discarded start of every position (the loop's transient after a rotation; the
+        default loop settles to 1 ug in 0.05 s) [s].
+    step_c : float
+        Spacing of the chamber plateaus [degC].
     bins : int
-        V_temp bins of the fit (seed 2 fits the binned curve).
+        V_temp bins of the fits.
     m_bits : int
-        Fixed-point fraction bits of the CORDIC compensator (seed 2: 16).
+        Fixed-point fraction bits of the zero-bias compensator (seed 2: 16).
+    sf_m_bits : int
+        Fraction bits of the scale-factor compensator (24: its CORDIC error, 7.6e-8,
+        is far below the 20 ppm the correction must reach; at 16 it is 2.4e-5 of each
+        term).
+    stable_c_per_tumble : float
+        The extreme plateaus (``low_c``, ``high_c``) hold until the on-board reading
+        moves less than this from one tumble to the next (at most ten holds) [degC]: the
+        fits then cover the whole range instead of extrapolating to it.
+    return_tolerance_c : float
+        The soak at the end lasts until the on-board reading (tumble mean) is within
+        this of where it was at the start [degC].
+    max_soak_s : float
+        Longest soak [s]; beyond it the calibration fails with the time it still needs.
     apply : bool
         Store the coefficients and switch temperature compensation on.
     """
@@ -49,12 +97,19 @@ class TemperatureSettings:
     period_s: float = 3600.0
     cycles: int = 1
     block_s: float = 1.0
-    bins: int = 100
+    settle_s: float = 0.25
+    step_c: float = 10.0
+    bins: int = 60
     m_bits: int = 16
+    sf_m_bits: int = 24
+    stable_c_per_tumble: float = 0.02
+    return_tolerance_c: float = 0.05
+    max_soak_s: float = 6000.0
     apply: bool = True
 
     def __post_init__(self):
-        for name in ('low_c', 'high_c', 'period_s', 'block_s'):
+        for name in ('low_c', 'high_c', 'period_s', 'block_s', 'step_c', 'settle_s',
+                     'stable_c_per_tumble', 'return_tolerance_c', 'max_soak_s'):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f'{name} must be a finite number, got {value!r}')
@@ -62,12 +117,42 @@ class TemperatureSettings:
             raise ValueError('low_c and high_c must satisfy -60 <= low_c < high_c <= 125 degC')
         if self.period_s < 60.0:
             raise ValueError(f'period_s must be at least 60 s, got {self.period_s!r}')
-        if not 0 < self.block_s <= self.period_s / 50:
-            raise ValueError('block_s must be positive and at most period_s / 50')
-        for name, low, high in (('cycles', 1, 100), ('bins', 10, 10000), ('m_bits', 8, 30)):
+        if not 0 < self.block_s <= self.period_s / 100:
+            raise ValueError('block_s must be positive and at most period_s / 100')
+        if not 0 < self.step_c <= self.high_c - self.low_c:
+            raise ValueError('step_c must be positive and at most high_c - low_c')
+        if self.return_tolerance_c <= 0 or self.max_soak_s < 0 \
+                or not self.stable_c_per_tumble > 0:
+            raise ValueError('return_tolerance_c and stable_c_per_tumble must be > 0 and '
+                             'max_soak_s >= 0')
+        for name, low, high in (('cycles', 1, 100), ('bins', 10, 10000), ('m_bits', 8, 30),
+                                ('sf_m_bits', 8, 30)):
             value = getattr(self, name)
             if isinstance(value, bool) or int(value) != value or not low <= value <= high:
                 raise ValueError(f'{name} must be an integer in [{low}, {high}], got {value!r}')
+
+    def max_sensor_time_s(self):
+        """
+        Return the longest sensor time one calibration may take [s].
+
+        Every plateau holds ``period_s / plateaus`` (whole tumbles), the two extremes soak
+        at most ten holds each, the soak back lasts at most ``max_soak_s``; the most
+        plateaus are those of an ambient at ``low_c`` (the way down is longest).
+        """
+        plateaus = len(self.plateaus(self.low_c))
+        hold = self.period_s / plateaus
+        tumble = len(POSITIONS) * self.block_s
+        per_cycle = (plateaus - 2) * (hold + tumble) + 2 * (10 * hold + tumble)
+        return tumble + self.cycles * per_cycle + self.max_soak_s + tumble
+
+    def plateaus(self, ambient_c):
+        """Return the chamber plateaus [degC]: low, up to high, down to ``ambient_c``."""
+        up = np.arange(self.low_c, self.high_c + 1e-9, self.step_c)
+        if up[-1] < self.high_c:
+            up = np.append(up, self.high_c)
+        end = min(max(ambient_c, self.low_c), self.high_c)
+        down = np.arange(self.high_c - self.step_c, end, -self.step_c)
+        return [float(t) for t in np.concatenate([up, down, [ambient_c]])]
 
 
 @dataclass
@@ -81,31 +166,44 @@ class TemperatureResult:
         ``temperature``.
     settings : dict
         The schedule settings.
-    calibrations : list of TemperatureCalibration
-        One per axis (fit, poly3/poly4 comparison, p2p before/after, ROM).
+    compensation : ThermalCompensation
+        Bias and scale-factor calibrations per axis, misalignment, K2.
     points : dict of numpy arrays
-        Binned curve: ``time_ns`` (end of the schedule), ``v_temp`` [V],
-        ``bias_<axis>`` and ``compensated_<axis>`` [m/s^2].
-    residuals : float64[n, 3]
-        Binned zero output after the fixed-point compensation [m/s^2].
+        Per tumble: ``time_ns``, ``v_temp`` [V], ``bias_<axis>`` [m/s^2],
+        ``scale_<axis>`` (relative scale-factor error) [1].
     blocks : dict of numpy arrays
-        The recorded cycle, one row per ``block_s``: ``time_ns``, ``v_temp`` [V],
-        ``temperature`` [degC], ``zero`` (n, 3) [m/s^2].
+        Raw position blocks: ``time_ns``, ``v_temp`` [V], ``temperature`` (on-board
+        reading) [degC], ``force`` (n, 3) fixture input and ``output`` (n, 3) [m/s^2].
     applied : bool
         Whether compensation was stored and switched on.
+    soak_s : float
+        Sensor time of the final soak back to the starting temperature [s].
+    plateau_extra : list
+        What the ``at_plateau`` hook returned at every plateau.
     start_ns, end_ns : int
         Sensor time span [ns].
     """
 
     kind: str
     settings: dict
-    calibrations: list
+    compensation: ThermalCompensation
     points: dict
-    residuals: np.ndarray
     blocks: dict
     applied: bool
+    soak_s: float
     start_ns: int
     end_ns: int
+    plateau_extra: list = dataclasses.field(default_factory=list)
+
+    @property
+    def residuals(self):
+        """Per tumble and axis: bias minus its fixed-point compensation [m/s^2]."""
+        return np.column_stack([self.points[f'compensated_{a}'] for a in AXES])
+
+    @property
+    def calibrations(self):
+        """Return the zero-bias calibrations per axis."""
+        return self.compensation.bias
 
     @property
     def duration_s(self):
@@ -114,49 +212,89 @@ class TemperatureResult:
 
     def summary(self):
         """Return a one-line human summary."""
-        axes = ', '.join(f'{a} {c.p2p_before / MICRO_G:.0f}->{c.p2p_after / MICRO_G:.1f} ug'
-                         for a, c in zip(AXES, self.calibrations))
+        c = self.compensation
+        axes = ', '.join(
+            f'{a} {b.p2p_before / MICRO_G:.0f}->{b.p2p_after / MICRO_G:.1f} ug / '
+            f'{s.p2p_before / PPM:.0f}->{s.p2p_after / PPM:.1f} ppm'
+            for a, b, s in zip(AXES, c.bias, c.scale))
         action = 'compensation on' if self.applied else 'not applied'
-        return (f'temperature calibration: zero-drift p2p {axes}; {action}; '
-                f'{self.duration_s:.0f} s')
+        return (f'temperature calibration (six positions): zero-drift p2p and scale-factor '
+                f'p2p {axes}; {action}; {self.duration_s:.0f} s incl. {self.soak_s:.0f} s '
+                'soak back to the starting temperature')
 
     def to_mapping(self):
-        """Return the fit, comparison figures and ROM words as a mapping (trace result).
-
-        ``rom.<axis>`` holds the integer words and formats the compensator was built
-        from (what ``state.temperature`` stores), so the trace alone reproduces the
-        fixed-point compensation bit for bit.
-        """
+        """Return the fits, comparison figures and ROM words as a mapping (trace result)."""
         mapping = {'applied': self.applied, 'duration_s': self.duration_s,
-                   'start_ns': self.start_ns, 'end_ns': self.end_ns, 'summary': self.summary()}
-        for axis, c in zip(AXES, self.calibrations):
-            mapping[f'fit.{axis}'] = {
-                'alpha1': c.fit.alpha1, 'alpha2': c.fit.alpha2, 'beta1': c.fit.beta1,
-                'beta2': c.fit.beta2, 'rmse': c.fit.rmse, 'r_squared': c.fit.r_squared,
-                'iterations': c.fit.iterations, 'converged': c.fit.converged}
-            mapping[f'poly3.{axis}'] = {'rmse': c.poly3.rmse, 'r_squared': c.poly3.r_squared}
-            mapping[f'poly4.{axis}'] = {'rmse': c.poly4.rmse, 'r_squared': c.poly4.r_squared}
-            mapping[f'p2p_before_ug.{axis}'] = c.p2p_before / MICRO_G
-            mapping[f'p2p_after_ug.{axis}'] = c.p2p_after / MICRO_G
-            mapping[f'cancellation_bits.{axis}'] = c.cancellation_bits
-            mapping[f'rom.{axis}'] = {**c.compensator().rom(), 'v_range': list(c.v_range)}
+                   'soak_s': self.soak_s, 'start_ns': self.start_ns, 'end_ns': self.end_ns,
+                   'summary': self.summary()}
+        c = self.compensation
+        # bias keys as the single-position calibration had them (fit.<axis>, ...); the
+        # scale-factor correction's with a _scale suffix, in ppm
+        for suffix, calibrations, unit, scale in (('', c.bias, 'ug', MICRO_G),
+                                                  ('_scale', c.scale, 'ppm', PPM)):
+            for axis, cal in zip(AXES, calibrations):
+                f = cal.fit
+                mapping[f'fit{suffix}.{axis}'] = {
+                    'alpha1': f.alpha1, 'alpha2': f.alpha2, 'beta1': f.beta1,
+                    'beta2': f.beta2, 'offset': f.offset, 'slope': f.slope, 'rmse': f.rmse,
+                    'r_squared': f.r_squared, 'iterations': f.iterations,
+                    'converged': f.converged}
+                mapping[f'poly3{suffix}.{axis}'] = {'rmse': cal.poly3.rmse,
+                                                    'r_squared': cal.poly3.r_squared}
+                mapping[f'poly4{suffix}.{axis}'] = {'rmse': cal.poly4.rmse,
+                                                    'r_squared': cal.poly4.r_squared}
+                mapping[f'p2p_before_{unit}{suffix}.{axis}'] = cal.p2p_before / scale
+                mapping[f'p2p_after_{unit}{suffix}.{axis}'] = cal.p2p_after / scale
+                mapping[f'cancellation_bits{suffix}.{axis}'] = cal.cancellation_bits
+                mapping[f'rom{suffix}.{axis}'] = {**cal.compensator().rom(),
+                                                  'v_range': list(cal.v_range)}
+        mapping['misalignment'] = c.misalignment.tolist()
+        mapping['k2'] = c.k2.tolist()
         return mapping
 
 
-def temperature_schedule(triad, state, settings=TemperatureSettings()):
-    """
-    Run a chamber temperature cycle, fit the zero bias, store the ROM (generator).
+def fixture_profile(axis, sign):
+    """Return the dividing head at ``axis`` up, ``sign`` as a static input profile."""
+    return StaticProfile(tuple(float(v) for v in position_force(axis, sign)))
 
-    Same protocol as :func:`qfa_ros.calibration.estimation.run_schedule`. The sensor must stay
-    static at a known orientation (the chamber fixture): the zero output is the
-    output minus that known specific force, averaged over ``block_s`` blocks with
-    the measured V_temp. Per axis, :func:`qfa_ros.calibration.tempfit.calibrate_zero_bias` bins
-    the curve by V_temp and fits the double exponential by alternating iteration,
-    with the 3rd/4th-order polynomials for comparison, and builds the fixed-point
-    CORDIC compensator. With ``settings.apply`` the coefficients go into
-    ``state.temperature`` and compensation is switched on. The ambient profile is
-    restored afterwards. A sensor at +1 g on an axis calibrates that axis's
-    scale-factor temperature error at 1 g together with its zero bias.
+
+def tumble(triad, settings, blocks):
+    """Run one six-position tumble, appending one record per position (generator)."""
+    keep_from = min(samples_for(triad, settings.settle_s),
+                    samples_for(triad, settings.block_s) // 2)
+    for axis, sign in POSITIONS:
+        triad.fixture = fixture_profile(axis, sign)
+        out = yield samples_for(triad, settings.block_s)
+        if np.any(out.flags & (FLAG_DA2_CLIPPED | FLAG_ADC_CLIPPED)):
+            raise EstimationError('output saturated during the tumble')
+        # the first settle_s follow the rotation: the loop's transient is not data
+        blocks.append((int(out.stamps_ns[-1]), out.v_temp[keep_from:].mean(),
+                       position_force(axis, sign), out.accel[keep_from:].mean(axis=0)))
+
+
+def _reading(triad, v_temp):
+    return float(triad.thermal.reading_c(v_temp))
+
+
+def temperature_schedule(triad, state, settings=TemperatureSettings(), at_plateau=None):
+    """
+    Run the chamber program with a tumbling head, fit bias and scale factor (generator).
+
+    Same protocol as :func:`qfa_ros.calibration.estimation.run_schedule`.
+
+    Parameters
+    ----------
+    triad : QfaTriad
+        The sensor (with a thermal model).
+    state : CalibrationState
+        Gets the ROM (``state.temperature``) with ``settings.apply``.
+    settings : TemperatureSettings
+        The schedule.
+    at_plateau : callable, optional
+        Extra measurements at the end of every plateau (the hook for, e.g., I_ref steps
+        at chamber plateaus): ``at_plateau(triad, index, chamber_c)`` returns a generator
+        of the same protocol, run with ``yield from`` while the head rests at +z; its
+        return values are collected in ``result.plateau_extra``.
     """
     if triad.thermal is None:
         raise EstimationError('the sensor has no thermal model (TriadConfig.thermal is None)')
@@ -165,55 +303,140 @@ def temperature_schedule(triad, state, settings=TemperatureSettings()):
     previous = {name: getattr(triad.thermal.config, name) for name in AMBIENT_FIELDS}
     was_compensating = triad.temperature_compensation
     triad.temperature_compensation = False
-    v_temp, zero, times, temperature, truth0 = [], [], [], [], None
-    blocks = int(round(settings.cycles * settings.period_s / settings.block_s))
+    blocks, tumbles, extra = [], [], []
+    soak_s = 0.0
+    ambient = float(triad.thermal.ambient_at(np.array([triad.thermal.time]))[0])
+    plateaus = settings.plateaus(ambient)
+    hold = settings.period_s / len(plateaus)
+    tumble_s = len(POSITIONS) * settings.block_s
     try:
-        triad.thermal.set_ambient(ambient_profile='cycle', cycle_low_c=settings.low_c,
-                                  cycle_high_c=settings.high_c,
-                                  cycle_period_s=settings.period_s, cycle_shape='trapezoid',
-                                  cycle_dwell_fraction=0.3)
-        for _ in range(blocks):
-            out = yield samples_for(triad, settings.block_s)
-            if np.any(out.flags & (FLAG_DA2_CLIPPED | FLAG_ADC_CLIPPED)):
-                raise EstimationError('output saturated: the input must be in range')
-            if truth0 is None:
-                truth0 = out.truth[0]
-            if np.max(np.abs(out.truth - truth0)) > 1e-9:
-                raise EstimationError('the input moved: temperature calibration needs the '
-                                      'sensor static at a known orientation')
-            v_temp.append(out.v_temp.mean())
-            zero.append((out.accel - out.truth).mean(axis=0))
-            times.append(int(out.stamps_ns[-1]))
-            temperature.append(out.temperature.mean())
+        first = len(blocks)
+        yield from tumble(triad, settings, blocks)
+        start_reading = _reading(triad, np.mean([b[1] for b in blocks[first:]]))
+        for _ in range(settings.cycles):
+            for index, chamber_c in enumerate(plateaus):
+                triad.thermal.set_ambient(ambient_profile='constant', ambient_c=chamber_c)
+                extreme = chamber_c in (settings.low_c, settings.high_c)
+                count, last = 0, None
+                while True:
+                    tumbles.append(len(blocks))
+                    yield from tumble(triad, settings, blocks)
+                    count += 1
+                    reading = _reading(triad, np.mean([b[1] for b in blocks[-len(POSITIONS):]]))
+                    stable = last is not None and \
+                        abs(reading - last) <= settings.stable_c_per_tumble
+                    last = reading
+                    # the extremes soak until the reading is stable: the range is covered
+                    if count * tumble_s >= hold and (not extreme or stable
+                                                     or count * tumble_s >= 10 * hold):
+                        break
+                if at_plateau is not None:
+                    # --- per-plateau hook: extra measurements at this chamber plateau ---
+                    triad.fixture = fixture_profile(2, 1)
+                    extra.append((yield from at_plateau(triad, index, chamber_c)))
+        # Back to the ambient it had; soak until the on-board reading has returned.
+        triad.thermal.set_ambient(**previous)
+        if previous['ambient_profile'] == 'constant':
+            while True:
+                first = len(blocks)
+                yield from tumble(triad, settings, blocks)
+                reading = _reading(triad, np.mean([b[1] for b in blocks[first:]]))
+                if abs(reading - start_reading) <= settings.return_tolerance_c:
+                    break
+                soak_s += tumble_s
+                if soak_s > settings.max_soak_s:
+                    raise EstimationError(
+                        f'the sensor is still {reading - start_reading:+.2f} degC from its '
+                        f'starting temperature after a {soak_s:.0f} s soak: raise '
+                        'temperature_calibration max_soak_s or let it settle first')
     finally:
+        triad.fixture = None
         triad.thermal.set_ambient(**previous)
         triad.temperature_compensation = was_compensating
-    v_temp = np.asarray(v_temp)
-    zero = np.asarray(zero)
-    try:
-        calibrations = [calibrate_zero_bias(v_temp, zero[:, axis], m_bits=settings.m_bits,
-                                            n_bins=settings.bins) for axis in range(len(AXES))]
-    except ValueError as error:
-        raise EstimationError(f'temperature fit failed: {error}') from error
+    compensation, points = fit_multiposition(blocks, tumbles, settings)
     end_ns = sensor_time_ns(triad)
-    bins = np.linspace(v_temp.min(), v_temp.max(), settings.bins + 1)
-    which = np.clip(np.digitize(v_temp, bins) - 1, 0, settings.bins - 1)
-    used = np.unique(which)
-    centres = np.array([v_temp[which == b].mean() for b in used])
-    means = np.array([zero[which == b].mean(axis=0) for b in used])
-    compensated = np.column_stack([means[:, axis] - c.compensator().evaluate_fixed(centres)
-                                   for axis, c in enumerate(calibrations)])
-    points = {'time_ns': np.full(len(used), end_ns, dtype=np.int64), 'v_temp': centres}
-    for axis, name in enumerate(AXES):
-        points[f'bias_{name}'] = means[:, axis]
-    for axis, name in enumerate(AXES):
-        points[f'compensated_{name}'] = compensated[:, axis]
     if settings.apply:
-        state.temperature = {axis: c.to_dict() for axis, c in zip(AXES, calibrations)}
-        triad.temperature_compensators = [c.compensator() for c in calibrations]
+        state.temperature = compensation.to_dict()
+        triad.temperature_compensator = compensation
         triad.temperature_compensation = True
         state.updated_at_ns = end_ns
-    blocks = {'time_ns': np.asarray(times, dtype=np.int64), 'v_temp': v_temp,
-              'temperature': np.asarray(temperature), 'zero': zero}
-    return TemperatureResult('temperature', asdict(settings), calibrations, points, compensated,
-                             blocks, settings.apply, start_ns, end_ns)
+    force = np.array([b[2] for b in blocks])
+    output = np.array([b[3] for b in blocks])
+    raw = {'time_ns': np.array([b[0] for b in blocks], dtype=np.int64),
+           'v_temp': np.array([b[1] for b in blocks]),
+           'temperature': triad.thermal.reading_c(np.array([b[1] for b in blocks])),
+           'force': force, 'output': output, 'zero': output - force}
+    return TemperatureResult('temperature', asdict(settings), compensation, points, raw,
+                             settings.apply, soak_s, start_ns, end_ns, extra)
+
+
+def _chebyshev(u, degree):
+    return np.polynomial.chebyshev.chebvander(u, degree)
+
+
+def fit_multiposition(blocks, tumbles, settings):
+    """
+    Fit bias, scale factor, misalignment and K2 per axis from the tumble blocks.
+
+    First, per axis, one linear least squares over every block:
+    ``y_i = B(V) + (1 + S(V)) f_i + M_ij f_j + M_il f_l + K2_i f_i^2`` with ``B`` and
+    ``S`` Chebyshev series in the scaled V (degrees 6 and 4): the constant ``M`` and
+    ``K2``. Then per tumble, with those removed, ``y_i - f_i = b + b' dV + s f_i +
+    s' dV f_i`` (``dV = V - V_mean``: the temperature moves during a tumble): the bias
+    and scale-factor error at the tumble's mean reading. Last, seed
+    2's double exponential (linear baseline) through the tumbles' bias and through the
+    scale-factor correction ``1/(1 + s) - 1``, and their fixed-point compensators.
+    """
+    if len(tumbles) < 10:
+        raise EstimationError(f'only {len(tumbles)} tumbles: lengthen period_s')
+    v = np.array([b[1] for b in blocks])
+    force = np.array([b[2] for b in blocks])
+    output = np.array([b[3] for b in blocks])
+    centre, half = 0.5 * (v.max() + v.min()), max(0.5 * np.ptp(v), 1e-9)
+    u = (v - centre) / half
+    misalignment = np.zeros((3, 3))
+    k2 = np.zeros(3)
+    for i in range(3):
+        others = [j for j in range(3) if j != i]
+        design = np.column_stack([_chebyshev(u, 6),
+                                  _chebyshev(u, 4) * force[:, i:i + 1],
+                                  force[:, others], force[:, i] ** 2])
+        coefficients = np.linalg.lstsq(design, output[:, i] - force[:, i], rcond=None)[0]
+        misalignment[i, others] = coefficients[-3:-1]
+        k2[i] = coefficients[-1]
+    corrected = output - force @ misalignment.T - k2 * force ** 2
+    v_mean, bias, scale, times = [], [], [], []
+    n = len(POSITIONS)
+    for first in tumbles:
+        rows = slice(first, first + n)
+        vv = v[rows]
+        v_mean.append(vv.mean())
+        times.append(blocks[first + n - 1][0])
+        b_row, s_row = [], []
+        for i in range(3):
+            f = force[rows, i]
+            dv = vv - vv.mean()
+            design = np.column_stack([np.ones(n), dv, f, dv * f])
+            c = np.linalg.lstsq(design, corrected[rows, i] - f, rcond=None)[0]
+            b_row.append(c[0])
+            s_row.append(c[2])
+        bias.append(b_row)
+        scale.append(s_row)
+    v_mean, bias, scale = np.array(v_mean), np.array(bias), np.array(scale)
+    try:
+        bias_cal = [calibrate_zero_bias(v_mean, bias[:, i], m_bits=settings.m_bits,
+                                        n_bins=settings.bins, baseline=True) for i in range(3)]
+        scale_cal = [calibrate_zero_bias(v_mean, 1.0 / (1.0 + scale[:, i]) - 1.0,
+                                         m_bits=settings.sf_m_bits, n_bins=settings.bins,
+                                         baseline=True) for i in range(3)]
+    except ValueError as error:
+        raise EstimationError(f'temperature fit failed: {error}') from error
+    points = {'time_ns': np.array(times, dtype=np.int64), 'v_temp': v_mean}
+    for i, name in enumerate(AXES):
+        points[f'bias_{name}'] = bias[:, i]
+    for i, name in enumerate(AXES):
+        points[f'compensated_{name}'] = bias[:, i] - bias_cal[i].compensator().evaluate_fixed(
+            v_mean, clip=True)
+    for i, name in enumerate(AXES):
+        points[f'scale_{name}'] = scale[:, i]
+    return ThermalCompensation(bias_cal, scale_cal, misalignment, k2), points

@@ -10,6 +10,7 @@ their comparison and the compensator built from them are one cohesive thing: the
 compensator's ROM is the fit's coefficients in fixed point, so they live together.
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 import math
 import time
@@ -74,15 +75,26 @@ def _basis(u, s):
     return np.exp(np.outer(u, s))
 
 
-def _solve_alpha(u, y, s):
+def _solve_alpha(u, y, s, baseline=False):
     basis = _basis(u, s)
+    if baseline:
+        basis = np.column_stack([basis, np.ones_like(u), u])
     alpha = np.linalg.lstsq(basis, y, rcond=None)[0]
     residual = y - basis @ alpha
     return alpha, residual, basis
 
 
-def _grid_start(u, y):
+def _grid_start(u, y, baseline=False):
     """Return the scaled exponent pair of a small grid with the lowest projected SSE."""
+    if baseline:
+        best, pair = math.inf, None
+        for i in range(_START_GRID.size):
+            for j in range(i + 1, _START_GRID.size):
+                s = _START_GRID[[i, j]]
+                residual = _solve_alpha(u, y, s, True)[1]
+                if residual @ residual < best:
+                    best, pair = float(residual @ residual), s
+        return np.array(pair)
     exps = np.exp(np.outer(_START_GRID, u))
     gram = exps @ exps.T
     rhs = exps @ y
@@ -95,6 +107,20 @@ def _grid_start(u, y):
     explained = np.where(usable, explained / np.where(usable, det, 1.0), -np.inf)
     best = int(np.argmax(explained))
     return np.array([_START_GRID[i[best]], _START_GRID[j[best]]])
+
+
+_MAX_SCALED_BETA = 8.0
+_MIN_SCALED_SEPARATION = 0.5
+
+
+def _well_separated(s):
+    """Return True for scaled exponents a fixed-point datapath can evaluate.
+
+    Near-equal exponents with a baseline reproduce a polynomial by two huge, cancelling
+    alphas: the float fit barely improves while the fixed-point words lose every bit.
+    """
+    return bool(np.all(np.abs(s) <= _MAX_SCALED_BETA)
+                and abs(s[0] - s[1]) >= _MIN_SCALED_SEPARATION)
 
 
 def _sorted_fit(alpha, beta):
@@ -127,6 +153,9 @@ class DoubleExpFit:
     mse_history : tuple of float
         Mean-square error after every alternation, in the output unit squared (not
         persisted by :meth:`TemperatureCalibration.to_dict`, not compared by ``==``).
+    offset, slope : float
+        Linear baseline ``offset + slope V`` added to the two exponentials (0 for the
+        seed's pure model; see ``baseline`` of :func:`fit_double_exponential`).
     """
 
     alpha1: float
@@ -138,6 +167,8 @@ class DoubleExpFit:
     iterations: int
     converged: bool
     mse_history: tuple = field(default=(), repr=False, compare=False)
+    offset: float = 0.0
+    slope: float = 0.0
 
     @property
     def alpha(self):
@@ -152,28 +183,30 @@ class DoubleExpFit:
     def evaluate(self, v):
         """Return the model at the temperature-sensor voltage(s) ``v`` [V] (float)."""
         v = np.asarray(v, dtype=float)
-        return self.alpha1 * np.exp(self.beta1 * v) + self.alpha2 * np.exp(self.beta2 * v)
+        return (self.alpha1 * np.exp(self.beta1 * v) + self.alpha2 * np.exp(self.beta2 * v)
+                + self.offset + self.slope * v)
 
 
-def _make_fit(v, y, alpha, beta, iterations, converged, history):
+def _make_fit(v, y, alpha, beta, iterations, converged, history, line=(0.0, 0.0)):
     alpha, beta = _sorted_fit(np.asarray(alpha, float), np.asarray(beta, float))
     fit = DoubleExpFit(float(alpha[0]), float(alpha[1]), float(beta[0]), float(beta[1]),
-                       0.0, 0.0, int(iterations), bool(converged), tuple(history))
+                       0.0, 0.0, int(iterations), bool(converged), tuple(history),
+                       float(line[0]), float(line[1]))
     rmse, r_squared = _goodness(y, fit.evaluate(v))
-    return DoubleExpFit(fit.alpha1, fit.alpha2, fit.beta1, fit.beta2, rmse, r_squared,
-                        fit.iterations, fit.converged, fit.mse_history)
+    return dataclasses.replace(fit, rmse=rmse, r_squared=r_squared)
 
 
-def _start_exponents(scaling, beta0):
+def _start_exponents(scaling, beta0, baseline=False):
     if beta0 is None:
-        return _grid_start(scaling.u, scaling.y)
+        return _grid_start(scaling.u, scaling.y, baseline)
     beta0 = np.asarray(beta0, dtype=float)
     if beta0.shape != (2,) or not np.all(np.isfinite(beta0)):
         raise ValueError(f'beta0 must be two finite exponents [1/V], got {beta0!r}')
     return scaling.to_scaled(beta0)
 
 
-def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200):
+def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
+                           baseline=False):
     r"""
     Fit ``v_out = a1 e^(b1 v_temp) + a2 e^(b2 v_temp)`` by alternating iteration.
 
@@ -195,6 +228,12 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200):
         Bound on the relative MSE change between alternations.
     max_iter : int
         Maximum number of alternations.
+    baseline : bool
+        Add a linear baseline ``offset + slope V`` to the linear step (two more columns
+        beside the exponentials, still solved by linear least squares): a unit's curve is
+        not always the double exponential's own shape (a polynomial trend under a
+        curvature), and without it the fit drifts into near-equal betas with huge
+        cancelling alphas that no fixed-point datapath can evaluate.
 
     Returns
     -------
@@ -207,15 +246,15 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200):
     v, y = _as_data(v_temp, v_out, 5)
     scaling = _Scaling(v, y)
     u, ys = scaling.u, scaling.y
-    s = _start_exponents(scaling, beta0)
-    alpha, residual, basis = _solve_alpha(u, ys, s)
+    s = _start_exponents(scaling, beta0, baseline)
+    alpha, residual, basis = _solve_alpha(u, ys, s, baseline)
     mse = float(residual @ residual) / u.size
     history = [mse * scaling.y_scale ** 2]
     damping = 1e-3
     converged = False
     iterations = 0
     for iterations in range(1, max_iter + 1):
-        derivative = basis * u[:, None] * alpha[None, :]
+        derivative = basis[:, :2] * u[:, None] * alpha[None, :2]
         # Kaufman: project the derivative onto the complement of span(basis)
         coefficients = np.linalg.lstsq(basis, derivative, rcond=None)[0]
         jacobian = derivative - basis @ coefficients
@@ -230,9 +269,10 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200):
                 damping *= 10.0
                 continue
             s_new = s + step
-            alpha_new, residual_new, basis_new = _solve_alpha(u, ys, s_new)
+            alpha_new, residual_new, basis_new = _solve_alpha(u, ys, s_new, baseline)
             mse_new = float(residual_new @ residual_new) / u.size
-            if np.all(np.isfinite(s_new)) and mse_new <= mse:
+            if np.all(np.isfinite(s_new)) and mse_new <= mse and (
+                    not baseline or _well_separated(s_new)):
                 accepted = True
                 break
             damping *= 10.0
@@ -247,8 +287,13 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200):
         if change <= tol * mse + 1e-300:
             converged = True
             break
-    alpha_phys, beta_phys = scaling.to_physical(alpha, s)
-    return _make_fit(v, y, alpha_phys, beta_phys, iterations, converged, history)
+    alpha_phys, beta_phys = scaling.to_physical(alpha[:2], s)
+    line = (0.0, 0.0)
+    if baseline:
+        # c0 + c1 u with u = (V - center) / half_range, in the unit-rms output
+        c0, c1 = alpha[2] * scaling.y_scale, alpha[3] * scaling.y_scale
+        line = (c0 - c1 * scaling.center / scaling.half_range, c1 / scaling.half_range)
+    return _make_fit(v, y, alpha_phys, beta_phys, iterations, converged, history, line)
 
 
 def fit_double_exponential_reference(v_temp, v_out, beta0=None):
@@ -389,7 +434,7 @@ class DoubleExpCompensator:
                  output_frac_bits=None):
         if not isinstance(fit, DoubleExpFit):
             raise ValueError(f'fit must be a DoubleExpFit, got {type(fit).__name__}')
-        for name in ('alpha1', 'alpha2', 'beta1', 'beta2'):
+        for name in ('alpha1', 'alpha2', 'beta1', 'beta2', 'offset', 'slope'):
             if not math.isfinite(getattr(fit, name)):
                 raise ValueError(f'fit.{name} must be finite')
         self.fit = fit
@@ -407,6 +452,8 @@ class DoubleExpCompensator:
         self.v_q_range = (int(np.rint(v_low * scale)), int(np.rint(v_high * scale)))
         self.beta_q = tuple(round(b * scale) for b in fit.beta)
         self.alpha_words = tuple(_float_word(a, self.m_bits) for a in fit.alpha)
+        self.line_words = (_float_word(fit.offset, self.m_bits),
+                           _float_word(fit.slope, self.m_bits))
         z_extremes = [(b * v) >> self.m_bits for b in self.beta_q for v in self.v_q_range]
         needed = 0
         while not all(-(1 << (needed + self.m_bits)) <= z < (1 << (needed + self.m_bits))
@@ -419,8 +466,9 @@ class DoubleExpCompensator:
                              f'n_bits >= {needed}')
         self.cordic = CordicExp(m_bits=self.m_bits, n_bits=n_bits, guard_bits=guard_bits)
         self.n_bits = self.cordic.n_bits
-        peak = max(abs(a) * math.exp(b * v) for a, b in zip(fit.alpha, fit.beta)
-                   for v in self.v_range)
+        peak = max([abs(a) * math.exp(b * v) for a, b in zip(fit.alpha, fit.beta)
+                    for v in self.v_range]
+                   + [abs(fit.offset)] + [abs(fit.slope * v) for v in self.v_range])
         if output_frac_bits is None:
             output_frac_bits = (self.m_bits + self.guard_bits
                                 - (math.frexp(peak)[1] if peak > 0 else 0))
@@ -439,10 +487,21 @@ class DoubleExpCompensator:
 
     def rom(self):
         """Return the integer ROM words (what a hardware implementation stores)."""
-        return {'m_bits': self.m_bits, 'n_bits': self.n_bits, 'guard_bits': self.guard_bits,
-                'output_frac_bits': self.output_frac_bits, 'beta_q': list(self.beta_q),
-                'alpha_mantissa': [w[0] for w in self.alpha_words],
-                'alpha_exponent': [w[1] for w in self.alpha_words]}
+        rom = {'m_bits': self.m_bits, 'n_bits': self.n_bits, 'guard_bits': self.guard_bits,
+               'output_frac_bits': self.output_frac_bits, 'beta_q': list(self.beta_q),
+               'alpha_mantissa': [w[0] for w in self.alpha_words],
+               'alpha_exponent': [w[1] for w in self.alpha_words]}
+        if any(w[0] for w in self.line_words):
+            rom['line_mantissa'] = [w[0] for w in self.line_words]
+            rom['line_exponent'] = [w[1] for w in self.line_words]
+        return rom
+
+    def _line_q(self, v_q):
+        """Return the baseline ``offset + slope V`` as output words (integer datapath)."""
+        (offset_mantissa, offset_exponent), (slope_mantissa, slope_exponent) = self.line_words
+        terms = ((offset_mantissa, offset_exponent + self.output_frac_bits, 1),
+                 (slope_mantissa, slope_exponent - self.m_bits + self.output_frac_bits, v_q))
+        return terms
 
     def quantize_v(self, v_temp, clip=False):
         """Return ``round(V * 2^M)`` as int64; out-of-range V raises unless ``clip``."""
@@ -473,6 +532,10 @@ class DoubleExpCompensator:
             left = np.clip(shift, 0, 62)
             right = np.clip(-shift, 0, 63)
             total += np.where(shift >= 0, product << left, product >> right)
+        for mantissa, shift, factor in self._line_q(v_q):
+            if mantissa:
+                product = np.int64(mantissa) * np.asarray(factor, dtype=np.int64)
+                total += product << shift if shift >= 0 else product >> -shift
         return total
 
     def evaluate_fixed_scalar(self, v_q):
@@ -485,6 +548,8 @@ class DoubleExpCompensator:
             mantissa, q = self.cordic.exp_parts((beta_q * v_q) >> self.m_bits)
             total += _shift(alpha_mantissa * mantissa,
                             q + alpha_exponent - self.cordic.work_bits + self.output_frac_bits)
+        for mantissa, shift, factor in self._line_q(v_q):
+            total += _shift(mantissa * factor, shift)
         return total
 
     def evaluate_fixed(self, v_temp, clip=False):
@@ -593,6 +658,7 @@ class TemperatureCalibration:
         return {
             'model': 'double_exponential',
             'alpha': [fit.alpha1, fit.alpha2], 'beta': [fit.beta1, fit.beta2],
+            'line': [fit.offset, fit.slope],
             'fit': {'rmse': fit.rmse, 'r_squared': fit.r_squared,
                     'iterations': fit.iterations, 'converged': fit.converged},
             'm_bits': self.m_bits, 'n_bits': self.n_bits, 'guard_bits': self.guard_bits,
@@ -613,7 +679,9 @@ class TemperatureCalibration:
             fit = DoubleExpFit(float(data['alpha'][0]), float(data['alpha'][1]),
                                float(data['beta'][0]), float(data['beta'][1]),
                                float(fit_info['rmse']), float(fit_info['r_squared']),
-                               int(fit_info['iterations']), bool(fit_info['converged']))
+                               int(fit_info['iterations']), bool(fit_info['converged']),
+                               offset=float(data.get('line', (0.0, 0.0))[0]),
+                               slope=float(data.get('line', (0.0, 0.0))[1]))
             calibration = cls(fit, _poly_from_dict(data['poly3']),
                               _poly_from_dict(data['poly4']), int(data['m_bits']),
                               int(data['n_bits']), int(data['guard_bits']),
@@ -631,7 +699,7 @@ class TemperatureCalibration:
 
 
 def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
-                        v_range=None, guard_bits=4):
+                        v_range=None, guard_bits=4, baseline=False):
     """
     Calibrate the zero-bias temperature model of one axis from a temperature cycle.
 
@@ -655,6 +723,8 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
         itself on each side (not below 0 V if the data are all >= 0).
     guard_bits : int
         CORDIC guard bits.
+    baseline : bool
+        Fit the double exponential with a linear baseline (:func:`fit_double_exponential`).
 
     Returns
     -------
@@ -664,7 +734,7 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
     if v_bins.size < 5:
         raise ValueError(f'only {v_bins.size} V_temp bins hold data; at least 5 are needed')
     started = time.perf_counter()
-    fit = fit_double_exponential(v_bins, y_bins)
+    fit = fit_double_exponential(v_bins, y_bins, baseline=baseline)
     fit_seconds = time.perf_counter() - started
     poly3 = fit_polynomial(v_bins, y_bins, 3)
     poly4 = fit_polynomial(v_bins, y_bins, 4)
@@ -677,7 +747,8 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
     compensator = DoubleExpCompensator(fit, m_bits=m_bits, guard_bits=guard_bits,
                                        v_range=v_range)
     fixed = compensator.evaluate_fixed(v_bins)
-    term_peak = max(np.abs(a * np.exp(b * v_bins)).max() for a, b in zip(fit.alpha, fit.beta))
+    term_peak = max([np.abs(a * np.exp(b * v_bins)).max() for a, b in zip(fit.alpha, fit.beta)]
+                    + [np.abs(fit.offset + fit.slope * v_bins).max()])
     sum_peak = np.abs(fit.evaluate(v_bins)).max()
     cancellation = math.log2(term_peak / sum_peak) if sum_peak > 0 else math.inf
     return TemperatureCalibration(
@@ -689,3 +760,78 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
         p2p_after_poly4=float(np.ptp(y_bins - poly4.evaluate(v_bins))),
         max_fixed_error=float(np.max(np.abs(fixed - fit.evaluate(v_bins)))),
         fit_seconds=fit_seconds, cancellation_bits=float(max(cancellation, 0.0)))
+
+
+# -- multi-position compensation (bias and scale factor per axis) ------------------------
+
+
+def _matrix(value, name):
+    array = np.asarray(value, dtype=float)
+    if array.shape != (3, 3) or not np.all(np.isfinite(array)):
+        raise ValueError(f'{name} must be a finite 3x3 matrix')
+    return array
+
+
+class ThermalCompensation:
+    r"""
+    Output compensation of a triad from a multi-position temperature calibration.
+
+    Per axis ``i``, with ``V`` the measured temperature-sensor voltage:
+    ``y'_i = (y_i - b_i(V)) (1 + c_i(V))`` where ``b_i`` is the zero bias and
+    ``c_i = 1/(1 + s_i) - 1`` the scale-factor correction, both evaluated on the
+    fixed-point CORDIC path (:class:`DoubleExpCompensator`); then the constant terms the
+    tumble measured: ``a = (I + M)^-1 y'`` (misalignment) and ``a_i - k2_i a_i^2``.
+
+    Parameters
+    ----------
+    bias, scale : list of TemperatureCalibration
+        Zero-bias [m/s^2] and scale-factor-correction [1] calibrations per axis.
+    misalignment : array_like
+        3x3 cross-coupling ``M`` (the diagonal is the scale factor's: zero here).
+    k2 : array_like
+        Second-order coefficient per axis [1/(m/s^2)].
+    """
+
+    def __init__(self, bias, scale, misalignment=np.zeros((3, 3)), k2=(0.0, 0.0, 0.0)):
+        if len(bias) != 3 or len(scale) != 3:
+            raise ValueError('bias and scale need one calibration per axis')
+        self.bias = list(bias)
+        self.scale = list(scale)
+        self.misalignment = _matrix(misalignment, 'misalignment')
+        self.k2 = np.asarray(k2, dtype=float)
+        if self.k2.shape != (3,) or not np.all(np.isfinite(self.k2)):
+            raise ValueError('k2 must be 3 finite numbers')
+        self._bias = [c.compensator() for c in self.bias]
+        self._scale = [c.compensator() for c in self.scale]
+        self._inverse = np.linalg.inv(np.eye(3) + self.misalignment)
+
+    def apply(self, accel, v_temp):
+        """Return the compensated output (n, 3) [m/s^2] of ``accel`` at ``v_temp`` [V]."""
+        out = np.empty_like(accel)
+        for i in range(3):
+            out[:, i] = (accel[:, i] - self._bias[i].evaluate_fixed(v_temp, clip=True)) * (
+                1.0 + self._scale[i].evaluate_fixed(v_temp, clip=True))
+        out = out @ self._inverse.T
+        return out - self.k2 * out * out
+
+    def to_dict(self):
+        """Return the JSON-serializable ROM record (``state.temperature``)."""
+        axes = ('x', 'y', 'z')
+        return {'format': 'multiposition/1',
+                'bias': {a: c.to_dict() for a, c in zip(axes, self.bias)},
+                'scale': {a: c.to_dict() for a, c in zip(axes, self.scale)},
+                'misalignment': self.misalignment.tolist(), 'k2': self.k2.tolist()}
+
+    @classmethod
+    def from_dict(cls, data):
+        """Rebuild from :meth:`to_dict` output; ValueError on a malformed record."""
+        axes = ('x', 'y', 'z')
+        try:
+            if data.get('format') != 'multiposition/1':
+                raise ValueError('temperature record: unknown format (run calibrate_temperature '
+                                 'again)')
+            return cls([TemperatureCalibration.from_dict(data['bias'][a]) for a in axes],
+                       [TemperatureCalibration.from_dict(data['scale'][a]) for a in axes],
+                       data['misalignment'], data['k2'])
+        except (KeyError, TypeError, AttributeError) as error:
+            raise ValueError(f'invalid temperature record: {error!r}') from error

@@ -29,6 +29,7 @@ from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.parallel import run_chains
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.model.unit import draw_unit
 
 STATIC_CHUNK_SECONDS = 30.0
 TRAJECTORY_CHUNK_SECONDS = 1.0
@@ -246,53 +247,58 @@ def print_summary(triad, phase, mean, std, truth, saturated, temperature, out):
 
 
 def run_temperature_cycle(args, out=None):
-    """Calibrate on one chamber cycle, verify on a second with compensation on."""
+    """Calibrate the drawn unit of ``--seed`` in six positions, verify on another cycle.
+
+    The calibration is the chamber program of ``--duration`` seconds (plateaus, tumbling
+    head, soak back); the verification a sine chamber cycle of 4/3 that period with the
+    head tumbling in the reverse order (not the calibration's profile). A progress bar
+    shows on a terminal.
+    """
     from qfa_ros.calibration.schedule import run_schedule
     from qfa_ros.calibration.state import CalibrationState
     from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
+    from qfa_ros.calibration.verification import verify_cycle
     out = out or sys.stdout
     config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant'))
-    triad = QfaTriad(config, rng=args.seed, start_ns=args.start_ns)
+    unit = draw_unit(args.seed)
+    triad = unit.triad(config, rng=args.seed, start_ns=args.start_ns)
     settings = TemperatureSettings(period_s=args.duration)
-    with scenario_bag(args, config) as bag:
-        result = run_schedule(triad, temperature_schedule(triad, CalibrationState(), settings))
-        triad.thermal.set_ambient(ambient_profile='cycle', cycle_low_c=settings.low_c,
-                                  cycle_high_c=settings.high_c, cycle_period_s=args.duration)
+    verify_s = 4.0 * args.duration / 3.0
+    with scenario_bag(args, triad.config) as bag:
+        with tqdm(total=round(args.duration), unit='s', desc='calibration (sensor time)',
+                  disable=None, file=sys.stderr) as bar:
+            result = run_schedule(triad, temperature_schedule(triad, CalibrationState(),
+                                                              settings),
+                                  progress=bar.update)
         verify_ns = triad.stamp_ns(triad.sample_index)
-        blocks = []
-        for _ in range(int(round(args.duration))):
-            part = triad.run(int(round(config.sample_rate_hz)))
-            blocks.append(((part.accel - part.truth).mean(axis=0), part.temperature.mean(),
-                           int(part.stamps_ns[-1])))
+        with tqdm(total=round(verify_s), unit='s', desc='verification (sensor time)',
+                  disable=None, file=sys.stderr) as bar:
+            verification = verify_cycle(triad, settings.low_c, settings.high_c, verify_s,
+                                        progress=bar.update)
         if bag:
-            bag.write_phase('cycle', result.start_ns)
+            bag.write_phase('calibration', result.start_ns)
             bag.write_temperature(result.blocks['time_ns'], result.blocks['temperature'])
             bag.write_trace(None, 'temperature', [result])
             bag.write_phase('verification', verify_ns)
-            bag.write_temperature([b[2] for b in blocks], [b[1] for b in blocks])
-    before = _minute_means(result.blocks['zero'])
-    after = _minute_means(np.array([b[0] for b in blocks]))
-    print(f'qfa-sim temperature-cycle: {settings.low_c:g}..{settings.high_c:g} degC, period '
-          f'{args.duration:g} s; calibration cycle, then a verification cycle compensated '
-          '(fixed-point CORDIC, M = 16)', file=out)
-    print('| axis | double-exp RMSE ug (R^2) | poly3 RMSE ug (R^2) | poly4 RMSE ug (R^2) | '
-          'p2p before ug | p2p after ug | reduction |', file=out)
-    print('|---|---|---|---|---|---|---|', file=out)
-    for i, (name, c) in enumerate(zip(AXES, result.calibrations)):
-        p2p_before, p2p_after = np.ptp(before[:, i]), np.ptp(after[:, i])
-        print(f'| {name} | {c.fit.rmse / MICRO_G:.2f} ({c.fit.r_squared:.5f}) | '
-              f'{c.poly3.rmse / MICRO_G:.2f} ({c.poly3.r_squared:.5f}) | '
-              f'{c.poly4.rmse / MICRO_G:.2f} ({c.poly4.r_squared:.5f}) | '
-              f'{p2p_before / MICRO_G:.1f} | {p2p_after / MICRO_G:.1f} | '
-              f'{p2p_before / p2p_after:.1f}x |', file=out)
-    print('p2p of 60 s means of (output - known input); the x and y floor is the 3 ug bias '
-          'instability, z carries its scale-factor temperature error at 1 g', file=out)
+    print(f'qfa-sim temperature-cycle: unit of seed {args.seed}; calibration '
+          f'{settings.low_c:g}..{settings.high_c:g} degC plateaus, {args.duration:g} s, six '
+          f'positions, {result.soak_s:.0f} s soak back; verification: sine cycle of '
+          f'{verify_s:g} s, six positions, fixed-point compensation', file=out)
+    print('| axis | bias fit RMSE ug | SF fit RMSE ppm | zero-drift p2p before ug | '
+          'zero-drift p2p after ug (worst of six positions) | reduction | SF p2p before ppm '
+          '| SF residual after ppm |', file=out)
+    print('|---|---|---|---|---|---|---|---|', file=out)
+    comp = result.compensation
+    for i, name in enumerate(AXES):
+        bias, scale = comp.bias[i], comp.scale[i]
+        after = verification.zero_drift_p2p[:, i].max()
+        print(f'| {name} | {bias.fit.rmse / MICRO_G:.2f} | {scale.fit.rmse * 1e6:.2f} | '
+              f'{bias.p2p_before / MICRO_G:.1f} | {after / MICRO_G:.1f} | '
+              f'{bias.p2p_before / after:.1f}x | {scale.p2p_before * 1e6:.0f} | '
+              f'{verification.scale_residual[i] * 1e6:.1f} |', file=out)
+    print('zero drift: p2p over 10 degC bins of (output - fixture input); SF residual: largest '
+          '|scale-factor error| of the +-g pairs over the bins', file=out)
     return 0
-
-
-def _minute_means(per_second):
-    usable = len(per_second) // 60 * 60
-    return np.asarray(per_second)[:usable].reshape(-1, 60, 3).mean(axis=1)
 
 
 SCENARIOS = {

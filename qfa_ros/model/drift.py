@@ -43,6 +43,10 @@ class DriftModel:
         self.clock = None
         self.aged = np.zeros((n_axes, len(DRIFT_COMPONENTS)))
         self.aged_at = 0.0
+        # Aging of the zero bias (a unit's, qfa_ros.model.unit) [m/s^2 per aged second]
+        # and the aged time accumulated up to aged_at [s].
+        self.bias_rate = np.zeros(n_axes)
+        self.aged_time = 0.0
 
     def _index(self, axis, component):
         if component not in self.components:
@@ -85,7 +89,20 @@ class DriftModel:
         # Accumulate the aging up to now so that a new rate or acceleration starts here.
         now = 0.0 if self.clock is None else float(self.clock())
         self.aged = self.aged + self.rate * self.time_acceleration * (now - self.aged_at)
+        self.aged_time += self.time_acceleration * (now - self.aged_at)
         self.aged_at = now
+
+    def set_bias_aging(self, per_year):
+        """Set the zero-bias aging per axis [m/s^2 per year of aged sensor time]."""
+        values = np.asarray(per_year, dtype=float)
+        if values.shape != (self.n_axes,) or not np.all(np.isfinite(values)):
+            raise ValueError(f'per_year must be {self.n_axes} finite numbers, got {per_year!r}')
+        self._fold_aging()
+        self.bias_rate = values / SECONDS_PER_YEAR
+
+    def bias_at(self, t):
+        """Return the aged zero-bias change per axis [m/s^2] at sensor time ``t`` [s]."""
+        return self.bias_rate * (self.aged_time + self.time_acceleration * (t - self.aged_at))
 
     @property
     def aging(self):

@@ -18,7 +18,7 @@ STANDARD_GRAVITY = 9.80665
 
 AMBIENT_PROFILES = ('constant', 'ramp', 'cycle', 'room')
 CYCLE_SHAPES = ('trapezoid', 'sine')
-BIAS_MODELS = ('double_exp', 'polynomial', 'none')
+BIAS_MODELS = ('double_exp', 'polynomial', 'mixed', 'none')
 N_AXES = 3
 
 _MG = 1e-3 * STANDARD_GRAVITY
@@ -106,15 +106,17 @@ class ThermalConfig:
       with temperature coefficients of at most 15 / 10 / 20 ug/degC (QA-2000 class:
       < 30 ug/degC);
     * ``polynomial``: ``b_i = sum_k bias_poly[i,k] (T_s - T0)^k`` [m/s^2/degC^k];
+    * ``mixed``: the sum of the two (a drawn unit, :mod:`qfa_ros.model.unit`: a curve that
+      is not the fitted model's own shape);
     * ``none``: 0;
 
     plus hysteresis ``hysteresis_m_s2[i] * h``, with ``h`` in ``[-1, 1]`` moving towards
     +1 while heating and -1 while cooling, rate-independently:
     ``h += (sign(dT_s) - h) (1 - e^(-|dT_s| / hysteresis_c))``.
 
-    Scale-factor relative error per axis (dimensionless):
-    ``e_i = 1e-6 (sf_tc_ppm_per_c[i] (T_s - T0) + sf_tc2_ppm_per_c2[i] (T_s - T0)^2)``
-    (datasheet: < 180 ppm/degC uncompensated).
+    Scale-factor relative error per axis (dimensionless), ``d = T_s - T0``:
+    ``e_i = 1e-6 (sf_offset_ppm[i] + sf_tc_ppm_per_c[i] d + sf_tc2_ppm_per_c2[i] d^2
+    + sf_tc3_ppm_per_c3[i] d^3)`` (datasheet: < 180 ppm/degC uncompensated).
     """
 
     ambient_profile: str = 'cycle'
@@ -145,6 +147,8 @@ class ThermalConfig:
     hysteresis_c: float = 5.0
     sf_tc_ppm_per_c: tuple = (80.0, 100.0, 60.0)
     sf_tc2_ppm_per_c2: tuple = (0.0, 0.0, 0.0)
+    sf_tc3_ppm_per_c3: tuple = (0.0, 0.0, 0.0)
+    sf_offset_ppm: tuple = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
         if self.ambient_profile not in AMBIENT_PROFILES:
@@ -183,6 +187,8 @@ class ThermalConfig:
         _per_axis('hysteresis_m_s2', self.hysteresis_m_s2)
         _per_axis('sf_tc_ppm_per_c', self.sf_tc_ppm_per_c)
         _per_axis('sf_tc2_ppm_per_c2', self.sf_tc2_ppm_per_c2)
+        _per_axis('sf_tc3_ppm_per_c3', self.sf_tc3_ppm_per_c3)
+        _per_axis('sf_offset_ppm', self.sf_offset_ppm)
 
     @property
     def adc_lsb_v(self):
@@ -287,6 +293,8 @@ class ThermalModel:
         self._hysteresis_amplitude = np.asarray(config.hysteresis_m_s2, dtype=float)
         self._sf_tc = np.asarray(config.sf_tc_ppm_per_c, dtype=float) * 1e-6
         self._sf_tc2 = np.asarray(config.sf_tc2_ppm_per_c2, dtype=float) * 1e-6
+        self._sf_tc3 = np.asarray(config.sf_tc3_ppm_per_c3, dtype=float) * 1e-6
+        self._sf_offset = np.asarray(config.sf_offset_ppm, dtype=float) * 1e-6
         self.reset()
 
     def reset(self):
@@ -375,23 +383,24 @@ class ThermalModel:
         """Return the zero bias (..., 3) [m/s^2] at body temperature(s) ``sensor_c``."""
         cfg = self.config
         temperature = np.asarray(sensor_c, dtype=float)[..., None]
-        if cfg.bias_model == 'double_exp':
+        bias = np.zeros(np.broadcast_shapes(temperature.shape, (N_AXES,)))
+        if cfg.bias_model in ('double_exp', 'mixed'):
             v = self.voltage_at(temperature)
-            bias = (self._alpha[:, 0] * np.exp(self._beta[:, 0] * v)
-                    + self._alpha[:, 1] * np.exp(self._beta[:, 1] * v))
-        elif cfg.bias_model == 'polynomial':
+            bias = bias + (self._alpha[:, 0] * np.exp(self._beta[:, 0] * v)
+                           + self._alpha[:, 1] * np.exp(self._beta[:, 1] * v))
+        if cfg.bias_model in ('polynomial', 'mixed'):
             offset = temperature - cfg.tsensor_t0_c
-            bias = np.zeros(np.broadcast_shapes(offset.shape, (N_AXES,)))
+            poly = np.zeros(np.broadcast_shapes(offset.shape, (N_AXES,)))
             for power in range(self._poly.shape[1] - 1, -1, -1):
-                bias = bias * offset + self._poly[:, power]
-        else:
-            bias = np.zeros(np.broadcast_shapes(temperature.shape, (N_AXES,)))
+                poly = poly * offset + self._poly[:, power]
+            bias = bias + poly
         return bias + self._hysteresis_amplitude * np.asarray(hysteresis, dtype=float)[..., None]
 
     def scale_factor_error(self, sensor_c):
         """Return the scale-factor relative error (..., 3) at body temperature(s) [1]."""
         offset = np.asarray(sensor_c, dtype=float)[..., None] - self.config.tsensor_t0_c
-        return self._sf_tc * offset + self._sf_tc2 * offset ** 2
+        return self._sf_offset + offset * (self._sf_tc + offset * (self._sf_tc2
+                                                                   + offset * self._sf_tc3))
 
     def run(self, n, dt):
         """Advance ``n`` samples of period ``dt`` [s] and return a :class:`ThermalChunk`."""

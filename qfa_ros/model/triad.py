@@ -272,8 +272,11 @@ class QfaTriad:
                                               spawn_key=seq.spawn_key + (GYRO_SPAWN_KEY,))
             self.gyro = GyroTriad(self.config.gyro, self.config.sample_rate_hz,
                                   np.random.default_rng(gyro_seq))
-        self.temperature_compensators = None
+        # Temperature compensation: an object with apply(accel, v_temp) -> accel (tempfit).
+        self.temperature_compensator = None
         self.temperature_compensation = False
+        # Calibration fixture (dividing head): a profile replacing every input while set.
+        self.fixture = None
         self.scale = counts_to_accel(self.config.hardware)
         self.sample_index = 0
         self.settle_until = np.zeros(len(AXES), dtype=np.int64)
@@ -395,7 +398,7 @@ class QfaTriad:
 
     def _sensed(self, specific_force):
         a = specific_force @ self._misalignment.T
-        return self._bias + a + self._k2 * a * a
+        return self._bias + self.drift.bias_at(self.time) + a + self._k2 * a * a
 
     # Motion (trajectory, gyros) -------------------------------------------------------
     def is_at_rest(self):
@@ -463,9 +466,8 @@ class QfaTriad:
             valid[:, i] = (not loop.open_loop) & (index >= self.settle_until[i])
         self.sample_index += n_samples
         accel = counts.T * self.scale
-        if self.temperature_compensation and self.temperature_compensators:
-            for i, compensator in enumerate(self.temperature_compensators):
-                accel[:, i] -= compensator.evaluate_fixed(v_temp, clip=True)
+        if self.temperature_compensation and self.temperature_compensator is not None:
+            accel = self.temperature_compensator.apply(accel, v_temp)
         return TriadOutput(stamps_ns=self.stamp_ns(index), accel=accel,
                            counts=counts.T.copy(), flags=flags.T.copy(), valid=valid,
                            truth=truth, temperature=temperature, v_temp=v_temp,
@@ -477,7 +479,11 @@ class QfaTriad:
         # (n_steps, 3)), its mean per sample (truth) and the angular rate per sample.
         n_steps = n_samples * self.decimation
         rate = None
-        if specific_force is None:
+        if self.fixture is not None:
+            # The dividing head replaces every other input while it is set.
+            force = self.fixture.evaluate(self.time + np.arange(n_steps) * self.dt)
+            angular_rate = None
+        elif specific_force is None:
             if isinstance(self.profile, StaticProfile):
                 force = np.asarray(self.profile.specific_force, dtype=float)[None, :]
                 return force, np.repeat(force, n_samples, axis=0), \

@@ -450,7 +450,11 @@ def _double_exponential(run, axis):
     names = ('alpha1', 'alpha2', 'beta1', 'beta2')
     coefficients = [run.value(f'fit.{axis}.{name}') for name in names]
     if all(isinstance(c, (int, float)) for c in coefficients):
-        return dict(zip(names, map(float, coefficients)))
+        fit = dict(zip(names, map(float, coefficients)))
+        # the linear baseline of a multi-position calibration (0 for the seed's model)
+        fit['offset'] = float(run.value(f'fit.{axis}.offset') or 0.0)
+        fit['slope'] = float(run.value(f'fit.{axis}.slope') or 0.0)
+        return fit
     return None
 
 
@@ -482,7 +486,8 @@ def temperature_fit_figure(runs):
         if fit is not None:
             grid = np.linspace(v_temp[0], v_temp[-1], 400)
             model = (fit['alpha1'] * np.exp(fit['beta1'] * grid)
-                     + fit['alpha2'] * np.exp(fit['beta2'] * grid))
+                     + fit['alpha2'] * np.exp(fit['beta2'] * grid)
+                     + fit['offset'] + fit['slope'] * grid)
             rmse = run.value(f'fit.{axis}.rmse')
             r_squared = run.value(f'fit.{axis}.r_squared')
             detail = '' if rmse is None else f'\nRMSE {rmse / MICRO_G:.2f} µg'

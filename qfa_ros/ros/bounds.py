@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 
 from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
+from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model.triad import TriadConfig
 
 # Ranges of the schedule parameters. They bound what one service call can cost, whoever
@@ -51,7 +52,8 @@ FEEDBACK_WORST_S = feedback_sensor_time_s(
                      average_s=FEEDBACK_MAX_AVERAGE_S, order='chopped'), SETTLE_TIME_S)
 SCHEDULE_WORST_S = FORWARD_WORST_S + FEEDBACK_WORST_S
 """Longest sensor time of an estimation call the ranges allow [s]."""
-CHAMBER_WORST_S = CHAMBER_MAX_PERIOD_S * CHAMBER_MAX_CYCLES
+CHAMBER_WORST_S = TemperatureSettings(period_s=CHAMBER_MAX_PERIOD_S,
+                                      cycles=CHAMBER_MAX_CYCLES).max_sensor_time_s()
 """Longest sensor time of a calibrate_temperature call the ranges allow [s]."""
 
 ESTIMATION_BOUND = (
@@ -61,7 +63,8 @@ ESTIMATION_BOUND = (
     'steps')
 CHAMBER_BOUND = (
     f'; bounded: one call takes at most {CHAMBER_WORST_S:.0f} s of sensor time and '
-    f'{MAX_SCHEDULE_LOOP_STEPS:.3g} model loop steps (cycles x period_s x loop_rate_hz)')
+    f'{MAX_SCHEDULE_LOOP_STEPS:.3g} model loop steps (the plateaus of cycles x period_s, '
+    'the soaks at the extremes and back, times loop_rate_hz)')
 
 
 def output_directory(values):
@@ -112,7 +115,7 @@ def budget_problem(loop_rate_hz, forward, feedback, chamber):
                 f'take {estimation:.0f} s of sensor time, {estimation * loop_rate_hz:.3g} loop '
                 f'steps at loop_rate_hz {loop_rate_hz:g}; at most '
                 f'{MAX_SCHEDULE_LOOP_STEPS:.3g} are allowed')
-    chamber_s = chamber.period_s * chamber.cycles
+    chamber_s = chamber.max_sensor_time_s()
     if chamber_s * loop_rate_hz > MAX_SCHEDULE_LOOP_STEPS:
         return (f'temperature_calibration.period_s x temperature_calibration.cycles: one '
                 f'calibrate_temperature would take {chamber_s:.0f} s of sensor time, '

@@ -30,7 +30,7 @@ from qfa_ros.calibration.estimation import (
 )
 from qfa_ros.calibration.temperature import temperature_schedule
 from qfa_ros.model.noise import acceleration_variance
-from qfa_ros.model.triad import AXES, NS_PER_S, QfaTriad
+from qfa_ros.model.triad import AXES, NS_PER_S
 from qfa_ros.ros.bounds import output_directory
 from qfa_ros.ros.calibration import CalibrationKeeper
 from qfa_ros.ros.diagnostics import Diagnostics, DIAGNOSTICS_TYPE, temperature_status
@@ -44,10 +44,10 @@ from qfa_ros.ros.params import (
     FORWARD_COMPONENT,
     input_profile,
     LOCATION_PARAMETERS,
+    make_triad,
     PARAMETERS,
     temperature_settings,
     THERMAL_RUNTIME_PARAMETERS,
-    triad_config,
 )
 from qfa_ros.ros.recording import RECORDER_PARAMETERS, StreamRecording
 from qfa_ros.ros.schedules import ScheduleService
@@ -100,8 +100,7 @@ class QfaNode(Node):
         if reason:
             raise ValueError(reason)
         values = self._values
-        config = triad_config(values)
-        self._triad = QfaTriad(config, rng=values['seed'], profile=input_profile(values))
+        self._triad = make_triad(values, input_profile(values))
         self._apply_ambient()
         self._keeper = CalibrationKeeper(self._triad, values['state_file'], self.get_logger())
         self._apply_drift()
@@ -151,6 +150,7 @@ class QfaNode(Node):
             self.create_subscription(AccelStamped, 'input/accel', self.input_accel_callback,
                                      input_qos)
 
+        config = self._triad.config
         variance = acceleration_variance(config.noise, config.sample_rate_hz)
         self._stream = SampleStream(
             self, self._lock, self._triad, values, self._ground_truth, self._recording,

@@ -28,7 +28,8 @@ from qfa_ros.model.hardware import STANDARD_GRAVITY
 from qfa_ros.model.noise import MICRO_G, NoiseConfig
 from qfa_ros.model.profiles import SineProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import TriadConfig
+from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.unit import draw_unit
 from qfa_ros.ros.bounds import (
     budget_problem,
     CHAMBER_BOUND,
@@ -152,10 +153,23 @@ PARAMETERS = (
                   0.0, 100000.0),
     ParameterSpec('noise.adc_counts', _NOISE.adc_noise, 'ADC input noise [count rms]', True,
                   0.0, 10000.0),
-    _vector('model.bias_ug', (0.0, 0.0, 0.0), 'IEEE 1293 bias per axis x, y, z [ug]', True,
+    ParameterSpec('unit.draw', True,
+                  'Draw the sensor as one unit within the datasheet spreads (turn-on bias, '
+                  'thermal curves, aging, K2, misalignment; qfa_ros.model.unit); false: the '
+                  'nominal sensor (seed 2 default curves, no turn-on bias)', True),
+    ParameterSpec('unit.seed', -1,
+                  'Seed of the drawn unit: the same seed, the same unit; -1: the unit of seed',
+                  True, -1, 2 ** 31 - 1),
+    _vector('model.bias_ug', (0.0, 0.0, 0.0),
+            "IEEE 1293 bias per axis x, y, z, added to the unit's [ug]", True,
             -1.0e5, 1.0e5),
     _vector('model.k2_ug_per_g2', (0.0, 0.0, 0.0),
-            'IEEE 1293 second-order coefficient per axis [ug/g^2]', True, -1.0e4, 1.0e4),
+            "IEEE 1293 second-order coefficient per axis, added to the unit's [ug/g^2]", True,
+            -1.0e4, 1.0e4),
+    ParameterSpec('model.misalignment_mrad', [0.0] * 9,
+                  "Mounting misalignment / cross-coupling M added to the unit's, row-major "
+                  '3x3 (each loop senses ((I + M) f)_i) [mrad]', True, -100.0, 100.0,
+                  length=9),
     _vector('drift.forward_ppm', (0.0, 0.0, 0.0),
             'Step drift of the forward gain (in-amp gain resistor) per axis [ppm]',
             low=-1.0e5, high=1.0e5),
@@ -270,20 +284,22 @@ PARAMETERS = (
                   'Move the I_ref reference step to the present on-board temperature with the '
                   'coefficient the reference_tc schedule stored (false: the paper schedule)'),
     ParameterSpec('temperature_calibration.low_c', _CHAMBER.low_c,
-                  'Chamber cycle low limit of calibrate_temperature [degC]', False,
+                  'Lowest chamber plateau of calibrate_temperature [degC]', False,
                   -60.0, 125.0),
     ParameterSpec('temperature_calibration.high_c', _CHAMBER.high_c,
-                  'Chamber cycle high limit of calibrate_temperature [degC]', False,
+                  'Highest chamber plateau of calibrate_temperature [degC]', False,
                   -60.0, 125.0),
     ParameterSpec('temperature_calibration.period_s', _CHAMBER.period_s,
-                  'Chamber cycle period of calibrate_temperature in sensor time [s] (always '
-                  'run as fast as the CPU allows)' + CHAMBER_BOUND, False,
-                  60.0, CHAMBER_MAX_PERIOD_S),
+                  'Chamber program of calibrate_temperature (all plateaus, six-position '
+                  'tumble) in sensor time [s], plus the soaks at the extremes and back to the '
+                  'starting temperature (always run as fast as the CPU allows)' + CHAMBER_BOUND,
+                  False, 60.0, CHAMBER_MAX_PERIOD_S),
     ParameterSpec('temperature_calibration.cycles', _CHAMBER.cycles,
-                  'Chamber cycles of calibrate_temperature' + CHAMBER_BOUND, False,
+                  'Chamber programs of calibrate_temperature' + CHAMBER_BOUND, False,
                   1, CHAMBER_MAX_CYCLES),
     ParameterSpec('temperature_calibration.m_bits', _CHAMBER.m_bits,
-                  'Fraction bits M of the fixed-point CORDIC compensator (seed 2: 16)', False,
+                  'Fraction bits M of the fixed-point CORDIC zero-bias compensator (seed 2: '
+                  '16; the scale factor uses 24)', False,
                   8, 30),
     ParameterSpec('output_dir', '~/.ros/qfa_ros',
                   'Base directory of every trace and recording the node writes (~ expanded '
@@ -447,6 +463,23 @@ def temperature_settings(values):
                                    m_bits=values['temperature_calibration.m_bits'])
 
 
+def unit_of(values):
+    """Return the drawn :class:`~qfa_ros.model.unit.Unit` of ``unit.*``, or None."""
+    if not values['unit.draw']:
+        return None
+    seed = values['unit.seed']
+    return draw_unit(values['seed'] if seed < 0 else seed)
+
+
+def make_triad(values, profile=None):
+    """Return the :class:`QfaTriad` of the parameter ``values``: the unit, its aging."""
+    triad = QfaTriad(triad_config(values), rng=values['seed'], profile=profile)
+    unit = unit_of(values)
+    if unit is not None:
+        unit.install_aging(triad)
+    return triad
+
+
 def triad_config(values):
     """Return the :class:`TriadConfig` of the parameter ``values`` (ValueError names them)."""
     thermal = thermal_config(values)
@@ -454,6 +487,8 @@ def triad_config(values):
         noise = NoiseConfig(noise_density=values['noise.density_ug_per_rthz'] * MICRO_G,
                             bias_instability=values['noise.bias_instability_ug'] * MICRO_G,
                             adc_noise=values['noise.adc_counts'])
+    mrad = values['model.misalignment_mrad']
+    misalignment = tuple(tuple(v * 1e-3 for v in mrad[3 * k:3 * k + 3]) for k in range(3))
     gyro = None
     if values['gyro.enabled']:
         with _named('gyro'):
@@ -464,11 +499,13 @@ def triad_config(values):
                 * DEG_PER_HOUR / 60.0,
                 turn_on_bias=values['gyro.turn_on_bias_deg_per_hr'] * DEG_PER_HOUR)
     with _named('sample_rate_hz / loop_rate_hz / model'):
-        return TriadConfig.from_datasheet(
+        config = TriadConfig.from_datasheet(
             bias_ug=tuple(values['model.bias_ug']),
             k2_ug_per_g2=tuple(values['model.k2_ug_per_g2']),
             loop_rate_hz=values['loop_rate_hz'], sample_rate_hz=values['sample_rate_hz'],
-            noise=noise, thermal=thermal, gyro=gyro)
+            noise=noise, thermal=thermal, gyro=gyro, misalignment=misalignment)
+    unit = unit_of(values)
+    return config if unit is None else unit.configure(config)
 
 
 def forward_settings(values):
@@ -607,7 +644,7 @@ def parameter_table():
         default = spec.default
         kind = {bool: 'bool', int: 'int', float: 'double', str: 'string'}.get(type(default))
         if isinstance(default, list):
-            kind = 'double[3]' if spec.length == 3 else 'double[]'
+            kind = f'double[{spec.length}]' if spec.length else 'double[]'
         limits = ''
         if spec.low is not None:
             limits = f'{spec.low} … {spec.high}' if isinstance(spec.default, int) \

@@ -51,7 +51,7 @@ class SensorSnapshot:
         self.n_vref = [loop.n_vref for loop in triad.axes]
         self.n_fpga = [loop.n_fpga for loop in triad.axes]
         self.temperature_compensation = triad.temperature_compensation
-        self.temperature_compensators = triad.temperature_compensators
+        self.temperature_compensator = triad.temperature_compensator
 
     def restore(self):
         """Write the words, switches and state back (after the schedule's own clean-up)."""
@@ -62,7 +62,8 @@ class SensorSnapshot:
             triad.set_open_loop(axis, False)
             triad.set_controller_gain(axis, self.gains[axis])
             triad.set_n_vref(axis, self.n_vref[axis])
-        triad.temperature_compensators = self.temperature_compensators
+        triad.temperature_compensator = self.temperature_compensator
+        triad.fixture = None  # the dividing head of a cancelled temperature calibration
         triad.temperature_compensation = self.temperature_compensation
         keeper.state = copy.deepcopy(self.state)
         keeper.compensation = self.compensation
