@@ -85,7 +85,11 @@ def test_example_bag_contents():
     result = paper['/qfa/trace/self_calibrate/result'][0][1]
     assert 'forward gain drift' in result.status[0].message
     cycle = read_all(BAGS / 'temperature_cycle.mcap')
-    assert len(cycle['/imu/temperature']) == 7200
+    # One reading per raw block of the calibration (one per tumble position), each at its
+    # block's end: the temperature line of the points the fit used.
+    blocks = cycle['/qfa/trace/temperature/blocks']
+    assert len(cycle['/imu/temperature']) == len(blocks) > 1000
+    assert [t for t, _ in cycle['/imu/temperature']] == [t for t, _ in blocks]
     labels = [d.label for d in cycle['/qfa/trace/temperature/points'][0][1].layout.dim]
     assert labels[:2] == ['v_temp', 'bias_x']
     values = key_values_to_dict(cycle['/qfa/trace/result'][0][1].status[0].values)
