@@ -142,8 +142,8 @@ def test_cancel_restores_the_sensor_for_every_schedule_kind(setup):
     saved_mtime = state_file.stat().st_mtime_ns
     results = client.set_parameters({'drift.forward_ppm': FORWARD_DRIFT_PPM,
                                      'estimation.realtime': True,
-                                     'temperature_calibration.period_s': 7200.0,
-                                     'temperature_calibration.cycles': 2})
+                                     'temperature_calibration.period_s': 4500.0,
+                                     'temperature_calibration.cycles': 1})
     assert all(r.successful for r in results), [r.reason for r in results]
     count = len(diagnostics)
     client.spin_until(lambda: len(diagnostics) > count + 1, 10, 'diagnostics')
@@ -260,22 +260,24 @@ def test_paths_are_confined_to_the_output_directory(tmp_path):
 def test_schedule_bounds_hold_at_any_loop_rate():
     # The worst case the ranges allow, stated in the descriptions and the README.
     assert SCHEDULE_WORST_S == pytest.approx(911.6)
-    assert CHAMBER_WORST_S == 14400.0
-    assert MAX_SCHEDULE_LOOP_STEPS == CHAMBER_WORST_S * 10000.0
+    # The chamber program with its soaks (at the extremes, back to the start) fits the
+    # loop-step budget at the default 10 kHz loop.
+    assert 14000.0 < CHAMBER_WORST_S <= 14400.0
+    assert MAX_SCHEDULE_LOOP_STEPS == 14400.0 * 10000.0
     worst = defaults(**{'estimation.forward.points': 50, 'estimation.forward.settle_s': 0.5,
                         'estimation.forward.average_s': 2.0,
                         'estimation.forward.order': 'bidirectional',
                         'estimation.feedback.cycles': 8, 'estimation.feedback.order': 'chopped',
                         'estimation.feedback.settle_s': 0.5,
                         'estimation.feedback.average_s': 20.0,
-                        'temperature_calibration.period_s': 7200.0,
-                        'temperature_calibration.cycles': 2})
+                        'temperature_calibration.period_s': 4500.0,
+                        'temperature_calibration.cycles': 1})
     assert check_all(worst) is None
     # A faster loop costs more CPU per sensor second: the loop-step budget then refuses.
     reason = check_all({**worst, 'loop_rate_hz': 100000.0})
     assert 'temperature_calibration.period_s' in reason and 'loop steps' in reason
     reason = check_all({**worst, 'loop_rate_hz': 1.0e6,
-                        'temperature_calibration.period_s': 60.0,
+                        'temperature_calibration.period_s': 600.0,
                         'temperature_calibration.cycles': 1})
     assert 'estimation.forward' in reason
 

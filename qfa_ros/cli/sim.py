@@ -48,12 +48,15 @@ def scenario_bag(args, config):
 
 def static_sensor():
     """
-    Return (config, profile) of the sensor ``qfa-node`` publishes with its defaults.
+    Return (config, profile) of the node's default sensor as the nominal unit.
 
-    The thermal model is on (constant 25 degC ambient, the body at ambient, so the zero
-    bias is the double exponential's value at 25 degC), default noise and gyros, level at
-    the default location (latitude 45 deg: WGS-84 normal gravity and the Earth rate).
-    ``test_loop_model`` checks that this equals the node's parameter defaults.
+    The node's defaults with ``unit.draw: false``: the thermal model on (constant 25 degC
+    ambient, the body at ambient, so the zero bias is the double exponential's value at
+    25 degC), default noise and gyros, level at the default location (latitude 45 deg:
+    WGS-84 normal gravity and the Earth rate). Not the drawn unit the node publishes by
+    default: its deterministic errors (turn-on bias, misalignment times g, K2) would hide
+    the noise figures this summary reports; ``qfa-sim temperature-cycle`` simulates drawn
+    units. ``test_loop_model`` checks that this equals the node's parameters.
     """
     return (TriadConfig(thermal=ThermalConfig(ambient_profile='constant')),
             trajectories.static(45.0, 0.0, 0.0, yaw=0.0))
