@@ -24,9 +24,9 @@ import pytest
 from rosbags.highlevel import AnyReader
 import yaml
 
-from qfa_ros.bag.scenario_bag import SIM_START_NS
 from qfa_ros.bag.trace import key_values_to_dict
 from qfa_ros.cli.sim import main as sim_main
+from qfa_ros.cli.sim import SIM_START_NS
 
 
 def read_all(path):

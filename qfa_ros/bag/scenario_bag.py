@@ -15,20 +15,13 @@ TRUTH_TOPIC = '/qfa/truth/odometry'
 TEMPERATURE_TOPIC = '/imu/temperature'
 PHASE_TOPIC = '/qfa/scenario/phase'
 
-SIM_START_NS = 1_767_225_600_000_000_000
-"""Default start of simulated recordings: 2026-01-01T00:00:00Z [ns since the epoch].
-
-A fixed, documented instant rather than 0 (1970 on Foxglove's and ``ros2 bag info``'s
-timelines) or the wall clock (a bag would differ from run to run): same seed, same bag.
-"""
-
 
 class ScenarioBag:
     """
     The output of a ``qfa-sim`` scenario: IMU stream, temperature, phases and traces.
 
     Topics: ``/imu/data_raw`` (sensor_msgs/Imu, REP-145, log time = header stamp =
-    the triad's stamps [ns]: :data:`SIM_START_NS` + sensor time in ``qfa-sim``; angular
+    the triad's stamps [ns]: ``qfa-sim``'s ``--start-time`` + sensor time; angular
     velocity from the gyros when ``rate_variance`` is given), ``/qfa/truth/odometry``
     (nav_msgs/Odometry, see :meth:`write_truth`),
     ``/imu/temperature`` (sensor_msgs/Temperature [degC]),

@@ -27,6 +27,18 @@ OBSERVABLE_FORWARD = ('v_da1_ref', 'k_tz', 'k_amp', 'v_ad_ref')
 OBSERVABLE_FEEDBACK = ('v_da2_ref', 'k_vi')
 
 
+
+def split_drift(rng, total, components):
+    """
+    Split a channel drift ``total`` over its ``components`` with Dirichlet weights.
+
+    Returns ``{component: relative drift}`` whose effects on the channel gain add up to
+    ``total``: the sign of ``v_ad_ref`` is flipped because ``k_AD = 1 / V_AD_ref``.
+    """
+    weights = rng.dirichlet(np.ones(len(components)))
+    return {c: (-1.0 if c == 'v_ad_ref' else 1.0) * w * total
+            for c, w in zip(components, weights)}
+
 @dataclass(frozen=True)
 class ErrorProfile:
     """
@@ -413,10 +425,8 @@ def monte_carlo(schedule, draws=200, seed=0, torquer_drift=False, span_ppm=200.0
         for axis in range(len(AXES)):
             for components in (OBSERVABLE_FORWARD, OBSERVABLE_FEEDBACK):
                 total = rng.uniform(-span_ppm, span_ppm) * PPM
-                weights = rng.dirichlet(np.ones(len(components)))
-                for component, weight in zip(components, weights):
-                    sign = -1.0 if component == 'v_ad_ref' else 1.0  # k_AD = 1/V_AD_ref
-                    triad.drift.set_step(axis, component, sign * weight * total)
+                for component, delta in split_drift(rng, total, components).items():
+                    triad.drift.set_step(axis, component, delta)
             if torquer_drift:
                 triad.drift.set_step(axis, 'l_coil', rng.uniform(-50, 50) * PPM)
         triad.run_for(0.2)

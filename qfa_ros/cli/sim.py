@@ -2,7 +2,7 @@
 Offline simulator: ``qfa-sim SCENARIO [--duration S] [--seed N] [--out FILE.mcap]``.
 
 Runs without ROS or DDS, as fast as it can. Bags start at ``--start-time`` (default
-2026-01-01T00:00:00Z, :data:`qfa_ros.bag.scenario_bag.SIM_START_NS`): a realistic date on
+2026-01-01T00:00:00Z, :data:`SIM_START_NS`): a realistic date on
 a timeline, the same for every run. ``qfa-sim trajectory --motion drive``
 (or ``--trajectory-file poses.csv``) moves the full IMU (QFA accelerometers and gyros)
 along a trajectory on the WGS-84 Earth and writes the stream with its ground truth
@@ -32,6 +32,14 @@ from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 from qfa_ros.model.unit import draw_unit
 
 STATIC_CHUNK_SECONDS = 30.0
+SIM_START_NS = 1_767_225_600_000_000_000
+"""Default start of simulated recordings: 2026-01-01T00:00:00Z [ns since the epoch].
+
+A fixed, documented instant rather than 0 (1970 on Foxglove's and ``ros2 bag info``'s
+timelines) or the wall clock (a bag would differ from run to run): same seed, same bag.
+Defined here, not in the bag layer, so that ``qfa-sim static`` does not load the MCAP
+writer it does not use.
+"""
 TRAJECTORY_CHUNK_SECONDS = 1.0
 """Sensor time per :meth:`QfaTriad.run` call of the static scenario [s]."""
 
@@ -341,7 +349,6 @@ def build_parser():
                         help='ground-truth odometry rate [Hz] (default 100)')
     parser.add_argument('--out', metavar='FILE.mcap',
                         help='write the scenario as a rosbag2-compatible MCAP file')
-    from qfa_ros.bag.scenario_bag import SIM_START_NS
     parser.add_argument('--start-time', type=parse_start_time, default=SIM_START_NS,
                         dest='start_ns', metavar='ISO8601',
                         help='time of the first sample in the bag (default '

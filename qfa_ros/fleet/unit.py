@@ -37,6 +37,7 @@ from qfa_ros.calibration.experiments import (
     OBSERVABLE_FEEDBACK,
     OBSERVABLE_FORWARD,
     PaperRoom,
+    split_drift,
 )
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
@@ -59,14 +60,6 @@ def _profile(environment):
     profile = ErrorProfile() if environment.error_profile == 'paper' else ErrorProfile.ideal()
     # The study ages k_t itself; the profile keeps only its temperature coefficients.
     return replace(profile, torquer_drift_ppm=0.0)
-
-
-def _split(rng, total, components):
-    """Split ``total`` over ``components`` with Dirichlet weights (sign per component)."""
-    weights = rng.dirichlet(np.ones(len(components)))
-    # k_AD = 1 / V_AD_ref: a rise of the reference lowers the gain.
-    return {c: (-1.0 if c == 'v_ad_ref' else 1.0) * w * total
-            for c, w in zip(components, weights)}
 
 
 def _static_error_ug(triad):
@@ -117,8 +110,8 @@ def simulate_unit(study, index):
     rates = []
     for _ in AXES:
         rates.append({
-            **_split(rng, rng.normal(0.0, aging.forward_ppm_per_year), OBSERVABLE_FORWARD),
-            **_split(rng, rng.normal(0.0, aging.feedback_ppm_per_year), OBSERVABLE_FEEDBACK),
+            **split_drift(rng, rng.normal(0.0, aging.forward_ppm_per_year), OBSERVABLE_FORWARD),
+            **split_drift(rng, rng.normal(0.0, aging.feedback_ppm_per_year), OBSERVABLE_FEEDBACK),
             TORQUER_COMPONENT: rng.normal(0.0, aging.torquer_ppm_per_year)})
 
     state = CalibrationState()

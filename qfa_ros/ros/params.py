@@ -473,15 +473,20 @@ def unit_of(values):
 
 def make_triad(values, profile=None):
     """Return the :class:`QfaTriad` of the parameter ``values``: the unit, its aging."""
-    triad = QfaTriad(triad_config(values), rng=values['seed'], profile=profile)
     unit = unit_of(values)
+    triad = QfaTriad(triad_config(values, unit), rng=values['seed'], profile=profile)
     if unit is not None:
         unit.install_aging(triad)
     return triad
 
 
-def triad_config(values):
-    """Return the :class:`TriadConfig` of the parameter ``values`` (ValueError names them)."""
+def triad_config(values, unit=False):
+    """
+    Return the :class:`TriadConfig` of the parameter ``values`` (ValueError names them).
+
+    ``unit`` is the drawn unit (or None) when the caller has it already; by default it
+    is drawn from ``unit.*``.
+    """
     thermal = thermal_config(values)
     with _named('noise'):
         noise = NoiseConfig(noise_density=values['noise.density_ug_per_rthz'] * MICRO_G,
@@ -504,7 +509,8 @@ def triad_config(values):
             k2_ug_per_g2=tuple(values['model.k2_ug_per_g2']),
             loop_rate_hz=values['loop_rate_hz'], sample_rate_hz=values['sample_rate_hz'],
             noise=noise, thermal=thermal, gyro=gyro, misalignment=misalignment)
-    unit = unit_of(values)
+    if unit is False:
+        unit = unit_of(values)
     return config if unit is None else unit.configure(config)
 
 
