@@ -1,5 +1,6 @@
 """Fleet studies: validation before work, identical results whatever the workers, resume."""
 
+import json
 import os
 from pathlib import Path
 import signal
@@ -11,7 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from qfa_ros.cli.fleet import main as fleet_main
-from qfa_ros.fleet.runner import parts_directory, run_study
+from qfa_ros.fleet.runner import code_digest, parts_directory, run_study
 from qfa_ros.fleet.study import Study, StudyError
 from qfa_ros.fleet.unit import simulate_unit
 
@@ -104,3 +105,14 @@ def test_results_of_another_study_are_not_mixed_in(tmp_path):
     (parts_directory(out) / 'study.json').write_text('{"digest": "0000"}')
     with pytest.raises(StudyError, match='another study'):
         run_study(Study.from_dict(CHEAP), out, workers=1, progress=False)
+
+
+def test_results_of_other_model_code_are_not_mixed_in(tmp_path):
+    study = Study.from_dict(CHEAP)
+    out = tmp_path / 'upgraded.parquet'
+    parts_directory(out).mkdir()
+    (parts_directory(out) / 'study.json').write_text(json.dumps(
+        {'digest': study.digest(), 'code': 'an-older-model'}))
+    with pytest.raises(StudyError, match='other model code'):
+        run_study(study, out, workers=1, progress=False)
+    assert code_digest() == code_digest() and len(code_digest()) == 16

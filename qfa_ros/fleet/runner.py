@@ -10,6 +10,7 @@ results depend only on the study and the unit's seed, so the table is identical
 whatever the number of workers.
 """
 
+import hashlib
 import json
 import logging
 import os
@@ -23,6 +24,24 @@ from qfa_ros.fleet.study import StudyError
 from qfa_ros.fleet.unit import simulate_batch
 
 STUDY_FILE = 'study.json'
+SIMULATING_PACKAGES = ('model', 'calibration', 'fleet')
+"""The subpackages whose code decides a unit's rows (their sources make the code digest)."""
+
+
+def code_digest():
+    """
+    Return a digest of the sources that compute a unit's rows.
+
+    A resumed study must not join rows of two versions of the model: the parts directory
+    records this digest beside the study's, and a run with other code refuses to resume.
+    """
+    package = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for name in SIMULATING_PACKAGES:
+        for source in sorted((package / name).glob('*.py')):
+            digest.update(f'{name}/{source.name}'.encode())
+            digest.update(source.read_bytes())
+    return digest.hexdigest()[:16]
 
 
 def parts_directory(out_path):
@@ -43,16 +62,21 @@ def _write_atomically(table, path):
 
 def _prepare(study, parts):
     """Create or check the parts directory; return the batches still to compute."""
-    identity = {'digest': study.digest(), 'study': study.to_dict()}
+    identity = {'digest': study.digest(), 'code': code_digest(), 'study': study.to_dict()}
     marker = parts / STUDY_FILE
     if marker.exists():
         try:
-            recorded = json.loads(marker.read_text()).get('digest')
+            recorded = json.loads(marker.read_text())
         except (OSError, ValueError):
-            recorded = None
-        if recorded != identity['digest']:
-            raise StudyError(f'{parts} holds results of another study (digest {recorded}, '
-                             f'this one {identity["digest"]}): remove it or choose --out')
+            recorded = {}
+        if recorded.get('digest') != identity['digest']:
+            raise StudyError(f'{parts} holds results of another study (digest '
+                             f'{recorded.get("digest")}, this one {identity["digest"]}): '
+                             'remove it or choose --out')
+        if recorded.get('code') != identity['code']:
+            raise StudyError(f'{parts} was computed by other model code (code digest '
+                             f'{recorded.get("code")}, this one {identity["code"]}): its rows '
+                             'would not match new ones; remove it or choose --out')
     else:
         parts.mkdir(parents=True, exist_ok=True)
         marker.write_text(json.dumps(identity, indent=1, default=str))
@@ -131,8 +155,9 @@ def run_study(study, out_path, *, workers=None, scheduler=None, progress=True, l
     table = pa.concat_tables(pq.read_table(_part_path(parts, start, stop))
                              for start, stop in study.batches)
     table = table.sort_by([('unit', 'ascending'), ('calibration', 'ascending')])
-    table = table.replace_schema_metadata({'qfa_ros.study': json.dumps(study.to_dict(),
-                                                                        default=str)})
+    table = table.replace_schema_metadata({
+        'qfa_ros.study': json.dumps(study.to_dict(), default=str),
+        'qfa_ros.code_digest': code_digest()})
     _write_atomically(table, out_path)
     log(f'{study.units} units x {study.calibrations} calibrations -> {out_path} '
         f'({time.perf_counter() - started:.1f} s for {len(pending)} batches)')
