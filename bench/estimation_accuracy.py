@@ -10,21 +10,24 @@ beside the paper's six trials.
 Part 2: the residual scale-factor error after self-calibration [ppm], truth measured with
 a known input (``measure_scale``), for the paper's and the improved schedule, drifts of
 +-200 ppm (the paper), +-100 ppm (a year) and +-1000 ppm, with and without k_t drift,
-thermal model on with room wander (``monte_carlo``). Prints Markdown tables.
+thermal model on with room wander. Each row is a fleet study (``qfa_ros.fleet``) run
+through the same path as ``qfa-fleet`` (Dask, every core, Parquet): ``--draws`` units,
+one self-calibration a year after the reference capture, aging uniform within the span
+(k_t: +-50 ppm and the magnet's temperature coefficient, or neither). Prints Markdown
+tables; ``--keep DIR`` keeps the Parquet files (and resumes from them).
 """
 
 import argparse
+from pathlib import Path
+import tempfile
 import time
 
 import numpy as np
 
-from qfa_ros.calibration.experiments import (
-    IMPROVED_SCHEDULE,
-    monte_carlo,
-    paper_experiment,
-    PAPER_SCHEDULE,
-    SCENARIOS,
-)
+from qfa_ros.calibration.experiments import paper_experiment
+from qfa_ros.fleet.runner import run_study
+from qfa_ros.fleet.study import SPANS_PPM, Study
+from qfa_ros.fleet.summary import residual_metrics
 
 PAPER = {'forward_estimate_ppm': (-180.53, 3.9), 'feedback_estimate_ppm': (218.15, None),
          'drifted_error_ug': (193.0, None), 'compensated_error_ug': (24.0, None),
@@ -53,28 +56,43 @@ def paper_distribution(trials, seed):
               f'{v.std(ddof=1) / np.sqrt(len(v)):.2f} | {cell} |')
 
 
+def residual_table(draws, seed, keep, workers):
+    """Print the residual after self-calibration for every schedule, k_t case and span."""
+    print('| ' + ' | '.join(COLUMNS) + ' |')
+    print('|' + '---|' * len(COLUMNS))
+    for schedule in ('paper', 'improved'):
+        for torquer_drift in (False, True):
+            for span in SPANS_PPM.values():
+                study = Study.one_calibration(schedule, span, torquer_drift, draws, seed)
+                table = run_study(study, Path(keep) / f'{study.name}.parquet',
+                                  workers=workers, log=lambda line: None)
+                metrics = {'schedule': schedule, 'k_t drift': 'yes' if torquer_drift else 'no',
+                           'drift span ppm': span, **residual_metrics(table)}
+                cells = [f'{metrics[c]:.2f}' if isinstance(metrics[c], float) else metrics[c]
+                         for c in COLUMNS]
+                print('| ' + ' | '.join(cells) + ' |', flush=True)
+
+
 def main():
     """Run both parts."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--trials', type=int, default=50)
     parser.add_argument('--draws', type=int, default=100)
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--workers', type=int, default=None,
+                        help='Dask workers (default: every core)')
+    parser.add_argument('--keep', metavar='DIR', default=None,
+                        help="keep the studies' Parquet files here (and resume from them)")
     args = parser.parse_args()
     start = time.perf_counter()
     paper_distribution(args.trials, args.seed)
     print()
-    print('| ' + ' | '.join(COLUMNS) + ' |')
-    print('|' + '---|' * len(COLUMNS))
-    for schedule in (PAPER_SCHEDULE, IMPROVED_SCHEDULE):
-        for torquer_drift in (False, True):
-            for span in SCENARIOS.values():
-                metrics = monte_carlo(schedule, draws=args.draws, seed=args.seed,
-                                      torquer_drift=torquer_drift, span_ppm=span,
-                                      progress=True).metrics()
-                cells = [f'{metrics[c]:.2f}' if isinstance(metrics[c], float) else metrics[c]
-                         for c in COLUMNS]
-                print('| ' + ' | '.join(cells) + ' |', flush=True)
-    print(f'\n{args.draws} draws x 3 axes per row, seed {args.seed}; '
+    if args.keep:
+        residual_table(args.draws, args.seed, args.keep, args.workers)
+    else:
+        with tempfile.TemporaryDirectory() as keep:
+            residual_table(args.draws, args.seed, keep, args.workers)
+    print(f'\n{args.draws} units x 3 axes per row, seed {args.seed}; '
           f'wall {time.perf_counter() - start:.0f} s')
 
 

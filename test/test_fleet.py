@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
@@ -38,6 +39,8 @@ def write_study(path, data):
     ({'schedule': {'name': 'paper', 'feedback': {'cycle': 3}}}, 'schedule.feedback.cycle'),
     ({'aging': {'feedback_ppm_per_year': 'lots'}}, 'aging.feedback_ppm_per_year'),
     ({'environment': {'error_profile': 'mars'}}, 'environment.error_profile'),
+    ({'aging': {'distribution': 'cauchy'}}, 'aging.distribution'),
+    ({'environment': {'magnet_tc_ppm': 'warm'}}, 'environment.magnet_tc_ppm'),
 ])
 def test_bad_study_fails_before_starting_and_names_the_key(tmp_path, capsys, change, key):
     study = write_study(tmp_path / 'bad.yaml', {**CHEAP, **change})
@@ -97,6 +100,17 @@ def test_killed_study_restarts_with_only_the_missing_units(tmp_path):
     assert {p.name: p.stat().st_mtime_ns for p in parts.glob('batch-*.parquet')
             if p.name in kept} == kept, 'finished batches must not be recomputed'
     assert sorted(set(table.column('unit').to_pylist())) == [0, 1, 2, 3]
+
+
+def test_uniform_aging_stays_within_its_span():
+    study = Study.one_calibration('improved', 200.0, torquer_drift=True, units=1)
+    rng = np.random.default_rng(3)
+    rates = [study.aging.draw(rng, 200.0) for _ in range(2000)]
+    assert max(map(abs, rates)) <= 200.0
+    assert np.std(rates) == pytest.approx(200.0 / np.sqrt(3), rel=0.05)
+    assert study.calibrations == 1 and study.environment.magnet_tc_ppm is None
+    stable = Study.one_calibration('paper', 100.0, torquer_drift=False, units=1)
+    assert stable.environment.magnet_tc_ppm == 0.0 and stable.aging.torquer_ppm_per_year == 0
 
 
 def test_results_of_another_study_are_not_mixed_in(tmp_path):

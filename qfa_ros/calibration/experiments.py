@@ -7,13 +7,12 @@ import math
 import numpy as np
 from tqdm import tqdm
 
-from qfa_ros.calibration.chamber import ChamberBench, DIAGONAL, idle
+from qfa_ros.calibration.chamber import DIAGONAL, idle
 from qfa_ros.calibration.estimation import (
     capture_reference,
     FeedbackSettings,
     ForwardSettings,
     PPM,
-    reference_tc_schedule,
     self_calibrate,
 )
 from qfa_ros.calibration.schedule import run_schedule
@@ -332,111 +331,3 @@ IMPROVED_SCHEDULE = Schedule(
     FeedbackSettings(cycles=16, settle_s=0.02, average_s=0.28, order='chopped',
                      temperature_correction=True),
     FeedbackSettings(cycles=32, settle_s=0.02, average_s=0.28, order='chopped'))
-
-SCENARIOS = {'paper': 200.0, 'year': 100.0, 'large': 1000.0}
-"""Drift spans of the Monte Carlo [ppm]: the paper's +-200 ppm; one year of aging
-(+-100 ppm/year, navigation-grade QFA scale-factor stability class); +-1000 ppm."""
-
-
-def schedule_sensor_time(schedule, config=None):
-    """Return the sensor time one self-calibration with ``schedule`` takes [s]."""
-    config = TriadConfig() if config is None else config
-    forward = schedule.forward
-    feedback = schedule.feedback
-    forward_time = len(forward.sequence()) * (forward.settle_s + forward.average_s) \
-        + config.settle_time
-    feedback_time = len(feedback.sequence()) * (feedback.settle_s + feedback.average_s) \
-        + feedback.settle_s + config.settle_time
-    return forward_time + feedback_time
-
-
-@dataclass
-class MonteCarloResult:
-    """Per-draw, per-axis scale-factor errors [ppm] (:func:`measure_scale`) and estimates."""
-
-    schedule: str
-    torquer_drift: bool
-    span_ppm: float
-    scale_error_before: np.ndarray
-    scale_error_after: np.ndarray
-    temperature_change_c: np.ndarray
-    feedback_estimate: np.ndarray
-    forward_estimate: np.ndarray
-    sensor_time_s: float
-
-    def metrics(self):
-        """Return the residual scale-factor error after self-calibration: mean, p95, SEs."""
-        after = np.abs(self.scale_error_after).ravel()
-        before = np.abs(self.scale_error_before).ravel()
-        n = after.size
-        return {'schedule': self.schedule, 'k_t drift': 'yes' if self.torquer_drift else 'no',
-                'drift span ppm': self.span_ppm,
-                'error before mean ppm': float(before.mean()),
-                'residual mean ppm': float(after.mean()),
-                'residual mean se ppm': float(after.std(ddof=1) / math.sqrt(n)),
-                'residual p95 ppm': float(np.percentile(after, 95)),
-                'residual max ppm': float(after.max()),
-                'sensor time s': self.sensor_time_s}
-
-
-def monte_carlo(schedule, draws=200, seed=0, torquer_drift=False, span_ppm=200.0,
-                profile=ErrorProfile(), gap_s=(3600.0, 86400.0), config=None, progress=False):
-    """
-    Self-calibrate random drifts with ``schedule``; return a :class:`MonteCarloResult`.
-
-    Each draw takes a fresh sensor (default noise, default thermal model in the room of
-    :class:`PaperRoom`: wandering within +-1.5 degC, correlation 12 h; zero-bias and
-    scale-factor temperature curves on, the profile's component temperature coefficients;
-    the magnet's only with ``torquer_drift``). A schedule with temperature correction first
-    measures the I_ref coefficient in the chamber (:func:`reference_tc_schedule`, three
-    plateaus). Then, back in the room: references captured; after a gap uniform in ``gap_s``
-    the drifts act on every axis at once: forward uniform in ``+-span`` ppm split randomly
-    over the excitation-chain components, feedback likewise over the DA0/DA2 reference and
-    V/I, with ``torquer_drift`` a k_t step uniform in +-50 ppm. Truth: the output scale
-    measured with a known input (:func:`measure_scale`) before and after self-calibration,
-    against the scale at the reference capture. ``config`` replaces the sensor configuration
-    (it needs a thermal model).
-    """
-    rng = np.random.default_rng(seed)
-    if not torquer_drift:
-        profile = replace(profile, magnet_tc_ppm=0.0, torquer_drift_ppm=0.0)
-    arrays = {k: np.zeros((draws, len(AXES))) for k in (
-        'scale_error_before', 'scale_error_after', 'feedback_estimate', 'forward_estimate')}
-    arrays['temperature_change_c'] = np.zeros(draws)
-    if config is None:
-        config = TriadConfig(thermal=ThermalConfig(
-            ambient_profile='room', ambient_c=25.0 + PaperRoom.self_heating_c,
-            room_amplitude_c=PaperRoom.room_amplitude_c,
-            room_correlation_s=PaperRoom.room_correlation_s))
-    label = f'{schedule.name} +-{span_ppm:g} ppm k_t {"drift" if torquer_drift else "stable"}'
-    for draw in tqdm(range(draws), desc=label, disable=not progress):
-        triad = QfaTriad(config, rng=rng.spawn(1)[0])
-        profile.apply(triad)
-        state = CalibrationState()
-        if schedule.feedback.temperature_correction:
-            run_schedule(triad, reference_tc_schedule(triad, ChamberBench(triad), state))
-        idle(triad, 3600.0)
-        triad.run_for(0.2)
-        run_schedule(triad, capture_reference(triad, state, schedule.forward,
-                                              schedule.reference_feedback))
-        scale_reference = measure_scale(triad)
-        t_reference = triad.temperature
-        idle(triad, rng.uniform(*gap_s))
-        for axis in range(len(AXES)):
-            for components in (OBSERVABLE_FORWARD, OBSERVABLE_FEEDBACK):
-                total = rng.uniform(-span_ppm, span_ppm) * PPM
-                for component, delta in split_drift(rng, total, components).items():
-                    triad.drift.set_step(axis, component, delta)
-            if torquer_drift:
-                triad.drift.set_step(axis, 'l_coil', rng.uniform(-50, 50) * PPM)
-        triad.run_for(0.2)
-        arrays['temperature_change_c'][draw] = triad.temperature - t_reference
-        arrays['scale_error_before'][draw] = (measure_scale(triad) / scale_reference - 1) / PPM
-        forward_result, feedback_result = run_schedule(
-            triad, self_calibrate(triad, state, schedule.forward, schedule.feedback))
-        arrays['scale_error_after'][draw] = (measure_scale(triad) / scale_reference - 1) / PPM
-        arrays['forward_estimate'][draw] = forward_result.estimate_ppm
-        arrays['feedback_estimate'][draw] = feedback_result.estimate_ppm
-    return MonteCarloResult(schedule=schedule.name, torquer_drift=torquer_drift,
-                            span_ppm=span_ppm, sensor_time_s=schedule_sensor_time(schedule),
-                            **arrays)

@@ -13,15 +13,21 @@ A study is YAML with these keys (every one optional but ``units``)::
       feedback: {cycles: 16}      # overrides of FeedbackSettings fields
     horizon_years: 1.0
     calibration_interval_days: 30.0
-    aging:                        # per-unit linear aging rates, drawn N(0, sigma)
+    aging:                        # per-unit linear aging rates [ppm/year]
+      distribution: normal        # normal: N(0, value) | uniform: U(-value, +value)
       forward_ppm_per_year: 100.0
       feedback_ppm_per_year: 100.0
       torquer_ppm_per_year: 0.0   # k_t (magnet, coil): unobservable by the schedule
     environment:
       room_c: 22.0                # mean room temperature
       seasonal_amplitude_c: 3.0   # annual sinusoid, phase drawn per unit
-      wander_c: 1.0               # room at a calibration uniform within +-wander
+      wander_c: 1.0               # room wander amplitude (12 h correlation)
       error_profile: paper        # paper | ideal: seed 1's temperature coefficients
+      magnet_tc_ppm: null         # override the profile's k_t temperature coefficient
+
+A Monte Carlo of one self-calibration after drifts of a given size is the study with one
+calibration a year after the reference and uniform aging of that size (the scenarios of
+``bench/estimation_accuracy.py``).
 """
 
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -37,6 +43,13 @@ from qfa_ros.calibration.experiments import IMPROVED_SCHEDULE, PAPER_SCHEDULE
 
 SCHEDULES = {'paper': PAPER_SCHEDULE, 'improved': IMPROVED_SCHEDULE}
 ERROR_PROFILES = ('paper', 'ideal')
+AGING_DISTRIBUTIONS = ('normal', 'uniform')
+SPANS_PPM = {'paper': 200.0, 'year': 100.0, 'large': 1000.0}
+"""Drift spans of the one-calibration Monte Carlo [ppm]: the paper's +-200 ppm; one year
+of aging (+-100 ppm/year, the navigation-grade QFA scale-factor stability class);
++-1000 ppm."""
+TORQUER_SPAN_PPM = 50.0
+"""Span of the k_t drift in the Monte Carlo with k_t drift [ppm]."""
 MAX_UNITS = 1_000_000
 MAX_HORIZON_YEARS = 30.0
 
@@ -70,11 +83,23 @@ def _mapping(where, value, known):
 
 @dataclass(frozen=True)
 class Aging:
-    """Standard deviations of the per-unit linear aging rates [ppm/year]."""
+    """
+    Spreads of the per-unit linear aging rates [ppm/year].
+
+    ``distribution`` 'normal' draws each rate from N(0, value), 'uniform' from
+    U(-value, +value).
+    """
 
     forward_ppm_per_year: float = 100.0
     feedback_ppm_per_year: float = 100.0
     torquer_ppm_per_year: float = 0.0
+    distribution: str = 'normal'
+
+    def draw(self, rng, value):
+        """Draw one rate of spread ``value`` [ppm/year] from ``rng``."""
+        if self.distribution == 'uniform':
+            return rng.uniform(-value, value)
+        return rng.normal(0.0, value)
 
 
 @dataclass(frozen=True)
@@ -85,6 +110,7 @@ class Environment:
     seasonal_amplitude_c: float = 3.0
     wander_c: float = 1.0
     error_profile: str = 'paper'
+    magnet_tc_ppm: float = None
 
 
 @dataclass(frozen=True)
@@ -171,6 +197,10 @@ class Study:
         name = data.get('name', 'study')
         if not isinstance(name, str) or not name:
             raise StudyError(f'name must be a non-empty string, got {name!r}')
+        distribution = aging.get('distribution', 'normal')
+        if distribution not in AGING_DISTRIBUTIONS:
+            raise StudyError(f'aging.distribution must be one of '
+                             f'{", ".join(AGING_DISTRIBUTIONS)}, got {distribution!r}')
         profile = environment.get('error_profile', 'paper')
         if profile not in ERROR_PROFILES:
             raise StudyError(f'environment.error_profile must be one of '
@@ -189,11 +219,12 @@ class Study:
             calibration_interval_days=_number(
                 'calibration_interval_days', data.get('calibration_interval_days', 30.0),
                 0.0, 3650.0, allow_low=False),
-            aging=Aging(**{k: _number(f'aging.{k}', v, 0.0, 1e5) for k, v in aging.items()}),
+            aging=Aging(**{k: (v if k == 'distribution' else _number(f'aging.{k}', v, 0.0, 1e5))
+                           for k, v in aging.items()}),
             environment=Environment(**{
-                k: (v if k == 'error_profile' else _number(f'environment.{k}', v,
-                                                           -1e3 if k == 'room_c' else 0.0,
-                                                           1e3))
+                k: (v if k == 'error_profile' or (k == 'magnet_tc_ppm' and v is None)
+                    else _number(f'environment.{k}', v,
+                                 -1e3 if k in ('room_c', 'magnet_tc_ppm') else 0.0, 1e3))
                 for k, v in environment.items()}))
         try:
             study.schedule_settings()
@@ -202,6 +233,28 @@ class Study:
         if study.calibrations < 1:
             raise StudyError('horizon_years must hold at least one calibration_interval_days')
         return study
+
+    @classmethod
+    def one_calibration(cls, schedule, span_ppm, torquer_drift, units, seed=0):
+        """
+        Return the Monte Carlo of one self-calibration after drifts within ``+-span_ppm``.
+
+        The reference is captured, a year passes in the paper's room (25 degC, wander
+        +-1.5 degC, 12 h correlation, no season; :class:`PaperRoom`), the forward and
+        feedback chains have aged uniformly within the span, and ``schedule`` calibrates
+        once. With ``torquer_drift`` k_t also ages within +-50 ppm and follows the magnet's
+        temperature coefficient; without, k_t is stable.
+        """
+        return cls.from_dict({
+            'name': f'{schedule}-kt-{"drift" if torquer_drift else "stable"}-{span_ppm:g}ppm',
+            'units': units, 'seed': seed, 'batch_units': 2, 'schedule': {'name': schedule},
+            'horizon_years': 1.0, 'calibration_interval_days': 365.25,
+            'aging': {'distribution': 'uniform', 'forward_ppm_per_year': span_ppm,
+                      'feedback_ppm_per_year': span_ppm,
+                      'torquer_ppm_per_year': TORQUER_SPAN_PPM if torquer_drift else 0.0},
+            'environment': {'room_c': 25.0, 'seasonal_amplitude_c': 0.0, 'wander_c': 1.5,
+                            'error_profile': 'paper',
+                            **({} if torquer_drift else {'magnet_tc_ppm': 0.0})}})
 
     @classmethod
     def load(cls, path):

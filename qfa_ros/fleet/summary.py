@@ -34,6 +34,24 @@ def summary_rows(table):
     return rows
 
 
+def residual_metrics(table):
+    """
+    Return the residual scale-factor error after self-calibration over every row and axis.
+
+    Keys ``error before mean ppm`` (mean |error| before), ``residual mean ppm``, its
+    standard error ``residual mean se ppm``, ``residual p95 ppm``, ``residual max ppm``
+    (all of |error| after) and ``sensor time s`` (mean schedule duration).
+    """
+    after = np.abs(_columns(table, 'sf_after_ppm'))
+    before = np.abs(_columns(table, 'sf_before_ppm'))
+    return {'error before mean ppm': float(before.mean()),
+            'residual mean ppm': float(after.mean()),
+            'residual mean se ppm': float(after.std(ddof=1) / np.sqrt(after.size)),
+            'residual p95 ppm': float(np.percentile(after, 95)),
+            'residual max ppm': float(after.max()),
+            'sensor time s': float(np.mean(np.asarray(table.column('schedule_s'))))}
+
+
 def format_summary(table):
     """Return the summary as a Markdown table."""
     units = len(set(np.asarray(table.column('unit')).tolist()))

@@ -58,6 +58,8 @@ TORQUER_COMPONENT = 'l_coil'
 
 def _profile(environment):
     profile = ErrorProfile() if environment.error_profile == 'paper' else ErrorProfile.ideal()
+    if environment.magnet_tc_ppm is not None:
+        profile = replace(profile, magnet_tc_ppm=environment.magnet_tc_ppm)
     # The study ages k_t itself; the profile keeps only its temperature coefficients.
     return replace(profile, torquer_drift_ppm=0.0)
 
@@ -113,9 +115,10 @@ def simulate_unit(study, index):
     rates = []
     for _ in AXES:
         rates.append({
-            **split_drift(rng, rng.normal(0.0, aging.forward_ppm_per_year), OBSERVABLE_FORWARD),
-            **split_drift(rng, rng.normal(0.0, aging.feedback_ppm_per_year), OBSERVABLE_FEEDBACK),
-            TORQUER_COMPONENT: rng.normal(0.0, aging.torquer_ppm_per_year)})
+            **split_drift(rng, aging.draw(rng, aging.forward_ppm_per_year), OBSERVABLE_FORWARD),
+            **split_drift(rng, aging.draw(rng, aging.feedback_ppm_per_year),
+                          OBSERVABLE_FEEDBACK),
+            TORQUER_COMPONENT: aging.draw(rng, aging.torquer_ppm_per_year)})
 
     state = CalibrationState()
     if schedule.feedback.temperature_correction:
