@@ -18,6 +18,8 @@ tables; ``--keep DIR`` keeps the Parquet files (and resumes from them).
 """
 
 import argparse
+import logging
+import os
 from pathlib import Path
 import tempfile
 import time
@@ -58,6 +60,15 @@ def paper_distribution(trials, seed):
 
 def residual_table(draws, seed, keep, workers):
     """Print the residual after self-calibration for every schedule, k_t case and span."""
+    from dask.distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1,
+                      dashboard_address=':0', silence_logs=logging.ERROR) as cluster, \
+            Client(cluster) as client:
+        _residual_rows(draws, seed, keep, client)
+
+
+def _residual_rows(draws, seed, keep, client):
     print('| ' + ' | '.join(COLUMNS) + ' |')
     print('|' + '---|' * len(COLUMNS))
     for schedule in ('paper', 'improved'):
@@ -65,7 +76,7 @@ def residual_table(draws, seed, keep, workers):
             for span in SPANS_PPM.values():
                 study = Study.one_calibration(schedule, span, torquer_drift, draws, seed)
                 table = run_study(study, Path(keep) / f'{study.name}.parquet',
-                                  workers=workers, log=lambda line: None)
+                                  client=client, log=lambda line: None)
                 metrics = {'schedule': schedule, 'k_t drift': 'yes' if torquer_drift else 'no',
                            'drift span ppm': span, **residual_metrics(table)}
                 cells = [f'{metrics[c]:.2f}' if isinstance(metrics[c], float) else metrics[c]

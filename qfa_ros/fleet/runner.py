@@ -89,7 +89,8 @@ def batch_table(study, start, stop):
     return pa.Table.from_pylist(simulate_batch(study, start, stop))
 
 
-def run_study(study, out_path, *, workers=None, scheduler=None, progress=True, log=print):
+def run_study(study, out_path, *, workers=None, scheduler=None, client=None, progress=True,
+              log=print):
     """
     Run ``study`` (resuming a previous run of it) and write the joined table to ``out_path``.
 
@@ -103,6 +104,8 @@ def run_study(study, out_path, *, workers=None, scheduler=None, progress=True, l
         Worker processes of the local cluster (default: every core).
     scheduler : str, optional
         Address of an existing Dask scheduler (``tcp://HOST:PORT``) instead.
+    client : dask.distributed.Client, optional
+        A client to use (and leave open), e.g. one cluster for several studies.
     progress : bool
         Show a progress bar (tqdm) on the terminal.
     log : callable
@@ -125,13 +128,15 @@ def run_study(study, out_path, *, workers=None, scheduler=None, progress=True, l
             f'computing {len(pending)}')
     started = time.perf_counter()
     if pending:
-        if scheduler:
-            cluster = None
+        own_client = client is None
+        cluster = None
+        if scheduler and own_client:
             client = Client(scheduler)
-        else:
-            # One single-threaded process per core: the model holds the GIL per task.
+        elif own_client:
+            # One single-threaded process per core: the model holds the GIL per task. Port
+            # 0: a second study beside a running one must not fight over the default port.
             cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1,
-                                   processes=True, dashboard_address=None,
+                                   processes=True, dashboard_address=':0',
                                    silence_logs=logging.ERROR)
             client = Client(cluster)
         try:
@@ -149,7 +154,8 @@ def run_study(study, out_path, *, workers=None, scheduler=None, progress=True, l
                     bar.update(stop - start)
                     future.release()
         finally:
-            client.close()
+            if own_client:
+                client.close()
             if cluster is not None:
                 cluster.close()
     table = pa.concat_tables(pq.read_table(_part_path(parts, start, stop))
