@@ -206,7 +206,9 @@ def test_allan_deviation_at_one_second_matches_white_noise():
 
 def test_allan_floor_matches_bias_instability():
     floor = 10.0 * MICRO_G
-    config = TriadConfig(noise=NoiseConfig(noise_density=1.0 * MICRO_G, bias_instability=floor))
+    # Correlation times from 0.1 s: the floor spans the window a 2000 s run resolves.
+    config = TriadConfig(noise=NoiseConfig(noise_density=1.0 * MICRO_G, bias_instability=floor,
+                                           correlation_times=(0.1, 1.0, 10.0, 100.0, 1000.0)))
     out = QfaTriad(config, rng=5).run_for(2000.0, chunk_samples=10000)
     for axis in range(3):
         taus, adev = allan_deviation(out.accel[:, axis], 1e-3)
