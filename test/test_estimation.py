@@ -307,7 +307,9 @@ def test_standard_error_matches_the_scatter(order):
     if order == 'single':
         reference, settings = FeedbackSettings(average_s=10.0), FeedbackSettings(average_s=1.0)
     else:
-        reference = FeedbackSettings(cycles=16, settle_s=0.02, average_s=0.28, order=order)
+        # 60 ms settling: the PI tail after a switch has decayed below the noise (at
+        # 20 ms it inflated the regression residuals, the standard error 3x conservative).
+        reference = FeedbackSettings(cycles=16, settle_s=0.06, average_s=0.28, order=order)
         settings = replace(reference, cycles=4)
     truth = np.array([-300.0, 0.0, 300.0])
     z = []
@@ -326,11 +328,12 @@ def test_standard_error_matches_the_scatter(order):
     rms = np.sqrt(np.mean(np.square(z)))
     # With honest standard errors rms^2 is chi-square(n) / n: bounds at its 0.1 % tails
     # (rms 0.67 ... 1.36 for 36 axis-draws), so the test fails for a wrong error, not by
-    # chance. Never optimistic. The chopped standard error, from the regression
-    # residuals, is conservative (about 2x): the segments right after a switch carry the
-    # settling tail.
+    # chance. Never optimistic. The single-order standard error is conservative, bounded
+    # below at 0.3: it adds the datasheet Allan floor (3 ug) at any segment length, while
+    # the default bias instability reaches its floor only from minutes on (about 2.3x at
+    # 1-10 s segments).
     low, high = np.sqrt(chi2.ppf([0.001, 0.999], len(z)) / len(z))
-    assert (low if order == 'single' else 0.3) < rms < high
+    assert (0.3 if order == 'single' else low) < rms < high
 
 
 def test_calibration_state_round_trips_through_json():

@@ -111,16 +111,6 @@ def test_frequency_response_matches_linearized_model(frequency, sample_rate):
     assert abs(np.degrees(np.angle(measured / model))) < 3.0
 
 
-def test_linearized_design_meets_bandwidth_and_margins():
-    triad = quiet_triad()
-    crossover, phase_margin, gain_margin, bandwidth = LinearLoop(
-        triad.config.hardware, triad.axes[0].controller, triad.config.loop_rate_hz).margins()
-    assert bandwidth >= 300.0
-    assert phase_margin >= 45.0
-    assert gain_margin >= 6.0
-    assert_allclose(crossover, triad.config.crossover_hz, rtol=0.01)
-
-
 @pytest.mark.parametrize('ppm', [2000.0, -2000.0])
 def test_forward_step_keeps_output_and_moves_bandwidth_as_predicted(ppm):
     triad = quiet_triad()
@@ -216,7 +206,9 @@ def test_allan_deviation_at_one_second_matches_white_noise():
 
 def test_allan_floor_matches_bias_instability():
     floor = 10.0 * MICRO_G
-    config = TriadConfig(noise=NoiseConfig(noise_density=1.0 * MICRO_G, bias_instability=floor))
+    # Correlation times from 0.1 s: the floor spans the window a 2000 s run resolves.
+    config = TriadConfig(noise=NoiseConfig(noise_density=1.0 * MICRO_G, bias_instability=floor,
+                                           correlation_times=(0.1, 1.0, 10.0, 100.0, 1000.0)))
     out = QfaTriad(config, rng=5).run_for(2000.0, chunk_samples=10000)
     for axis in range(3):
         taus, adev = allan_deviation(out.accel[:, axis], 1e-3)

@@ -69,7 +69,7 @@ def scenario(tmp_path_factory):
     state = CalibrationState()
     samples = int(config.sample_rate_hz)
     static = {}
-    with ScenarioBag(path, config.noise, config.sample_rate_hz) as bag:
+    with ScenarioBag(path, config) as bag:
         reference = run_schedule(triad, capture_reference(triad, state, FORWARD, FEEDBACK))
 
         def static_phase(name):
@@ -99,7 +99,7 @@ def temperature(tmp_path_factory):
     config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant', sensor_tau_s=30.0))
     triad = QfaTriad(config, rng=3)
     settings = TemperatureSettings(period_s=240.0, bins=40)
-    with ScenarioBag(path, config.noise, config.sample_rate_hz) as bag:
+    with ScenarioBag(path, config) as bag:
         result = run_schedule(triad, temperature_schedule(triad, CalibrationState(), settings))
         bag.write_phase('cycle', result.start_ns)
         bag.write_temperature(result.blocks['time_ns'], result.blocks['temperature'])

@@ -8,7 +8,7 @@ from qfa_ros.bag.trace import TraceWriter
 from qfa_ros.bag.traces import write_results
 from qfa_ros.bag.types import stamp
 from qfa_ros.bag.writer import McapBagWriter
-from qfa_ros.model.noise import acceleration_variance
+from qfa_ros.model.design import published_acceleration_variance
 
 IMU_TOPIC = '/imu/data_raw'
 TRUTH_TOPIC = '/qfa/truth/odometry'
@@ -28,13 +28,16 @@ class ScenarioBag:
     ``/qfa/scenario/phase`` (std_msgs/String naming the phase that starts at its log
     time) and estimation traces under ``/qfa/trace/<run>/...`` (see
     :mod:`qfa_ros.bag.traces`). A context manager with an idempotent ``finish()``.
+    ``config`` (:class:`qfa_ros.model.triad.TriadConfig`) sets the published
+    ``linear_acceleration_covariance``
+    (:func:`qfa_ros.model.design.published_acceleration_variance`).
     """
 
-    def __init__(self, path, noise, sample_rate_hz, frame_id='imu_link', rate_variance=None,
+    def __init__(self, path, config, frame_id='imu_link', rate_variance=None,
                  truth_frame_id=None):
         self.bag = McapBagWriter(path, compression='zstd')
         self.frame_id = frame_id
-        variance = acceleration_variance(noise, sample_rate_hz)
+        variance = published_acceleration_variance(config)
         rate_covariance = None if rate_variance is None else \
             list(np.diag(np.broadcast_to(rate_variance, 3)).ravel())
         self._imu = ImuEncoder(frame_id, [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0,

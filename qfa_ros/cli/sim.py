@@ -51,7 +51,7 @@ def scenario_bag(args, config):
     # Imported where used, as the calibration modules below: a scenario loads only what
     # it runs (the MCAP writer and scipy.optimize cost start-up time).
     from qfa_ros.bag.scenario_bag import ScenarioBag
-    return ScenarioBag(args.out, config.noise, config.sample_rate_hz)
+    return ScenarioBag(args.out, config)
 
 
 def static_sensor():
@@ -150,7 +150,7 @@ def run_trajectory(args, out=None):
     bag = None
     if args.out is not None:
         from qfa_ros.bag.scenario_bag import ScenarioBag
-        bag = ScenarioBag(args.out, config.noise, config.sample_rate_hz,
+        bag = ScenarioBag(args.out, config,
                           rate_variance=triad.gyro.variance(), truth_frame_id='enu_origin')
     with bag if bag else contextlib.nullcontext():
         if bag:

@@ -7,6 +7,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from qfa_ros.model.hardware import nominal_gains
+from qfa_ros.model.noise import acceleration_variance
 
 GAIN_FRAC_BITS = 32
 """Fraction bits of the controller gain word k(D(z))."""
@@ -174,6 +175,38 @@ class LinearLoop:
         averaging = sum(z ** -k for k in range(decimation)) / decimation
         return response * scale * averaging
 
+    def noise_shares(self, decimation=1, points=2 ** 16):
+        r"""
+        Return how white noise at the loop input and at the ADC reaches a published sample.
+
+        A published sample is one loop step of the loop-rate output filtered by ``H(z)
+        A(z)`` (input acceleration) or ``s_nom D(z) A(z) / (1 + L(z))`` (ADC code), so the
+        variance a white sequence of variance ``sigma^2`` per loop step leaves in it is
+        ``sigma^2 <|G|^2>``, the mean of ``|G|^2`` around the unit circle (Parseval;
+        ``points`` bins offset by half a bin, which skips the integrator's pole at DC).
+
+        Returns
+        -------
+        white_share : float
+            ``decimation <|H A|^2>``: the per-sample variance of white acceleration noise
+            of density N over ``N^2 f_s`` (the output's noise-equivalent bandwidth over
+            ``f_s / 2``) [1].
+        adc_gain : float
+            ``sqrt(<|s_nom D A / (1 + L)|^2>)``: the standard deviation of a published
+            sample per count of white ADC noise [(m/s^2)/count].
+        """
+        if decimation < 1 or points < 16:
+            raise ValueError('decimation must be >= 1 and points >= 16')
+        rate = 1.0 / self.loop_period
+        freq = (np.arange(points) + 0.5) * rate / points
+        z = self._z(freq)
+        averaging = sum(z ** -k for k in range(decimation)) / decimation
+        loop = self.gains.feedback_gain * self._plant(z) * self.controller.transfer(z) / z
+        scale = nominal_gains(self.hw).feedback_gain / self.hw.pendulosity
+        adc = scale * self.controller.transfer(z) * averaging / (1.0 + loop)
+        white = decimation * np.mean(np.abs(self.closed_loop(freq, decimation)) ** 2)
+        return float(white), float(np.sqrt(np.mean(np.abs(adc) ** 2)))
+
     def margins(self):
         """Return (crossover Hz, phase margin deg, gain margin dB, -3 dB bandwidth Hz)."""
         nyquist = 0.5 / self.loop_period
@@ -193,3 +226,23 @@ class LinearLoop:
         below = np.nonzero(closed < 1 / math.sqrt(2))[0]
         bandwidth = freq[below[0]] if len(below) else nyquist
         return crossover, phase_margin, gain_margin, bandwidth
+
+
+def published_acceleration_variance(config):
+    """
+    Return the ``linear_acceleration_covariance`` diagonal of ``config`` [(m/s^2)^2].
+
+    The per-sample variance of the noise that is white at the published rate, through the
+    designed loop and the averaging decimator (:meth:`LinearLoop.noise_shares`,
+    :func:`qfa_ros.model.noise.acceleration_variance`).
+
+    Parameters
+    ----------
+    config : qfa_ros.model.triad.TriadConfig
+        Hardware, loop and sample rate, controller targets and noise.
+    """
+    controller = design_controller(config.hardware, config.loop_rate_hz, config.crossover_hz,
+                                   config.integrator_ratio, config.lead_pole_ratio)
+    loop = LinearLoop(config.hardware, controller, config.loop_rate_hz)
+    white_share, adc_gain = loop.noise_shares(config.decimation)
+    return acceleration_variance(config.noise, config.sample_rate_hz, white_share, adc_gain)

@@ -18,23 +18,29 @@ class NoiseConfig:
     ----------
     noise_density : float
         White acceleration noise N [(m/s^2)/sqrt(Hz)], the velocity random walk: its
-        Allan deviation at tau = 1 s is N (IEEE 1293 convention). Default 2 ug/sqrt(Hz):
-        ``N sqrt(10 Hz)`` = 6.3 ug rms in 0-10 Hz, below the "< 7 ug rms in 0-10 Hz" of
-        the navigation-grade QFA class the docs cite (was 5 ug/sqrt(Hz) = 15.8 ug rms).
+        Allan deviation at tau = 1 s is N (IEEE 1293 convention), i.e. a one-sided power
+        spectral density ``2 N^2``, so its rms in a band ``[0, B]`` is ``N sqrt(2 B)``.
+        Default 1.5 ug/sqrt(Hz): 6.7 ug rms in 0-10 Hz, inside the "< 7 ug rms in
+        0-10 Hz" of the navigation-grade QFA class the docs cite (Honeywell QA-2000/QA-3000
+        class datasheets); 2 ug/sqrt(Hz) would be 8.9 ug rms.
     bias_instability : float
         Flicker floor of the Allan deviation [m/s^2], modelled as a sum of
         first-order Gauss-Markov processes with one correlation time per decade of
         ``correlation_times``, scaled so that the floor of their Allan deviation
         equals this value.
     correlation_times : tuple of float
-        Correlation times of the Gauss-Markov processes [s].
+        Correlation times of the Gauss-Markov processes [s]. Default 60 s ... 60 000 s:
+        the floor from about a minute to hours, the time scales a bias stability is
+        quoted over (seed 1 Table 2: 50 ug bias stability); below a few seconds the
+        stream is white (ADEV(1 s) = 1.04 N, see :func:`allan_deviation_model`), so the
+        published per-sample covariance describes it. Chosen, not from a source.
     adc_noise : float
         White noise at the ADC input, standard deviation [count].
     """
 
-    noise_density: float = 2.0 * MICRO_G
+    noise_density: float = 1.5 * MICRO_G
     bias_instability: float = 3.0 * MICRO_G
-    correlation_times: tuple = (0.1, 1.0, 10.0, 100.0, 1000.0)
+    correlation_times: tuple = (60.0, 600.0, 6000.0, 60000.0)
     adc_noise: float = 4.0
 
     def __post_init__(self):
@@ -126,18 +132,40 @@ class NoiseSource:
             self.bias_state = np.zeros((n_axes, 0))
 
 
-def acceleration_variance(config, sample_rate_hz):
+ADC_QUANTIZATION_VARIANCE = 1.0 / 12.0
+"""Variance of the ADC's rounding to a code [count^2] (dithered by the ADC noise)."""
+
+
+def acceleration_variance(config, sample_rate_hz, white_share=1.0, adc_gain=0.0):
     """
     Return the variance of one published sample per axis [(m/s^2)^2] (REP-145 covariance).
 
-    White noise averaged over one sample period, ``N^2 f_s`` (N the density of the
-    IEEE 1293 convention), plus the stationary variance of the Gauss-Markov sum that
-    models the bias instability, ``m q^2`` (``m`` processes of variance ``q^2``, see
-    :func:`flicker_component_variance`): what the stream's sample variance is
-    (``test_published_covariance_matches_the_stream_allan_deviation``).
+    The variance of the noise that is white at the published rate: the white
+    acceleration noise ``N^2 f_s`` times ``white_share`` (the loop's and decimator's
+    noise-equivalent bandwidth over ``f_s / 2``; 1 for an ideal averaging of ``f_s``)
+    plus the ADC noise and the ADC's rounding, ``(sigma_adc^2 + 1/12) adc_gain^2``.
+    :func:`qfa_ros.model.design.published_acceleration_variance` supplies both factors
+    from the designed loop. The bias instability is not in it: correlated over a minute to
+    hours, it is a bias a filter estimates (its Allan floor is ``bias_instability``),
+    not noise of one sample; its stationary variance is
+    ``len(correlation_times) * flicker_component_variance(config)``.
+
+    Parameters
+    ----------
+    config : NoiseConfig
+        The noise.
+    sample_rate_hz : float
+        Published rate f_s [Hz].
+    white_share : float
+        Per-sample variance of unit-density white input over ``f_s`` [1].
+    adc_gain : float
+        Standard deviation of a published sample per count of white ADC noise
+        [(m/s^2)/count].
     """
-    flicker = flicker_component_variance(config) * len(config.correlation_times)
-    return config.noise_density ** 2 * sample_rate_hz + flicker
+    if not sample_rate_hz > 0 or not white_share > 0 or not adc_gain >= 0:
+        raise ValueError('sample_rate_hz and white_share must be positive, adc_gain >= 0')
+    adc = (config.adc_noise ** 2 + ADC_QUANTIZATION_VARIANCE) * adc_gain ** 2
+    return white_share * config.noise_density ** 2 * sample_rate_hz + adc
 
 
 def allan_deviation_model(config, tau):

@@ -29,7 +29,7 @@ from qfa_ros.calibration.estimation import (
     self_calibrate,
 )
 from qfa_ros.calibration.temperature import temperature_schedule
-from qfa_ros.model.noise import acceleration_variance
+from qfa_ros.model.design import published_acceleration_variance
 from qfa_ros.model.triad import AXES, NS_PER_S
 from qfa_ros.ros.bounds import output_directory
 from qfa_ros.ros.calibration import CalibrationKeeper
@@ -151,7 +151,7 @@ class QfaNode(Node):
                                      input_qos)
 
         config = self._triad.config
-        variance = acceleration_variance(config.noise, config.sample_rate_hz)
+        variance = published_acceleration_variance(config)
         self._stream = SampleStream(
             self, self._lock, self._triad, values, self._ground_truth, self._recording,
             imu_publisher, temperature_publisher,
