@@ -147,7 +147,7 @@ def test_temperature_calibration_measures_the_iref_coefficient_it_corrects_with(
     # 10 degC above the reference, no drift applied: uncorrected, the feedback schedule
     # takes I_ref's -300 ppm for a drift; corrected, it sees none.
     triad.thermal.set_ambient(ambient_profile='constant', ambient_c=35.0)
-    idle(triad, 600.0)
+    idle(triad, 360.0)   # six body time constants
     triad.run_for(0.5)
     plain, corrected = (run_schedule(triad, feedback_schedule(
         triad, state, replace(switching, temperature_correction=on), apply=False))
