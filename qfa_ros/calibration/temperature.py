@@ -12,8 +12,9 @@ fixed-point CORDIC path; the constant misalignment and K2 the tumble measures ar
 too. With ``reference_steps`` (:func:`temperature_calibration`) the I_ref step is measured
 at the end of every plateau and its temperature coefficient fitted against the on-board
 reading: the coefficient the feedback schedule's temperature correction needs. At the
-end the chamber returns to the ambient it had and the schedule soaks until
-the on-board reading is back where it started, so the sensor leaves as a lab would.
+end the chamber returns to the ambient it had and, for a constant ambient, the schedule
+soaks until the on-board reading is back where it started, so the sensor leaves as a lab
+would.
 Only what the sensor can know is used: outputs, the temperature reading and the known
 fixture positions.
 """
@@ -100,8 +101,9 @@ class TemperatureSettings:
         Store the coefficients and switch temperature compensation on.
     reference_steps : bool
         Measure the I_ref step at the end of every plateau and fit its temperature
-        coefficient (:func:`temperature_calibration`; about 2.5 s of sensor time per
-        plateau).
+        coefficient (:func:`temperature_calibration`; about 4.3 s of sensor time per
+        plateau). Off by default here (offline studies); the node's
+        ``temperature_calibration.reference_steps`` is on by default.
     """
 
     low_c: float = -40.0
