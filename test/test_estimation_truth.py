@@ -75,12 +75,16 @@ def test_estimation_sees_no_truth(path):
     assert truth_reads(path) == []
 
 
-def test_audit_catches_an_estimator_reading_the_truth(tmp_path):
+@pytest.mark.parametrize('honest, violation', [
     # The deliberate violation of the issue: the old co-regression read the true body
     # temperature and the profile's coefficient.
-    source = ESTIMATORS[0].read_text().replace(
-        'reading = float(np.mean(readings))',
-        'reading = port._triad.temperature  # violation', 1)
+    ('reading = float(np.mean(readings))', 'reading = port._triad.temperature  # violation'),
+    # The I_ref steps at the temperature plateaus, likewise.
+    ("'reading_c': float(np.mean(readings))",
+     "'reading_c': port._triad.temperature,  # violation"),
+], ids=['feedback', 'plateau_step'])
+def test_audit_catches_an_estimator_reading_the_truth(tmp_path, honest, violation):
+    source = ESTIMATORS[0].read_text().replace(honest, violation, 1)
     assert 'violation' in source
     scratch = tmp_path / 'estimation.py'
     scratch.write_text(source)
