@@ -6,6 +6,7 @@ Reduced sizes; tolerances from the quantities' own standard errors.
 """
 
 import ast
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,8 +14,13 @@ from numpy.testing import assert_allclose
 import pyarrow as pa
 import pytest
 
-from qfa_ros.calibration.chamber import ChamberBench
-from qfa_ros.calibration.estimation import reference_tc_schedule
+from qfa_ros.calibration.chamber import ChamberBench, idle
+from qfa_ros.calibration.estimation import (
+    capture_reference,
+    feedback_schedule,
+    FeedbackSettings,
+    reference_tc_schedule,
+)
 from qfa_ros.calibration.experiments import (
     ErrorProfile,
     measure_scale,
@@ -22,14 +28,18 @@ from qfa_ros.calibration.experiments import (
 )
 from qfa_ros.calibration.schedule import run_schedule, SensorPort, SensorSamples
 from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.calibration.temperature import temperature_calibration, TemperatureSettings
 from qfa_ros.fleet.study import Study
 from qfa_ros.fleet.summary import residual_metrics
 from qfa_ros.fleet.unit import simulate_batch
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.unit import draw_unit
 
 ROOT = Path(__file__).resolve().parents[1]
+# estimation.py holds every estimator that reads the sensor: the gain schedules, the
+# I_ref coefficient against gravity and the I_ref steps at the temperature plateaus.
 ESTIMATORS = (ROOT / 'qfa_ros' / 'calibration' / 'estimation.py',)
 # Names through which a model truth could be read: the true input and body temperature,
 # the drift and thermal state, the noise configuration, the error profile, the model.
@@ -67,12 +77,16 @@ def test_estimation_sees_no_truth(path):
     assert truth_reads(path) == []
 
 
-def test_audit_catches_an_estimator_reading_the_truth(tmp_path):
+@pytest.mark.parametrize('honest, violation', [
     # The deliberate violation of the issue: the old co-regression read the true body
     # temperature and the profile's coefficient.
-    source = ESTIMATORS[0].read_text().replace(
-        'reading = float(np.mean(readings))',
-        'reading = port._triad.temperature  # violation', 1)
+    ('reading = float(np.mean(readings))', 'reading = port._triad.temperature  # violation'),
+    # The I_ref steps at the temperature plateaus, likewise.
+    ("'reading_c': float(np.mean(readings))",
+     "'reading_c': port._triad.temperature,  # violation"),
+], ids=['feedback', 'plateau_step'])
+def test_audit_catches_an_estimator_reading_the_truth(tmp_path, honest, violation):
+    source = ESTIMATORS[0].read_text().replace(honest, violation, 1)
     assert 'violation' in source
     scratch = tmp_path / 'estimation.py'
     scratch.write_text(source)
@@ -109,6 +123,44 @@ def test_reference_tc_schedule_measures_the_coefficient_against_gravity():
     legacy = state.to_dict()
     del legacy['reference_tc_ppm']
     assert CalibrationState.from_dict(legacy).reference_tc_ppm == []
+
+
+def test_temperature_calibration_measures_the_iref_coefficient_it_corrects_with():
+    # Reduced like test_temperature_calibration (2 kHz loop, 100 Hz output, body 60 s,
+    # a 720 s chamber program): the paper profile on drawn unit 11. The step in counts,
+    # -I_ref / (k_VI k_DA), moves with the I_ref source's +30 ppm/degC only (not with the
+    # magnet, the forward chain nor the unit's scale-factor curve).
+    unit = draw_unit(11)
+    unit = replace(unit, probe_tau_s=unit.probe_tau_s * 60.0 / 300.0)
+    config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant', sensor_tau_s=60.0),
+                         loop_rate_hz=2000.0, sample_rate_hz=100.0, crossover_hz=100.0)
+    triad = unit.triad(config, rng=11)
+    ErrorProfile().apply(triad)
+    state = CalibrationState()
+    switching = FeedbackSettings(cycles=4, settle_s=0.3, average_s=0.3, order='chopped')
+    run_schedule(triad, capture_reference(triad, state, feedback=switching))
+    settings = TemperatureSettings(period_s=720.0, block_s=2.0, bins=40, reference_steps=True)
+    chamber, steps = run_schedule(triad, temperature_calibration(triad, state, settings))
+    assert chamber.applied and steps.kind == 'reference_tc' and steps.applied
+    assert len(steps.points['temperature_c']) == len(settings.plateaus(25.0))
+    assert np.ptp(steps.points['temperature_c']) > 80.0    # on-board readings, -40..70
+    # Within 3 standard errors plus 0.15 ppm/degC: the on-board reading lags the body
+    # while a plateau still settles, which the residual scatter does not show.
+    assert np.all(steps.std_error_ppm < 0.2)
+    assert np.all(np.abs(steps.estimate_ppm - 30.0) <= 3 * steps.std_error_ppm + 0.15), \
+        (steps.estimate_ppm, steps.std_error_ppm)
+    assert state.reference_tc_ppm == steps.estimate_ppm.tolist()
+    # 10 degC above the reference, no drift applied: uncorrected, the feedback schedule
+    # takes I_ref's -300 ppm for a drift; corrected, it sees none.
+    triad.thermal.set_ambient(ambient_profile='constant', ambient_c=35.0)
+    idle(triad, 360.0)   # six body time constants
+    triad.run_for(0.5)
+    plain, corrected = (run_schedule(triad, feedback_schedule(
+        triad, state, replace(switching, temperature_correction=on), apply=False))
+        for on in (False, True))
+    assert np.all(np.abs(plain.estimate_ppm + 300.0) < 30.0), plain.estimate_ppm
+    assert np.all(np.abs(corrected.estimate_ppm) <= 3 * corrected.std_error_ppm + 1.0), \
+        (corrected.estimate_ppm, corrected.std_error_ppm)
 
 
 def test_measure_scale_sees_an_injected_feedback_drift():

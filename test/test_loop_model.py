@@ -358,6 +358,7 @@ def test_qfa_sim_static_simulates_the_node_default_sensor():
     from qfa_ros.ros.params import input_profile, PARAMETERS, triad_config
     defaults = {spec.name: spec.default for spec in PARAMETERS}
     defaults['unit.draw'] = False  # the nominal unit: see static_sensor's docstring
+    defaults['thermal.ambient_profile'] = 'constant'  # a still ambient, likewise
     config, profile = static_sensor()
     assert config == triad_config(defaults)
     assert config.thermal is not None

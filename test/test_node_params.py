@@ -15,6 +15,7 @@ from qfa_ros.ros.params import (
     check_value,
     config_yaml,
     descriptor,
+    make_triad,
     parameter_table,
     PARAMETERS,
     SPECS,
@@ -65,9 +66,27 @@ def test_defaults_are_consistent():
     ('estimation.forward.order', 'random', 'one of'),
     ('frame_id', '', 'must not be empty'),
     ('drift.time_acceleration', math.inf, 'finite'),
+    ('sensor.error_profile', 'perfect', 'one of paper, ideal'),
 ])
 def test_bad_values_are_rejected_with_a_reason(name, value, words):
     assert words in check_value(name, value)
+
+
+def test_default_sensor_carries_the_paper_error_sources_in_the_paper_room():
+    # One sensor: the node's default triad has seed 1's component temperature
+    # coefficients (qfa_ros.model.errors) and sits in the paper's wandering room.
+    paper = make_triad(defaults())
+    drift = paper.drift
+    for component, ppm in (('i_ref', 30.0), ('b', 10.0), ('v_da1_ref', 20.0),
+                           ('k_tz', 7.0), ('k_amp', 6.0)):
+        index = drift.components.index(component)
+        assert drift.temperature_coefficient[:, index] == pytest.approx([ppm * 1e-6] * 3)
+    thermal = paper.thermal.config
+    assert (thermal.ambient_profile, thermal.room_amplitude_c, thermal.room_correlation_s) \
+        == ('room', 1.5, 43200.0)
+    ideal = make_triad({**defaults(), 'sensor.error_profile': 'ideal'})
+    assert not ideal.drift.temperature_coefficient.any()
+    assert descriptor(SPECS['sensor.error_profile']).read_only
 
 
 def test_loop_rate_must_be_a_multiple_of_the_sample_rate():

@@ -187,7 +187,7 @@ def test_cancel_restores_the_sensor_for_every_schedule_kind(setup):
         assert [stream[f'loop {a}'] for a in 'xyz'] == ['closed'] * 3
         assert [stream[f'I_ref {a}'] for a in 'xyz'] == ['off'] * 3
         temperature = key_values(status['temperature'])
-        assert temperature['ambient profile'] == 'constant'
+        assert temperature['ambient profile'] == 'room'   # the node's default, back
         assert temperature['temperature compensation'] == compensating
         assert state_file.read_bytes() == saved
         assert state_file.stat().st_mtime_ns == saved_mtime

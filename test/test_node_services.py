@@ -207,6 +207,12 @@ def test_temperature_calibration_runs_accelerated_and_compensates_the_zero_bias(
     for axis in (0, 1):
         expected = unit.turn_on_bias[axis] + unit.misalignment[axis][2] * G
         assert before[axis] == pytest.approx(expected, abs=0.05e-3 * G)
+    # The feedback schedule's temperature correction needs the I_ref coefficient, which
+    # only the temperature calibration measures.
+    result, = client.set_parameters({'estimation.feedback.temperature_correction': True})
+    assert result.successful, result.reason
+    refused = trigger(client, 'estimate_feedback_gain')
+    assert not refused.success and 'I_ref temperature coefficient' in refused.message
     diagnostics = []
     client.subscribe(DiagnosticArray, '/diagnostics', diagnostics.append, depth=10)
     future = client.call_async(Trigger, f'{NODE}/calibrate_temperature', Trigger.Request())
@@ -226,9 +232,19 @@ def test_temperature_calibration_runs_accelerated_and_compensates_the_zero_bias(
     assert 'compensation on' in response.message
     trace = Path(response.message.rsplit('trace ', 1)[1])
     assert trace.parent == directory / 'traces'
+    assert 'I_ref step temperature coefficient' in response.message
     with AnyReader([trace]) as reader:
-        assert {'/qfa/trace/temperature/points', '/qfa/trace/result'} <= \
-            {c.topic for c in reader.connections}
+        assert {'/qfa/trace/temperature/points', '/qfa/trace/reference_tc/points',
+                '/qfa/trace/result'} <= {c.topic for c in reader.connections}
+    state = json.loads((directory / 'state.json').read_text())
+    # The default sensor's I_ref source drifts +30 ppm/degC (sensor.error_profile paper);
+    # measured through the outputs and the on-board reading (test_estimation_truth holds
+    # it to its standard error).
+    assert state['reference_tc_ppm'] == pytest.approx([30.0] * 3, abs=1.0)
+    corrected = trigger(client, 'estimate_feedback_gain')
+    assert corrected.success, corrected.message
+    result, = client.set_parameters({'estimation.feedback.temperature_correction': False})
+    assert result.successful, result.reason
     state = json.loads((directory / 'state.json').read_text())
     assert state['temperature']['format'] == 'multiposition/1'
     assert set(state['temperature']['bias']) == set(state['temperature']['scale']) == \

@@ -4,8 +4,9 @@ Forward- and feedback-gain self-estimation and in-place compensation (seed 1 §I
 Every schedule here sees the sensor through a :class:`SensorPort` only (its words,
 output, flags and on-board temperature reading); every coefficient it uses was measured
 by a schedule and lives in the :class:`CalibrationState`. The I_ref temperature
-coefficient comes from :func:`reference_tc_schedule` (I_ref steps against gravity at
-several chamber plateaus).
+coefficient comes from the temperature calibration (:func:`plateau_step` at every chamber
+plateau, :func:`fit_plateau_steps`) or, offline, from :func:`reference_tc_schedule` (I_ref
+steps against gravity at several chamber plateaus).
 
 One module over ~500 lines because it is one cohesive thing: the three schedules that
 switch the loop words (forward sweep, I_ref switching, I_ref against gravity) share the
@@ -94,9 +95,10 @@ class FeedbackSettings:
         catches a move between segments.
     temperature_correction : bool
         Move the reference step to the present on-board temperature reading,
-        ``step0 (1 + c (T - T0))``, with the coefficient ``c`` per axis that
-        :func:`reference_tc_schedule` stored in ``state.reference_tc_ppm``; refused
-        without one. False = the paper's schedule.
+        ``step0 (1 + c (T - T0))``, with the coefficient ``c`` per axis in
+        ``state.reference_tc_ppm`` (the temperature calibration's
+        :func:`fit_plateau_steps`, or :func:`reference_tc_schedule`); refused without
+        one. False = the paper's schedule.
     bias_instability : float
         Datasheet bias instability (Allan floor) [m/s^2]; adds to the standard error of
         the two-segment (paper) schedule, whose segments the white scatter alone does
@@ -422,7 +424,8 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
     if correct:
         if not state.reference_tc_ppm:
             raise EstimationError('temperature correction needs the I_ref temperature '
-                                  'coefficient: run the reference_tc schedule first')
+                                  'coefficient: run the temperature calibration (its I_ref '
+                                  'steps at every plateau) or the reference_tc schedule first')
         if any(r is None for r in state.reference_readings_c()) \
                 or not port.has_temperature_sensor:
             raise EstimationError('temperature correction needs the on-board temperature '
@@ -663,3 +666,90 @@ def reference_tc_schedule(sensor, bench, state, settings=ReferenceTcSettings(), 
     return EstimationResult('reference_tc', asdict(settings), tc, se, points,
                             ratios / ratios.mean(axis=0) - 1.0, tc, empty, empty, empty,
                             apply, False, start_ns, port.sensor_time_ns())
+
+
+PLATEAU_SWITCHING = FeedbackSettings(cycles=2, settle_s=0.25, average_s=0.25, order='chopped')
+"""I_ref switching of :func:`plateau_step`: two off-on-on-off quadruples, 4 s of segments (each
+0.25 s discarded after a switch, as after a tumble rotation: the loop's transient)."""
+
+
+def plateau_step_time_s(settle_time_s, settings=PLATEAU_SWITCHING):
+    """Return the sensor time of one :func:`plateau_step` [s] (segments, settling)."""
+    return (len(settings.sequence()) * (settings.settle_s + settings.average_s)
+            + settings.settle_s + settle_time_s)
+
+
+def plateau_step(sensor, index=None, chamber_c=None, settings=PLATEAU_SWITCHING):
+    """
+    Measure the I_ref step and the on-board temperature reading at a plateau (generator).
+
+    The ``at_plateau`` hook of
+    :func:`qfa_ros.calibration.temperature.temperature_schedule` (``index`` and
+    ``chamber_c`` are the hook's arguments, unused: the chamber setting is not what the
+    sensor is at). With the loops closed and the input static, switches I_ref in the
+    chopped order of ``settings`` and fits ``N_on - N_off`` per axis from the segment
+    means [count] (a linear drift of the output, e.g. the body still warming, cancels
+    in each off-on-on-off quadruple). Returns ``{'time_ns', 'reading_c', 'step',
+    'std_error'}``: the end of the last segment [ns], the mean on-board reading over the
+    segments [degC], the step and its standard error per axis [count].
+    """
+    port = SensorPort.of(sensor)
+    _require_closed(port)
+    sequence = settings.sequence()
+    means, _, times, readings, _ = yield from _switching(port, sequence, settings,
+                                                        check_motion=False)
+    on = np.asarray(sequence, dtype=float)
+    design = np.column_stack([on, np.ones(len(on))])
+    coef, *_ = np.linalg.lstsq(design, means, rcond=None)
+    residuals = means - design @ coef
+    dof = max(1, len(on) - 2)
+    se = np.sqrt((residuals ** 2).sum(axis=0) / dof / ((on - on.mean()) ** 2).sum())
+    return {'time_ns': int(times[-1]), 'reading_c': float(np.mean(readings)),
+            'step': coef[0], 'std_error': se}
+
+
+def fit_plateau_steps(steps, state, apply=True, start_ns=0, end_ns=0):
+    """
+    Fit the I_ref step's temperature coefficient from :func:`plateau_step` results.
+
+    ``d ln|N_on - N_off| / dT`` against the on-board reading, per axis, by
+    :func:`fit_reference_tc` [ppm/degC]. The step in counts is ``-I_ref / (k_VI k_DA)``:
+    it moves with the I_ref source and the V/I and DA2 chain, not with k_t nor the
+    scale-factor curve. That is the coefficient the feedback schedule's temperature
+    correction needs once the temperature compensation (the ROM of the same
+    calibration) keeps the output scale flat over temperature: with it, a feedback
+    estimate away from the reference temperature sees only the chain's own drift.
+    With ``apply`` it goes into ``state.reference_tc_ppm``. Returns an
+    :class:`EstimationResult` of kind ``reference_tc`` (``estimate_ppm`` in ppm/degC,
+    ``points``: per plateau the reading and the step per axis; ``residuals``: relative
+    departure of each step from the fitted line).
+
+    :raises EstimationError: Fewer than three plateaus, or their readings span less
+        than 1 degC.
+    """
+    if len(steps) < 3:
+        raise EstimationError(f'I_ref steps at {len(steps)} plateaus: at least three are '
+                              'needed for a coefficient with a standard error')
+    readings = np.array([s['reading_c'] for s in steps], dtype=float)
+    if not np.all(np.isfinite(readings)):
+        raise EstimationError('the sensor has no on-board temperature reading')
+    if np.ptp(readings) < 1.0:
+        raise EstimationError('the plateaus differ by less than 1 degC on the on-board sensor')
+    values = np.array([s['step'] for s in steps], dtype=float)
+    tc, se = fit_reference_tc(readings, values)
+    slope = tc * PPM
+    line = np.log(np.abs(values)).mean(axis=0) + np.outer(readings - readings.mean(), slope)
+    residuals = np.log(np.abs(values)) - line
+    if apply:
+        state.reference_tc_ppm = [float(v) for v in tc]
+        state.updated_at_ns = int(end_ns)
+    points = {'time_ns': np.array([s['time_ns'] for s in steps], dtype=np.int64),
+              'temperature_c': readings}
+    for axis, name in enumerate(AXES):
+        points[f'step_{name}'] = values[:, axis]
+        points[f'step_std_error_{name}'] = np.array([s['std_error'][axis] for s in steps])
+    empty = np.full(len(AXES), np.nan)
+    settings = {'source': 'temperature calibration plateaus',
+                **{f'switching.{k}': v for k, v in asdict(PLATEAU_SWITCHING).items()}}
+    return EstimationResult('reference_tc', settings, tc, se, points, residuals, tc, empty,
+                            empty, empty, apply, False, int(start_ns), int(end_ns))

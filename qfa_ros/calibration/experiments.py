@@ -1,7 +1,12 @@
-"""Seed 1's experiment (§IV) and the Monte Carlo comparison of estimation schedules."""
+"""
+Seed 1's experiment (§IV) and the Monte Carlo comparison of estimation schedules.
+
+The error sources (:class:`ErrorProfile`) and the paper's room (:class:`PaperRoom`) are
+physics and live in :mod:`qfa_ros.model.errors`; they are re-exported here.
+"""
 
 import copy
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -17,14 +22,13 @@ from qfa_ros.calibration.estimation import (
 )
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.model.errors import ErrorProfile, PaperRoom
 from qfa_ros.model.hardware import STANDARD_GRAVITY
 from qfa_ros.model.noise import MICRO_G
-from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 
 OBSERVABLE_FORWARD = ('v_da1_ref', 'k_tz', 'k_amp', 'v_ad_ref')
 OBSERVABLE_FEEDBACK = ('v_da2_ref', 'k_vi')
-
 
 
 def split_drift(rng, total, components):
@@ -37,56 +41,6 @@ def split_drift(rng, total, components):
     weights = rng.dirichlet(np.ones(len(components)))
     return {c: (-1.0 if c == 'v_ad_ref' else 1.0) * w * total
             for c, w in zip(components, weights)}
-
-@dataclass(frozen=True)
-class ErrorProfile:
-    """
-    The residual error sources seed 1 §IV names, as switchable physical models.
-
-    Attributes
-    ----------
-    forward_tc_ppm : dict
-        Temperature coefficients of the excitation chain [ppm/degC]: DA1 reference
-        (+20, a typical band-gap DAC reference), follow-up amplifier ratio ``k_tz``
-        (+7) and in-amp gain ``k_amp`` (+6, thin-film resistor pairs). The open-loop
-        schedule sees them, so they are real forward drift at the trial temperature.
-    i_ref_tc_ppm : float
-        Temperature coefficient of the constant current source (+30 ppm/degC, a
-        precision reference plus sense resistor). The feedback schedule cannot tell
-        it from a k_VI k_DA change: it biases the estimate by ``tc dT``.
-    magnet_tc_ppm : float
-        Temperature coefficient of the torquer's effective flux density B left after
-        the magnet's thermal compensation (+10 ppm/degC). It changes k_t, which the
-        feedback schedule does not see.
-    torquer_drift_ppm : float
-        Step drift of k_t (B and coil length aging), unobservable [ppm].
-
-    The values are chosen to match the paper's results (its forward 90 %, feedback
-    91 %, restrained 88 %), each within a typical range for its part; the paper does
-    not give them. The temperature they act at comes from the thermal model
-    (:class:`PaperRoom`), not from a set offset.
-    """
-
-    forward_tc_ppm: dict = field(default_factory=lambda: {'v_da1_ref': 20.0, 'k_tz': 7.0,
-                                                          'k_amp': 6.0})
-    i_ref_tc_ppm: float = 30.0
-    magnet_tc_ppm: float = 10.0
-    torquer_drift_ppm: float = 0.0
-
-    @classmethod
-    def ideal(cls):
-        """Return the profile with every error source off."""
-        return cls(forward_tc_ppm={}, i_ref_tc_ppm=0.0, magnet_tc_ppm=0.0,
-                   torquer_drift_ppm=0.0)
-
-    def apply(self, triad):
-        """Write the temperature coefficients and the k_t drift into ``triad``."""
-        for axis in range(len(AXES)):
-            for component, tc in self.forward_tc_ppm.items():
-                triad.drift.set_temperature_coefficient(axis, component, tc)
-            triad.drift.set_temperature_coefficient(axis, 'i_ref', self.i_ref_tc_ppm)
-            triad.drift.set_temperature_coefficient(axis, 'b', self.magnet_tc_ppm)
-            triad.drift.set_step(axis, 'b', self.torquer_drift_ppm * PPM)
 
 
 @dataclass
@@ -115,40 +69,6 @@ class PaperTrial:
     def compensated_error_ug(self):
         """N_out(1) - N_out(0) [micro-g]."""
         return (self.output_compensated - self.output_reference) / MICRO_G
-
-
-@dataclass(frozen=True)
-class PaperRoom:
-    """
-    The paper's laboratory as a thermal model: room wander and the sensor's warm-up.
-
-    The room wanders within ``+-room_amplitude_c`` (the paper: within 3 degC) as a
-    bounded Ornstein-Uhlenbeck process with correlation ``room_correlation_s``; the
-    sensor is switched on cold, its body settling ``self_heating_c`` above the room with
-    the body time constant (300 s); the references are captured after ``warm_up_s``
-    and the trial ``trial_gap_s`` later (the resistor swap). The warm-up gives the
-    trials a mean temperature rise, the wander their scatter.
-
-    Chosen to match the paper (not measured in it): ``self_heating_c`` 5 degC,
-    ``warm_up_s`` 600 s and ``trial_gap_s`` 600 s (mean rise 0.59 degC, which with the
-    forward-chain coefficients of :class:`ErrorProfile` gives the paper's 90 %), and
-    ``room_correlation_s`` 12 h (a room following the day; it sets the trial-to-trial
-    scatter).
-    """
-
-    room_amplitude_c: float = 1.5
-    room_correlation_s: float = 43200.0
-    self_heating_c: float = 5.0
-    warm_up_s: float = 600.0
-    trial_gap_s: float = 600.0
-
-    def thermal_config(self, room_c=25.0):
-        """Return the :class:`ThermalConfig` of the paper's sensor in its room."""
-        return ThermalConfig(ambient_profile='room', ambient_c=room_c + self.self_heating_c,
-                             room_amplitude_c=self.room_amplitude_c,
-                             room_correlation_s=self.room_correlation_s,
-                             initial_sensor_c=room_c, bias_model='none',
-                             sf_tc_ppm_per_c=(0.0, 0.0, 0.0))
 
 
 def measure_scale(triad, seconds=0.5, settle_s=0.05):

@@ -47,9 +47,14 @@ class CalibrationState:
     temperature : dict
         Temperature-compensation coefficients (filled by the temperature schedule).
     reference_tc_ppm : list of float
-        Temperature coefficient of the I_ref step against gravity per axis [ppm/degC]
-        (:func:`qfa_ros.calibration.estimation.reference_tc_schedule`); empty until
-        measured. The feedback schedule's temperature correction uses it.
+        Temperature coefficient of the I_ref step per axis [ppm/degC], relative to the
+        output scale in service; empty until measured. The feedback schedule's
+        temperature correction uses it. The temperature calibration (the node's
+        ``calibrate_temperature``) measures the step in counts at every chamber plateau
+        (:func:`qfa_ros.calibration.estimation.fit_plateau_steps`): right while its
+        temperature compensation keeps the output scale flat. Without that compensation
+        (offline studies) :func:`qfa_ros.calibration.estimation.reference_tc_schedule`
+        measures the step against gravity, which also carries the scale's own curve.
     """
 
     references: list = field(default_factory=lambda: [AxisReference() for _ in AXES])

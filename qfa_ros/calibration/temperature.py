@@ -9,8 +9,12 @@ blocks are centred on the tumble's middle, so a linear temperature trend cancels
 Per axis the zero bias and the scale factor against the on-board temperature reading
 are fitted by seed 2's double exponential (with a linear baseline) and evaluated on the
 fixed-point CORDIC path; the constant misalignment and K2 the tumble measures are kept
-too. At the end the chamber returns to the ambient it had and the schedule soaks until
-the on-board reading is back where it started, so the sensor leaves as a lab would.
+too. With ``reference_steps`` (:func:`temperature_calibration`) the I_ref step is measured
+at the end of every plateau and its temperature coefficient fitted against the on-board
+reading: the coefficient the feedback schedule's temperature correction needs. At the
+end the chamber returns to the ambient it had and, for a constant ambient, the schedule
+soaks until the on-board reading is back where it started, so the sensor leaves as a lab
+would.
 Only what the sensor can know is used: outputs, the temperature reading and the known
 fixture positions.
 """
@@ -21,6 +25,11 @@ import math
 
 import numpy as np
 
+from qfa_ros.calibration.estimation import (
+    fit_plateau_steps,
+    plateau_step,
+    plateau_step_time_s,
+)
 from qfa_ros.calibration.schedule import (
     EstimationError,
     require_closed,
@@ -31,7 +40,7 @@ from qfa_ros.calibration.tempfit import calibrate_zero_bias, ThermalCompensation
 from qfa_ros.model.hardware import STANDARD_GRAVITY
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.profiles import StaticProfile
-from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED
+from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED, TriadConfig
 
 AMBIENT_FIELDS = ('ambient_profile', 'ambient_c', 'cycle_low_c', 'cycle_high_c',
                   'cycle_period_s', 'cycle_shape', 'cycle_dwell_fraction')
@@ -90,6 +99,11 @@ class TemperatureSettings:
         Longest soak [s]; beyond it the calibration fails with the time it still needs.
     apply : bool
         Store the coefficients and switch temperature compensation on.
+    reference_steps : bool
+        Measure the I_ref step at the end of every plateau and fit its temperature
+        coefficient (:func:`temperature_calibration`; about 4.3 s of sensor time per
+        plateau). Off by default here (offline studies); the node's
+        ``temperature_calibration.reference_steps`` is on by default.
     """
 
     low_c: float = -40.0
@@ -106,6 +120,7 @@ class TemperatureSettings:
     return_tolerance_c: float = 0.05
     max_soak_s: float = 6000.0
     apply: bool = True
+    reference_steps: bool = False
 
     def __post_init__(self):
         for name in ('low_c', 'high_c', 'period_s', 'block_s', 'step_c', 'settle_s',
@@ -125,6 +140,8 @@ class TemperatureSettings:
                 or not self.stable_c_per_tumble > 0:
             raise ValueError('return_tolerance_c and stable_c_per_tumble must be > 0 and '
                              'max_soak_s >= 0')
+        if not isinstance(self.reference_steps, bool):
+            raise ValueError(f'reference_steps must be a bool, got {self.reference_steps!r}')
         for name, low, high in (('cycles', 1, 100), ('bins', 10, 10000), ('m_bits', 8, 30),
                                 ('sf_m_bits', 8, 30)):
             value = getattr(self, name)
@@ -137,12 +154,15 @@ class TemperatureSettings:
 
         Every plateau holds ``period_s / plateaus`` (whole tumbles), the two extremes soak
         at most ten holds each, the soak back lasts at most ``max_soak_s``; the most
-        plateaus are those of an ambient at ``low_c`` (the way down is longest).
+        plateaus are those of an ambient at ``low_c`` (the way down is longest). With
+        ``reference_steps``, every plateau adds one I_ref step measurement.
         """
         plateaus = len(self.plateaus(self.low_c))
         hold = self.period_s / plateaus
         tumble = len(POSITIONS) * self.block_s
         per_cycle = (plateaus - 2) * (hold + tumble) + 2 * (10 * hold + tumble)
+        if self.reference_steps:
+            per_cycle += plateaus * plateau_step_time_s(TriadConfig.settle_time)
         return tumble + self.cycles * per_cycle + self.max_soak_s + tumble
 
     def plateaus(self, ambient_c):
@@ -368,6 +388,28 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
            'force': force, 'output': output, 'zero': output - force}
     return TemperatureResult('temperature', asdict(settings), compensation, points, raw,
                              settings.apply, soak_s, start_ns, end_ns, extra)
+
+
+def temperature_calibration(triad, state, settings=TemperatureSettings()):
+    """
+    Run :func:`temperature_schedule`, with the I_ref steps at every plateau (generator).
+
+    Same protocol as :func:`qfa_ros.calibration.estimation.run_schedule`. With
+    ``settings.reference_steps`` the hook is
+    :func:`qfa_ros.calibration.estimation.plateau_step` (it sees the sensor through a
+    :class:`~qfa_ros.calibration.schedule.SensorPort` only) and, after the chamber
+    program, :func:`~qfa_ros.calibration.estimation.fit_plateau_steps` fits the
+    coefficient and, with ``settings.apply``, stores it in ``state.reference_tc_ppm``.
+    Returns ``(TemperatureResult,)`` or ``(TemperatureResult, EstimationResult)`` (kind
+    ``reference_tc``).
+    """
+    if not settings.reference_steps:
+        result = yield from temperature_schedule(triad, state, settings)
+        return (result,)
+    result = yield from temperature_schedule(triad, state, settings, plateau_step)
+    steps = fit_plateau_steps(result.plateau_extra, state, settings.apply,
+                              result.start_ns, result.end_ns)
+    return result, steps
 
 
 def _chebyshev(u, degree):

@@ -24,6 +24,7 @@ from qfa_ros.calibration.schedule import sensor_time_ns
 from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
+from qfa_ros.model.errors import PaperRoom
 from qfa_ros.model.gyro import DEG_PER_HOUR
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.parallel import run_chains
@@ -58,15 +59,19 @@ def static_sensor():
     """
     Return (config, profile) of the node's default sensor as the nominal unit.
 
-    The node's defaults with ``unit.draw: false``: the thermal model on (constant 25 degC
-    ambient, the body at ambient, so the zero bias is the double exponential's value at
-    25 degC), default noise and gyros, level at the default location (latitude 45 deg:
-    WGS-84 normal gravity and the Earth rate). Not the drawn unit the node publishes by
-    default: its deterministic errors (turn-on bias, misalignment times g, K2) would hide
-    the noise figures this summary reports; ``qfa-sim temperature-cycle`` simulates drawn
-    units. ``test_loop_model`` checks that this equals the node's parameters.
+    The node's defaults with ``unit.draw: false`` and ``thermal.ambient_profile: constant``
+    (the node's default room wanders; a noise summary wants a still ambient): the thermal
+    model on (constant 25 degC ambient, the body at ambient, so the zero bias is the double
+    exponential's value at 25 degC and the error profile's temperature coefficients act on
+    a zero temperature change), default noise and gyros, level at the default location
+    (latitude 45 deg: WGS-84 normal gravity and the Earth rate). Not the drawn unit the
+    node publishes by default: its deterministic errors (turn-on bias, misalignment times
+    g, K2) would hide the noise figures this summary reports; ``qfa-sim temperature-cycle``
+    simulates drawn units. ``test_loop_model`` checks that this equals the node's parameters.
     """
-    return (TriadConfig(thermal=ThermalConfig(ambient_profile='constant')),
+    # The node's room correlation too (unused by a constant ambient): the node's config.
+    return (TriadConfig(thermal=ThermalConfig(ambient_profile='constant',
+                                              room_correlation_s=PaperRoom.room_correlation_s)),
             trajectories.static(45.0, 0.0, 0.0, yaw=0.0))
 
 

@@ -2,7 +2,7 @@
 One unit of a fleet study: drawn from its seed, aged, recalibrated, scored.
 
 The unit is a default triad with the thermal model in a room (seasonal mean, wander with
-a 12 h correlation, self-heating, :class:`~qfa_ros.calibration.experiments.PaperRoom`),
+a 12 h correlation, self-heating, :class:`~qfa_ros.model.errors.PaperRoom`),
 seed 1's component temperature coefficients, and per-unit linear aging rates drawn from
 the study's spreads. As a lab would, the I_ref temperature coefficient is measured once
 in the chamber (when the schedule corrects for temperature), then the reference is
@@ -32,15 +32,14 @@ from qfa_ros.calibration.estimation import (
     self_calibrate,
 )
 from qfa_ros.calibration.experiments import (
-    ErrorProfile,
     measure_scale,
     OBSERVABLE_FEEDBACK,
     OBSERVABLE_FORWARD,
-    PaperRoom,
     split_drift,
 )
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.model.errors import ErrorProfile, PaperRoom
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig

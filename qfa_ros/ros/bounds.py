@@ -52,8 +52,8 @@ FEEDBACK_WORST_S = feedback_sensor_time_s(
                      average_s=FEEDBACK_MAX_AVERAGE_S, order='chopped'), SETTLE_TIME_S)
 SCHEDULE_WORST_S = FORWARD_WORST_S + FEEDBACK_WORST_S
 """Longest sensor time of an estimation call the ranges allow [s]."""
-CHAMBER_WORST_S = TemperatureSettings(period_s=CHAMBER_MAX_PERIOD_S,
-                                      cycles=CHAMBER_MAX_CYCLES).max_sensor_time_s()
+CHAMBER_WORST_S = TemperatureSettings(period_s=CHAMBER_MAX_PERIOD_S, cycles=CHAMBER_MAX_CYCLES,
+                                      reference_steps=True).max_sensor_time_s()
 """Longest sensor time of a calibrate_temperature call the ranges allow [s]."""
 
 ESTIMATION_BOUND = (
@@ -64,7 +64,8 @@ ESTIMATION_BOUND = (
 CHAMBER_BOUND = (
     f'; bounded: one call takes at most {CHAMBER_WORST_S:.0f} s of sensor time and '
     f'{MAX_SCHEDULE_LOOP_STEPS:.3g} model loop steps (the plateaus of cycles x period_s, '
-    'the soaks at the extremes and back, times loop_rate_hz)')
+    'the soaks at the extremes and back, the I_ref steps at every plateau, times '
+    'loop_rate_hz)')
 
 
 def output_directory(values):

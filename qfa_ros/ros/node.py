@@ -28,7 +28,7 @@ from qfa_ros.calibration.estimation import (
     forward_schedule,
     self_calibrate,
 )
-from qfa_ros.calibration.temperature import temperature_schedule
+from qfa_ros.calibration.temperature import temperature_calibration
 from qfa_ros.model.design import published_acceleration_variance
 from qfa_ros.model.triad import AXES, NS_PER_S
 from qfa_ros.ros.bounds import output_directory
@@ -328,9 +328,14 @@ class QfaNode(Node):
             self._triad, self._keeper.state, f, b))
 
     async def calibrate_temperature_callback(self, request, response):
-        """Run an accelerated chamber cycle, fit the zero bias and switch compensation on."""
+        """
+        Run an accelerated chamber cycle, fit bias and scale factor, switch compensation on.
+
+        With ``temperature_calibration.reference_steps`` the I_ref step is measured at every
+        plateau and its temperature coefficient stored in the calibration state.
+        """
         return await self._schedules.run(
-            response, 'temperature', lambda f, b: temperature_schedule(
+            response, 'temperature', lambda f, b: temperature_calibration(
                 self._triad, self._keeper.state, temperature_settings(self._values)),
             fast=True)
 

@@ -23,6 +23,7 @@ from qfa_ros.calibration.estimation import (
 )
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model import trajectory as trajectories
+from qfa_ros.model.errors import error_profile, ERROR_PROFILES, PaperRoom
 from qfa_ros.model.gyro import DEG_PER_HOUR, GyroConfig
 from qfa_ros.model.hardware import STANDARD_GRAVITY
 from qfa_ros.model.noise import MICRO_G, NoiseConfig
@@ -66,6 +67,7 @@ _FEEDBACK = FeedbackSettings()
 _THERMAL = ThermalConfig()
 _CHAMBER = TemperatureSettings()
 _GYRO = GyroConfig()
+_ROOM = PaperRoom()
 
 
 @dataclass(frozen=True)
@@ -125,8 +127,15 @@ PARAMETERS = (
     ParameterSpec('thermal.enabled', True,
                   'Thermal model: body lag, on-board temperature sensor, zero bias and '
                   'scale-factor error versus temperature (seed 2)', True),
-    ParameterSpec('thermal.ambient_profile', 'constant', 'Ambient temperature profile',
-                  choices=AMBIENT_PROFILES),
+    ParameterSpec('sensor.error_profile', 'paper',
+                  "Physical error sources of the sensor (qfa_ros.model.errors): paper, seed 1's "
+                  'component temperature coefficients (DA1 reference +20, k_tz +7, in-amp +6, '
+                  'I_ref +30, magnet/k_t +10 ppm/degC, chosen to match the paper) acting '
+                  'through the thermal model; ideal, none of them', True,
+                  choices=ERROR_PROFILES),
+    ParameterSpec('thermal.ambient_profile', 'room',
+                  "Ambient temperature profile (room: the paper's laboratory, wandering "
+                  'within thermal.room_amplitude_c of temperature_c)', choices=AMBIENT_PROFILES),
     ParameterSpec('thermal.ramp_rate_c_per_s', _THERMAL.ramp_rate_c_per_s,
                   'Ramp rate of the ramp profile [degC/s], clipped to the cycle limits',
                   False, -10.0, 10.0),
@@ -136,9 +145,12 @@ PARAMETERS = (
                   'High limit of the cycle and the ramp [degC]', False, -60.0, 125.0),
     ParameterSpec('thermal.cycle_period_s', _THERMAL.cycle_period_s,
                   'Period of the trapezoid cycle profile [s]', False, 1.0, 1.0e7),
-    ParameterSpec('thermal.room_amplitude_c', _THERMAL.room_amplitude_c,
-                  'Bound of the room profile wander around temperature_c [degC]', False,
-                  0.0, 50.0),
+    ParameterSpec('thermal.room_amplitude_c', _ROOM.room_amplitude_c,
+                  'Bound of the room profile wander around temperature_c [degC] (seed 1: the '
+                  'room within 3 degC)', False, 0.0, 50.0),
+    ParameterSpec('thermal.room_correlation_s', _ROOM.room_correlation_s,
+                  'Correlation time of the room profile wander [s] (12 h: a room following '
+                  'the day; chosen)', False, 1.0, 1.0e7),
     ParameterSpec('thermal.sensor_tau_s', _THERMAL.sensor_tau_s,
                   'Thermal time constant of the sensor body [s]', True, 1.0, 1.0e5),
     ParameterSpec('thermal.bias_model', _THERMAL.bias_model,
@@ -282,7 +294,8 @@ PARAMETERS = (
     ParameterSpec('estimation.feedback.temperature_correction',
                   _FEEDBACK.temperature_correction,
                   'Move the I_ref reference step to the present on-board temperature with the '
-                  'coefficient the reference_tc schedule stored (false: the paper schedule)'),
+                  'I_ref temperature coefficient calibrate_temperature measured (refused '
+                  'without one; false: the paper schedule)'),
     ParameterSpec('temperature_calibration.low_c', _CHAMBER.low_c,
                   'Lowest chamber plateau of calibrate_temperature [degC]', False,
                   -60.0, 125.0),
@@ -297,6 +310,10 @@ PARAMETERS = (
     ParameterSpec('temperature_calibration.cycles', _CHAMBER.cycles,
                   'Chamber programs of calibrate_temperature' + CHAMBER_BOUND, False,
                   1, CHAMBER_MAX_CYCLES),
+    ParameterSpec('temperature_calibration.reference_steps', True,
+                  'Measure the I_ref step at every chamber plateau of calibrate_temperature '
+                  'and store its temperature coefficient (what '
+                  'estimation.feedback.temperature_correction needs)'),
     ParameterSpec('temperature_calibration.m_bits', _CHAMBER.m_bits,
                   'Fraction bits M of the fixed-point CORDIC zero-bias compensator (seed 2: '
                   '16; the scale factor uses 24)', False,
@@ -333,7 +350,8 @@ SPECS = {spec.name: spec for spec in PARAMETERS}
 THERMAL_RUNTIME_PARAMETERS = frozenset({'temperature_c', 'thermal.ambient_profile',
                                         'thermal.ramp_rate_c_per_s', 'thermal.cycle_low_c',
                                         'thermal.cycle_high_c', 'thermal.cycle_period_s',
-                                        'thermal.room_amplitude_c'})
+                                        'thermal.room_amplitude_c',
+                                        'thermal.room_correlation_s'})
 """Parameters that change the ambient of the running thermal model."""
 
 
@@ -440,7 +458,8 @@ def ambient_settings(values):
             'ramp_rate_c_per_s': values['thermal.ramp_rate_c_per_s'],
             'ramp_limits_c': limits, 'cycle_low_c': limits[0], 'cycle_high_c': limits[1],
             'cycle_period_s': values['thermal.cycle_period_s'],
-            'room_amplitude_c': values['thermal.room_amplitude_c']}
+            'room_amplitude_c': values['thermal.room_amplitude_c'],
+            'room_correlation_s': values['thermal.room_correlation_s']}
 
 
 def thermal_config(values):
@@ -460,7 +479,9 @@ def temperature_settings(values):
                                    high_c=values['temperature_calibration.high_c'],
                                    period_s=values['temperature_calibration.period_s'],
                                    cycles=values['temperature_calibration.cycles'],
-                                   m_bits=values['temperature_calibration.m_bits'])
+                                   m_bits=values['temperature_calibration.m_bits'],
+                                   reference_steps=values[
+                                       'temperature_calibration.reference_steps'])
 
 
 def unit_of(values):
@@ -472,11 +493,17 @@ def unit_of(values):
 
 
 def make_triad(values, profile=None):
-    """Return the :class:`QfaTriad` of the parameter ``values``: the unit, its aging."""
+    """
+    Return the :class:`QfaTriad` of the parameter ``values``: the unit, its aging, errors.
+
+    The error sources of ``sensor.error_profile`` (:mod:`qfa_ros.model.errors`) act
+    through the thermal model's body temperature.
+    """
     unit = unit_of(values)
     triad = QfaTriad(triad_config(values, unit), rng=values['seed'], profile=profile)
     if unit is not None:
         unit.install_aging(triad)
+    error_profile(values['sensor.error_profile']).apply(triad)
     return triad
 
 

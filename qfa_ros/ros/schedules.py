@@ -27,7 +27,8 @@ SCHEDULE_PAUSE = {
     'forward': 'forward-gain schedule running: loops open, no valid output',
     'feedback': 'feedback-gain schedule running: I_ref steps of about 0.6 g on the output',
     'self_calibrate': 'self-calibration running (open loop, then I_ref steps)',
-    'temperature': 'temperature calibration running: accelerated chamber cycle',
+    'temperature': 'temperature calibration running: accelerated chamber cycle (and I_ref '
+                   'steps at its plateaus)',
 }
 
 
