@@ -28,7 +28,8 @@ from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad, TriadConfig
 
 ROOT = Path(__file__).resolve().parents[1]
-ESTIMATORS = (ROOT / 'qfa_ros' / 'calibration' / 'estimation.py',)
+ESTIMATORS = (ROOT / 'qfa_ros' / 'calibration' / 'estimation.py',
+              ROOT / 'qfa_ros' / 'calibration' / 'gyro_bias.py')
 # Names through which a model truth could be read: the true input and body temperature,
 # the drift and thermal state, the noise configuration, the error profile, the model.
 FORBIDDEN = {'truth', 'temperature', 'drift', 'thermal', 'noise', 'config', 'gains',
@@ -36,7 +37,7 @@ FORBIDDEN = {'truth', 'temperature', 'drift', 'thermal', 'noise', 'config', 'gai
 FORBIDDEN_NAMES = {'_triad', 'ErrorProfile', 'NoiseConfig', 'ThermalConfig', 'QfaTriad',
                    'triad'}
 ALLOWED_IMPORTS = {'dataclasses', 'math', 'numpy', 'qfa_ros.calibration.schedule',
-                   'qfa_ros.model.triad'}
+                   'qfa_ros.model.triad', 'qfa_ros.model.earth'}
 
 
 def truth_reads(path):

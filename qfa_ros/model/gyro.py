@@ -46,7 +46,10 @@ class GyroConfig:
     """
     Error model of the gyro triad (SI units; 1-sigma spreads of the per-unit draws).
 
-    Defaults: the navigation-grade (1 nmi/h class) gyro of ``docs/model.md``.
+    Defaults: the navigation-grade (1 nmi/h class) gyro of ``docs/model.md``: the
+    Honeywell HG9900 brochure (N61-1638-000-000) gives gyro bias 0.0035 deg/h, ARW
+    0.002 deg/sqrt(h) and scale factor 5 ppm (1 sigma); the other terms are typical of
+    the class, not from that sheet.
 
     Attributes
     ----------
@@ -83,7 +86,7 @@ class GyroConfig:
     bias_instability: float = 0.003 * DEG_PER_HOUR
     correlation_times: tuple = (1.0, 10.0, 100.0, 1000.0, 10000.0)
     rate_random_walk: float = 0.003 * DEG_PER_HOUR / 60.0
-    turn_on_bias: float = 0.003 * DEG_PER_HOUR
+    turn_on_bias: float = 0.0035 * DEG_PER_HOUR
     scale_factor: float = 5.0 * PPM
     scale_factor_asymmetry: float = 1.0 * PPM
     misalignment: float = 5.0 * ARCSEC
