@@ -39,8 +39,10 @@ from qfa_ros.model.unit import draw_unit
 
 ROOT = Path(__file__).resolve().parents[1]
 # estimation.py holds every estimator that reads the sensor: the gain schedules, the
-# I_ref coefficient against gravity and the I_ref steps at the temperature plateaus.
-ESTIMATORS = (ROOT / 'qfa_ros' / 'calibration' / 'estimation.py',)
+# I_ref coefficient against gravity and the I_ref steps at the temperature plateaus;
+# gyro_bias.py the gyro bias at rest.
+ESTIMATORS = (ROOT / 'qfa_ros' / 'calibration' / 'estimation.py',
+              ROOT / 'qfa_ros' / 'calibration' / 'gyro_bias.py')
 # Names through which a model truth could be read: the true input and body temperature,
 # the drift and thermal state, the noise configuration, the error profile, the model.
 FORBIDDEN = {'truth', 'temperature', 'drift', 'thermal', 'noise', 'config', 'gains',
@@ -48,7 +50,7 @@ FORBIDDEN = {'truth', 'temperature', 'drift', 'thermal', 'noise', 'config', 'gai
 FORBIDDEN_NAMES = {'_triad', 'ErrorProfile', 'NoiseConfig', 'ThermalConfig', 'QfaTriad',
                    'triad'}
 ALLOWED_IMPORTS = {'dataclasses', 'math', 'numpy', 'qfa_ros.calibration.schedule',
-                   'qfa_ros.model.triad'}
+                   'qfa_ros.model.triad', 'qfa_ros.model.earth'}
 
 
 def truth_reads(path):

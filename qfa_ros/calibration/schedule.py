@@ -43,6 +43,8 @@ class SensorSamples:
         False while an axis is open or settling.
     v_temp : float64[n]
         On-board temperature-sensor ADC reading [V] (NaN without one).
+    gyro : float64[n, 3] or None
+        Published gyro rate [rad/s], after the gyro bias correction (NaN without gyros).
     """
 
     stamps_ns: np.ndarray
@@ -51,6 +53,7 @@ class SensorSamples:
     flags: np.ndarray
     valid: np.ndarray
     v_temp: np.ndarray
+    gyro: np.ndarray = None
 
     @property
     def saturated(self):
@@ -153,6 +156,22 @@ class SensorPort:
         """Close (True) or open (False) the I_ref switch M1 of ``axis``."""
         self._triad.set_reference_current(axis, on)
 
+    @property
+    def has_gyros(self):
+        """Return True when the sensor has a gyro triad."""
+        return self._triad.gyro is not None
+
+    def gyro_bias_correction(self):
+        """Return the gyro bias the firmware subtracts from the published rate [rad/s]."""
+        return self._triad.gyro_bias_correction.copy()
+
+    def set_gyro_bias_correction(self, bias):
+        """Write the gyro bias correction [rad/s] (three finite values)."""
+        bias = np.array(bias, dtype=float)
+        if bias.shape != (3,) or not np.all(np.isfinite(bias)):
+            raise ValueError(f'gyro bias correction must be 3 finite values, got {bias!r}')
+        self._triad.gyro_bias_correction = bias
+
     # Output --------------------------------------------------------------------------
     @property
     def has_temperature_sensor(self):
@@ -174,7 +193,7 @@ class SensorPort:
             return output
         return SensorSamples(stamps_ns=output.stamps_ns, accel=output.accel,
                              counts=output.counts, flags=output.flags, valid=output.valid,
-                             v_temp=output.v_temp)
+                             v_temp=output.v_temp, gyro=output.gyro)
 
 
 def samples_for(triad, seconds):

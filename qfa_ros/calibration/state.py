@@ -3,6 +3,8 @@
 from dataclasses import asdict, dataclass, field
 import math
 
+import numpy as np
+
 from qfa_ros.calibration.tempfit import ThermalCompensation
 from qfa_ros.model.triad import AXES
 
@@ -55,6 +57,9 @@ class CalibrationState:
         temperature compensation keeps the output scale flat. Without that compensation
         (offline studies) :func:`qfa_ros.calibration.estimation.reference_tc_schedule`
         measures the step against gravity, which also carries the scale's own curve.
+    gyro_bias : list of float
+        Gyro bias correction per axis [rad/s]
+        (:func:`qfa_ros.calibration.gyro_bias.gyro_bias_schedule`); empty until measured.
     """
 
     references: list = field(default_factory=lambda: [AxisReference() for _ in AXES])
@@ -65,6 +70,7 @@ class CalibrationState:
     updated_at_ns: int = 0
     temperature: dict = field(default_factory=dict)
     reference_tc_ppm: list = field(default_factory=list)
+    gyro_bias: list = field(default_factory=list)
 
     @property
     def has_reference(self):
@@ -92,15 +98,17 @@ class CalibrationState:
                         captured_at_ns=int(data.get('captured_at_ns', 0)),
                         updated_at_ns=int(data.get('updated_at_ns', 0)),
                         temperature=dict(data.get('temperature', {})),
-                        reference_tc_ppm=[float(v) for v in data.get('reference_tc_ppm', [])])
+                        reference_tc_ppm=[float(v) for v in data.get('reference_tc_ppm', [])],
+                        gyro_bias=[float(v) for v in data.get('gyro_bias', [])])
         except (KeyError, TypeError, ValueError) as error:
             raise ValueError(f'calibration state: malformed ({error})') from error
         if len(refs) != len(AXES) or len(state.controller_gain) not in (0, len(AXES)) \
                 or len(state.n_vref) not in (0, len(AXES)) \
-                or len(state.reference_tc_ppm) not in (0, len(AXES)):
+                or len(state.reference_tc_ppm) not in (0, len(AXES)) \
+                or len(state.gyro_bias) not in (0, len(AXES)):
             raise ValueError('calibration state: expected three axes')
-        if not all(math.isfinite(v) for v in state.reference_tc_ppm):
-            raise ValueError('calibration state: non-finite reference_tc_ppm')
+        if not all(math.isfinite(v) for v in state.reference_tc_ppm + state.gyro_bias):
+            raise ValueError('calibration state: non-finite reference_tc_ppm or gyro_bias')
         for value in [v for r in refs for v in (r.forward_slope, r.feedback_step)
                       if v is not None] + state.controller_gain:
             if not math.isfinite(value) or value == 0:
@@ -116,6 +124,8 @@ class CalibrationState:
                 triad.set_n_vref(axis, self.n_vref[axis])
         if self.temperature:
             install_compensation(triad, self.temperature)
+        if self.gyro_bias:
+            triad.gyro_bias_correction = np.array(self.gyro_bias, dtype=float)
 
     def reference_readings_c(self):
         """Return the on-board temperature reading of each feedback reference [degC]."""

@@ -46,7 +46,10 @@ class GyroConfig:
     """
     Error model of the gyro triad (SI units; 1-sigma spreads of the per-unit draws).
 
-    Defaults: the navigation-grade (1 nmi/h class) gyro of ``docs/model.md``.
+    Defaults: the navigation-grade (1 nmi/h class) gyro of ``docs/model.md``: the
+    Honeywell HG9900 brochure (N61-1638-000-000) gives gyro bias 0.0035 deg/h, ARW
+    0.002 deg/sqrt(h) and scale factor 5 ppm (1 sigma); the other terms are typical of
+    the class, not from that sheet.
 
     Attributes
     ----------
@@ -74,13 +77,16 @@ class GyroConfig:
         Angle quantum of the output [rad] (0: none).
     range : float
         Rate range [rad/s]; beyond it the output is clipped and flagged.
+    bias : tuple
+        Known bias per axis [rad/s] added to the drawn turn-on bias (a unit whose bias
+        was measured, as ``TriadConfig.bias`` for the accelerometers); default none.
     """
 
     arw: float = 0.002 * (math.pi / 180.0 / 60.0)
     bias_instability: float = 0.003 * DEG_PER_HOUR
     correlation_times: tuple = (1.0, 10.0, 100.0, 1000.0, 10000.0)
     rate_random_walk: float = 0.003 * DEG_PER_HOUR / 60.0
-    turn_on_bias: float = 0.003 * DEG_PER_HOUR
+    turn_on_bias: float = 0.0035 * DEG_PER_HOUR
     scale_factor: float = 5.0 * PPM
     scale_factor_asymmetry: float = 1.0 * PPM
     misalignment: float = 5.0 * ARCSEC
@@ -90,6 +96,7 @@ class GyroConfig:
     reference_c: float = 25.0
     quantization: float = 1e-9
     range: float = math.radians(490.0)
+    bias: tuple = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
         for name in ('arw', 'bias_instability', 'rate_random_walk', 'turn_on_bias',
@@ -105,6 +112,9 @@ class GyroConfig:
         if not self.correlation_times or any(
                 not math.isfinite(t) or t <= 0 for t in self.correlation_times):
             raise ValueError('gyro correlation_times must be positive and finite')
+        bias = np.asarray(self.bias, dtype=float)
+        if bias.shape != (3,) or not np.all(np.isfinite(bias)):
+            raise ValueError(f'gyro bias must be 3 finite numbers, got {self.bias!r}')
 
     @classmethod
     def ideal(cls):
@@ -137,7 +147,7 @@ class GyroUnit:
         """Draw one unit from ``config``'s spreads with ``rng``."""
         def normal(sigma, shape):
             return rng.standard_normal(shape) * sigma
-        return cls(bias=normal(config.turn_on_bias, 3),
+        return cls(bias=np.asarray(config.bias, dtype=float) + normal(config.turn_on_bias, 3),
                    scale_factor=normal(config.scale_factor, 3),
                    asymmetry=normal(config.scale_factor_asymmetry, 3),
                    misalignment=normal(config.misalignment, (3, 3)) * (1 - np.eye(3)),

@@ -272,6 +272,9 @@ class QfaTriad:
                                               spawn_key=seq.spawn_key + (GYRO_SPAWN_KEY,))
             self.gyro = GyroTriad(self.config.gyro, self.config.sample_rate_hz,
                                   np.random.default_rng(gyro_seq))
+        # Gyro bias correction [rad/s] the firmware subtracts from the published rate
+        # (a gyro bias schedule estimates it); zero until one ran.
+        self.gyro_bias_correction = np.zeros(3)
         # Temperature compensation: an object with apply(accel, v_temp) -> accel (tempfit).
         self.temperature_compensator = None
         self.temperature_compensation = False
@@ -417,7 +420,7 @@ class QfaTriad:
     def _gyro_output(self, rate, truth, temperature):
         if self.gyro is None:
             return np.full((len(truth), 3), np.nan)
-        return self.gyro.run(rate, truth, temperature)[0]
+        return self.gyro.run(rate, truth, temperature)[0] - self.gyro_bias_correction
 
     def run(self, n_samples, specific_force=None, angular_rate=None):
         """

@@ -1,5 +1,7 @@
 """The node's calibration state: stored corrections, the compensation switch, the state file."""
 
+import numpy as np
+
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model.triad import AXES
 from qfa_ros.ros.state_store import StateFileError, StateStore
@@ -74,12 +76,13 @@ class CalibrationKeeper:
         return None
 
     def restore_nominal_words(self):
-        """Write the nominal k(D(z)) and N_VREF back and switch temperature compensation off."""
+        """Write the nominal words back; temperature compensation and gyro correction off."""
         triad = self.triad
         for axis in range(len(AXES)):
             triad.set_controller_gain(axis, self._nominal_gains[axis])
             triad.set_n_vref(axis, self._nominal_n_vref[axis])
         triad.temperature_compensation = False
+        triad.gyro_bias_correction = np.zeros(3)
 
     def set_compensation(self, on):
         """
@@ -90,9 +93,10 @@ class CalibrationKeeper:
         :returns: ``(success, message)`` for a ``SetBool`` answer.
         """
         state = self.state
-        if on and not (state.controller_gain or state.n_vref or state.temperature):
+        if on and not (state.controller_gain or state.n_vref or state.temperature
+                       or state.gyro_bias):
             return False, ('no stored corrections: call capture_reference, '
-                           'self_calibrate or calibrate_temperature first')
+                           'self_calibrate, calibrate_temperature or calibrate_gyros first')
         try:
             if on:
                 state.apply_to(self.triad)
@@ -104,5 +108,7 @@ class CalibrationKeeper:
         words = ', '.join(f'{axis} k(D(z)) {loop.controller.gain:.6g} N_VREF {loop.n_vref}'
                           for axis, loop in zip(AXES, self.triad.axes))
         thermal = 'on' if self.triad.temperature_compensation else 'off'
+        gyro = 'on' if np.any(self.triad.gyro_bias_correction) else 'off'
         applied = 'stored corrections applied' if on else 'nominal words restored'
-        return True, f'{applied}: {words}; temperature compensation {thermal}'
+        return True, (f'{applied}: {words}; temperature compensation {thermal}; gyro bias '
+                      f'correction {gyro}')

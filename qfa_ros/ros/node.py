@@ -28,6 +28,7 @@ from qfa_ros.calibration.estimation import (
     forward_schedule,
     self_calibrate,
 )
+from qfa_ros.calibration.gyro_bias import gyro_bias_schedule
 from qfa_ros.calibration.temperature import temperature_calibration
 from qfa_ros.model.design import published_acceleration_variance
 from qfa_ros.model.triad import AXES, NS_PER_S
@@ -42,6 +43,7 @@ from qfa_ros.ros.params import (
     descriptor,
     FEEDBACK_COMPONENT,
     FORWARD_COMPONENT,
+    gyro_bias_settings,
     input_profile,
     LOCATION_PARAMETERS,
     make_triad,
@@ -66,7 +68,7 @@ class QfaNode(Node):
     Publishes ``imu/data_raw``, ``imu/temperature``, ``/diagnostics`` and
     ``~/is_calibrated``; serves ``~/capture_reference``, ``~/estimate_forward_gain``,
     ``~/estimate_feedback_gain``, ``~/self_calibrate``, ``~/calibrate_temperature``,
-    ``~/set_compensation`` and ``~/cancel``.
+    ``~/calibrate_gyros``, ``~/set_compensation`` and ``~/cancel``.
 
     The node wires small collaborators: :class:`SampleStream` (the sensor thread that
     advances the model and publishes), :class:`ScheduleService` (schedules behind the
@@ -179,6 +181,7 @@ class QfaNode(Node):
                 (Trigger, '~/estimate_feedback_gain', self.estimate_feedback_gain_callback),
                 (Trigger, '~/self_calibrate', self.self_calibrate_callback),
                 (Trigger, '~/calibrate_temperature', self.calibrate_temperature_callback),
+                (Trigger, '~/calibrate_gyros', self.calibrate_gyros_callback),
                 (SetBool, '~/set_compensation', self.set_compensation_callback),
                 (Trigger, '~/cancel', self.cancel_callback)):
             self.create_service(srv_type, name, callback, callback_group=services)
@@ -338,6 +341,12 @@ class QfaNode(Node):
             response, 'temperature', lambda f, b: temperature_calibration(
                 self._triad, self._keeper.state, temperature_settings(self._values)),
             fast=True)
+
+    async def calibrate_gyros_callback(self, request, response):
+        """Average the gyros at rest, remove the Earth rate and correct their bias."""
+        return await self._schedules.run(
+            response, 'gyro_bias', lambda f, b: gyro_bias_schedule(
+                self._triad, self._keeper.state, gyro_bias_settings(self._values)))
 
     def set_compensation_callback(self, request, response):
         """Apply (true) the stored corrections or restore the nominal words (false)."""

@@ -21,6 +21,7 @@ from qfa_ros.calibration.estimation import (
     FORWARD_ORDERS,
     ForwardSettings,
 )
+from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.errors import error_profile, ERROR_PROFILES, PaperRoom
@@ -68,6 +69,7 @@ _THERMAL = ThermalConfig()
 _CHAMBER = TemperatureSettings()
 _GYRO = GyroConfig()
 _ROOM = PaperRoom()
+_GYRO_BIAS = GyroBiasSettings()
 
 
 @dataclass(frozen=True)
@@ -215,7 +217,7 @@ PARAMETERS = (
     ParameterSpec('gyro.rate_random_walk_deg_per_hr_per_rthr',
                   _GYRO.rate_random_walk * 60.0 / DEG_PER_HOUR,
                   'Gyro rate random walk [deg/h/sqrt(h)]', True, 0.0, 1000.0),
-    ParameterSpec('gyro.turn_on_bias_deg_per_hr', _GYRO.turn_on_bias / DEG_PER_HOUR,
+    ParameterSpec('gyro.turn_on_bias_deg_per_hr', round(_GYRO.turn_on_bias / DEG_PER_HOUR, 9),
                   'Spread (1 sigma) of the gyro turn-on bias drawn per unit [deg/h]', True,
                   0.0, 10000.0),
     ParameterSpec('input.mode', 'static',
@@ -296,6 +298,16 @@ PARAMETERS = (
                   'Move the I_ref reference step to the present on-board temperature with the '
                   'I_ref temperature coefficient calibrate_temperature measured (refused '
                   'without one; false: the paper schedule)'),
+    ParameterSpec('gyro_bias.duration_s', _GYRO_BIAS.duration_s,
+                  'Averaged time of calibrate_gyros, the gyro bias at rest [s] (bounded: at '
+                  'most 600 s of sensor time)', False, 2.0, 600.0),
+    ParameterSpec('gyro_bias.motion_limit_deg_per_hr',
+                  round(_GYRO_BIAS.rate_limit / DEG_PER_HOUR, 9),
+                  'A 1 s gyro mean departing from the run mean by more than this counts as a '
+                  'moving input in calibrate_gyros [deg/h]', False, 1.0e-3, 1.0e6),
+    ParameterSpec('gyro_bias.motion_limit_ug', round(_GYRO_BIAS.accel_limit / MICRO_G, 9),
+                  'A 1 s accelerometer mean departing from the run mean by more than this '
+                  'counts as a moving input in calibrate_gyros [ug]', False, 1.0e-3, 1.0e6),
     ParameterSpec('temperature_calibration.low_c', _CHAMBER.low_c,
                   'Lowest chamber plateau of calibrate_temperature [degC]', False,
                   -60.0, 125.0),
@@ -561,6 +573,16 @@ def feedback_settings(values):
             order=values['estimation.feedback.order'],
             motion_limit=values['estimation.feedback.motion_limit_ug'] * MICRO_G,
             temperature_correction=values['estimation.feedback.temperature_correction'])
+
+
+def gyro_bias_settings(values):
+    """Return the :class:`GyroBiasSettings` of ``gyro_bias.*``, the location and heading."""
+    with _named('gyro_bias'):
+        return GyroBiasSettings(
+            duration_s=values['gyro_bias.duration_s'], latitude_deg=values['latitude_deg'],
+            yaw=values['input.yaw'],
+            rate_limit=values['gyro_bias.motion_limit_deg_per_hr'] * DEG_PER_HOUR,
+            accel_limit=values['gyro_bias.motion_limit_ug'] * MICRO_G)
 
 
 def static_profile(values):

@@ -17,6 +17,7 @@ from rclpy.task import Future
 
 from qfa_ros.bag.traces import trace_path, write_estimation_trace
 from qfa_ros.calibration.schedule import EstimationError
+from qfa_ros.model.gyro import DEG_PER_HOUR
 from qfa_ros.model.triad import AXES, concatenate
 from qfa_ros.ros.bounds import confined_directory
 from qfa_ros.ros.params import feedback_settings, forward_settings
@@ -29,6 +30,7 @@ SCHEDULE_PAUSE = {
     'self_calibrate': 'self-calibration running (open loop, then I_ref steps)',
     'temperature': 'temperature calibration running: accelerated chamber cycle (and I_ref '
                    'steps at its plateaus)',
+    'gyro_bias': 'gyro bias calibration running: averaging the gyros at rest',
 }
 
 
@@ -287,6 +289,9 @@ class ScheduleService:
         values += [(f'k(D(z)) {a}', f'{loop.controller.gain:.9g}')
                    for a, loop in zip(AXES, triad_axes)]
         values += [(f'N_VREF {a}', loop.n_vref) for a, loop in zip(AXES, triad_axes)]
+        if state.gyro_bias:
+            values.append(('gyro bias correction [deg/h]', ', '.join(
+                f'{a} {b / DEG_PER_HOUR:+.4f}' for a, b in zip(AXES, state.gyro_bias))))
         for kind, estimate in state.last_estimates.items():
             values.append((f'last {kind} estimate [ppm]',
                            ', '.join(f'{a} {e:+.2f}' for a, e in zip(AXES, estimate))))
