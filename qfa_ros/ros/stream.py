@@ -39,9 +39,11 @@ SKIP_WARN_S = 10.0
 WARM_UP_SAMPLES = 50
 """Samples run on a copy of the model before the grid is anchored (JIT, first calls)."""
 
-SWITCH_INTERVAL_S = 0.0005
-"""Python's GIL switch interval while the node runs [s] (the default 5 ms would let a busy
-thread hold the pacer that long; see docs/node.md)."""
+SWITCH_INTERVAL_S = 0.00005
+"""Python's GIL switch interval while the node runs [s]. A thread waiting for the GIL waits
+this long before it asks the holder to drop it, and a busy thread that drops the GIL
+briefly (numba kernels, ctypes) mostly takes it back first; so this is about how long a
+batch holds the pacer up (the default 5 ms would hold it that long; see docs/node.md)."""
 
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 TEMPERATURE_TYPE = 'sensor_msgs/msg/Temperature'
