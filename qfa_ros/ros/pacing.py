@@ -25,6 +25,9 @@ LATE_NS = 5_000_000
 RECORD_PERIOD_S = 0.05
 """How often the recording thread writes what was published meanwhile [s]."""
 
+IDLE_PERIOD_S = 1.0
+"""How often the recording thread wakes while nothing is recorded [s]."""
+
 
 class Pacer:
     """
@@ -209,7 +212,10 @@ class RecordingQueue:
                 recording.record(topic, msgtype, data, time_ns)
 
     def _loop(self):
-        while not self._stop.wait(RECORD_PERIOD_S):
+        # Without a recording nothing is queued: wake seldom (a recording started meanwhile
+        # is written at most IDLE_PERIOD_S later; stop wakes the thread at once).
+        while not self._stop.wait(RECORD_PERIOD_S if self._recording.active
+                                  else IDLE_PERIOD_S):
             if self._queue:
                 with self._lock:
                     self.flush()
