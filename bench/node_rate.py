@@ -2,10 +2,13 @@
 
 Every case starts a publisher in its own process: either the node (``qfa_ros.cli.node``)
 or the *floor*, a bare Python thread that sleeps until each sample instant and publishes a
-pre-serialized ``Imu`` (what a Python node can reach at best). This process subscribes to
-``imu/data_raw`` twice, as INS stacks and ``ros2 topic hz`` do (best effort, keep last 5:
-``qos_profile_sensor_data``) and as a careful consumer would (reliable, keep last 10), and
-reads the publisher's CPU time from ``/proc/<pid>/stat`` (all threads).
+pre-serialized ``Imu`` (what a Python node can reach at best). Two subscriber processes,
+started before it, subscribe to ``imu/data_raw`` as INS stacks and ``ros2 topic hz`` do
+(best effort, keep last 5: ``qos_profile_sensor_data``) and as a careful consumer would
+(reliable, keep last 10); this process reads the publisher's CPU time from
+``/proc/<pid>/stat`` (all threads). Each subscriber has a process of its own, as a real
+consumer has: both in one Python process (one GIL, 4 000 callbacks/s at 2 kHz) made that
+process the loser on two cores, and the floor itself lost samples at 2 kHz.
 
 Reported per case: samples lost per subscriber (stamps missing between the first and the
 last received), latency (receive time - stamp) p50 / p99 / max, the publisher's CPU and
@@ -24,6 +27,7 @@ import json
 import os
 from pathlib import Path
 import platform
+import select
 import signal
 import struct
 import subprocess
@@ -34,9 +38,9 @@ import time
 
 import numpy as np
 import rclpy
-from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu
 import yaml
 
@@ -121,7 +125,7 @@ def start_node(domain, directory, rate, recorder, extra):
                             cwd=ROOT, stdout=subprocess.DEVNULL)
 
 
-# The subscribers ---------------------------------------------------------------------------
+# The subscribers: each in a process of its own ------------------------------------------------
 class Receiver:
     """Record the stamp and the receive time of every sample (raw: no deserialization)."""
 
@@ -135,38 +139,79 @@ class Receiver:
         sec, nanosec = STAMP.unpack_from(data, 4)
         self.stamps.append(sec * NS_PER_S + nanosec)
 
-    def take(self):
-        stamps = np.asarray(self.stamps, dtype=np.int64)
-        received = np.asarray(self.received, dtype=np.int64)
-        self.stamps, self.received = [], []
-        return stamps, received
+
+def run_subscriber(name, out, startup_samples):
+    """
+    Subscribe as ``name`` until SIGTERM; then save (stamps, receive times) [ns] to ``out``.
+
+    Prints ``up`` once subscribed and ``ready`` after ``startup_samples`` samples.
+    """
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    # rclpy's own handler would shut the context down under the spinning executor.
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    node = Node('qfa_bench')
+    try:
+        from rclpy.experimental import EventsExecutor
+        executor = EventsExecutor()
+    except ImportError:
+        from rclpy.executors import SingleThreadedExecutor
+        executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    receiver = Receiver(node, SUBSCRIBERS[name])
+    print('up', flush=True)
+    ready = False
+    while not stop.is_set():
+        executor.spin_once(timeout_sec=0.05)
+        if not ready and len(receiver.stamps) >= startup_samples:
+            print('ready', flush=True)
+            ready = True
+    np.save(out, np.array([receiver.stamps, receiver.received], dtype=np.int64))
+    executor.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
 
 
 class Subscribers:
-    """Both subscribers in one context on ``domain``, spun by an EventsExecutor if any."""
+    """One subscriber process per QoS of :data:`SUBSCRIBERS`, on ``domain``."""
 
-    def __init__(self, domain):
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = Node('qfa_bench', context=self.context)
-        try:
-            from rclpy.experimental import EventsExecutor
-            self.executor = EventsExecutor(context=self.context)
-        except ImportError:
-            from rclpy.executors import SingleThreadedExecutor
-            self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.receivers = {name: Receiver(self.node, qos) for name, qos in SUBSCRIBERS.items()}
+    def __init__(self, domain, directory, startup_samples):
+        self.files = {name: Path(directory) / f'subscriber{index}.npy'
+                      for index, name in enumerate(SUBSCRIBERS)}
+        self.processes = {name: subprocess.Popen(
+            [sys.executable, __file__, '--subscriber', name, '--subscriber-out', str(path),
+             '--startup-samples', str(startup_samples)], env=environment(domain), cwd=ROOT,
+            stdout=subprocess.PIPE, text=True) for name, path in self.files.items()}
+        for name in SUBSCRIBERS:
+            self.wait_for(name, 'up', 60.0)
 
-    def spin(self, seconds, stop=lambda: False):
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline and not stop():
-            self.executor.spin_once(timeout_sec=0.05)
+    def wait_for(self, name, line, timeout):
+        """Wait until subscriber ``name`` prints ``line``."""
+        stream = self.processes[name].stdout
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if select.select([stream], [], [], 0.5)[0]:
+                text = stream.readline()
+                if text.strip() == line:
+                    return
+                if not text:
+                    break
+        raise RuntimeError(f'subscriber {name!r}: no {line!r} within {timeout:g} s')
 
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+    def results(self):
+        """Stop the subscribers; return ``{name: (stamps, receive times)}`` [ns]."""
+        for process in self.processes.values():
+            process.send_signal(signal.SIGTERM)
+        for process in self.processes.values():
+            process.wait(30)
+        return {name: tuple(np.load(path)) for name, path in self.files.items()}
+
+    def kill(self):
+        for process in self.processes.values():
+            if process.poll() is None:
+                process.kill()
+                process.wait()
 
 
 def delivery(stamps, received, rate):
@@ -184,37 +229,37 @@ def delivery(stamps, received, rate):
 
 def run_case(domain, kind, rate, recorder, args, window):
     """Measure one case over ``window`` seconds; return its result dict."""
-    subscribers = Subscribers(domain)
-    reliable = subscribers.receivers['reliable, depth 10']
-    try:
-        with tempfile.TemporaryDirectory() as directory:
+    with tempfile.TemporaryDirectory() as directory:
+        # The subscribers exist before the publisher: they see its very first samples.
+        subscribers = Subscribers(domain, directory, args.startup_samples)
+        try:
             started = time.time()
             process = start_floor(domain, rate) if kind == 'floor' \
                 else start_node(domain, directory, rate, recorder, args.param)
             try:
-                subscribers.spin(120.0, lambda: len(reliable.stamps) >= args.startup_samples)
-                if len(reliable.stamps) < args.startup_samples:
-                    raise RuntimeError(f'{kind}: fewer than {args.startup_samples} samples '
-                                       'within 120 s')
-                first_s = reliable.received[0] / 1e9 - started
-                lateness = (np.asarray(reliable.received[:args.startup_samples])
-                            - np.asarray(reliable.stamps[:args.startup_samples])) / 1e6
-                subscribers.spin(args.warmup)
-                for receiver in subscribers.receivers.values():
-                    receiver.take()
+                subscribers.wait_for('reliable, depth 10', 'ready', 120.0)
+                time.sleep(args.warmup)
                 rss_start = rss_bytes(process.pid)
                 cpu_start, wall_start = cpu_seconds(process.pid), time.monotonic()
-                subscribers.spin(window)
+                window_start = time.time_ns()
+                time.sleep(window)
                 cpu = cpu_seconds(process.pid) - cpu_start
                 wall = time.monotonic() - wall_start
+                window_end = time.time_ns()
                 rss_end = rss_bytes(process.pid)
-                windows = {name: receiver.take()
-                           for name, receiver in subscribers.receivers.items()}
             finally:
                 process.send_signal(signal.SIGTERM)
                 status = process.wait(30)
-    finally:
-        subscribers.close()
+            received = subscribers.results()
+        finally:
+            subscribers.kill()
+    stamps, times = received['reliable, depth 10']
+    first_s = times[0] / 1e9 - started
+    lateness = (times[:args.startup_samples] - stamps[:args.startup_samples]) / 1e6
+    windows = {}
+    for name, (stamps, times) in received.items():
+        inside = (times >= window_start) & (times < window_end)
+        windows[name] = (stamps[inside], times[inside])
     return {'kind': kind, 'rate': rate, 'recorder': recorder, 'cpu': 100.0 * cpu / wall,
             'window': wall, 'rss': rss_end / 1e6, 'rss_change': (rss_end - rss_start) / 1e6,
             'first_s': first_s, 'startup_p99': float(np.percentile(lateness, 99)),
@@ -285,10 +330,15 @@ def main():
                         help='then run the node at the first rate this long [s] (RSS growth)')
     parser.add_argument('--out', type=Path, default=None, help='append the Markdown here')
     parser.add_argument('--floor', type=float, default=None, help=argparse.SUPPRESS)
+    parser.add_argument('--subscriber', choices=list(SUBSCRIBERS), default=None,
+                        help=argparse.SUPPRESS)
+    parser.add_argument('--subscriber-out', type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     args.param = dict(args.param)
     if args.floor is not None:
         return run_floor(args.floor)
+    if args.subscriber is not None:
+        return run_subscriber(args.subscriber, args.subscriber_out, args.startup_samples)
     results = []
     # QFA_TEST_DOMAINS=LOW-HIGH confines the ROS domains, as for the tests.
     low, high = (int(v) for v in os.environ.get('QFA_TEST_DOMAINS', '1-100').split('-'))

@@ -241,7 +241,7 @@ def mean_accel(client, collector, count, timeout=30.0, settle_s=0.0):
     Fresh: stamped ``settle_s`` or more after this call (the node stamps with the same
     system clock), so neither samples still queued from before a change nor the loops'
     step response count, however late this process reads them. The node computes its
-    output up to ``stream.lead_s`` (0.1 s) ahead: after a change, ``settle_s`` must exceed it.
+    output up to ``stream.lead_s`` (0.15 s) ahead: after a change, ``settle_s`` must exceed it.
     """
     collector.clear(time.time_ns() + int(settle_s * 1e9))
     client.spin_until(lambda: len(collector.samples) >= count, timeout, f'{count} samples',

@@ -77,7 +77,7 @@ def test_loops_measure_the_ground_truth_and_reject_non_finite_input(setup):
     client, imu, diagnostics = setup['client'], setup['imu'], setup['diagnostics']
     truth = GroundTruth(client)
     client.spin_until(lambda: len(imu.samples) > 50, 60, 'samples from the topic input')
-    mean = mean_accel(client, imu, 500, settle_s=0.15)
+    mean = mean_accel(client, imu, 500, settle_s=0.2)
     assert mean == pytest.approx(unit_output(INPUT), abs=2e-3)
 
     truth.value = (math.nan, 0.0, math.inf)

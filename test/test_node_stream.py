@@ -172,7 +172,7 @@ def test_orientation_changes_the_running_sensor_at_once(setup):
     result, = client.set_parameters({'input.roll': math.pi / 2})
     assert result.successful, result.reason
     # The loops follow a 1 g step within a few ms; skip those samples.
-    mean = mean_accel(client, imu, 500, settle_s=0.15)
+    mean = mean_accel(client, imu, 500, settle_s=0.2)
     assert mean[1] == pytest.approx(ROLLED[1], abs=2e-3)
     assert mean[2] == pytest.approx(ROLLED[2], abs=2e-3)
     result, = client.set_parameters({'input.roll': 0.0})

@@ -101,6 +101,8 @@ class FlightRecorder:
         self._file_metadata = []
         self._index = 0
         self._writer = None
+        # (topic, msgtype) pairs registered in the current file: add_topic once per file.
+        self._registered = set()
         self._file_start_ns = None
         self._lock = threading.Lock()
         self._closed = False
@@ -159,7 +161,9 @@ class FlightRecorder:
                 self._finish_current()
             if self._writer is None:
                 self._open_next(time_ns)
-            self._writer.add_topic(topic, msgtype, self._qos.get(topic))
+            if (topic, msgtype) not in self._registered:
+                self._writer.add_topic(topic, msgtype, self._qos.get(topic))
+                self._registered.add((topic, msgtype))
             self._writer.write_serialized(topic, data, time_ns)
 
     def _limit_reached(self, topic, msgtype, size, time_ns):
@@ -199,6 +203,7 @@ class FlightRecorder:
             storage_metadata=self._storage_metadata,
         )
         self._index += 1
+        self._registered = set()
         self._file_start_ns = time_ns
 
     def _finish_current(self):

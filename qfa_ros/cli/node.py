@@ -134,6 +134,10 @@ MIDDLEWARE_TIMEOUT_S = 2.0
 SPIN_EXIT_TIMEOUT_S = 2.0
 """How long the spin loop may take to notice a stop signal (a callback hung in DDS)."""
 
+SPIN_TIMEOUT_S = 1.0
+"""Longest wait of the spin loop when nothing happens [s]: a stop signal wakes it at once
+(a guard condition), and each wake-up of an idle executor costs about 1.4 ms of CPU."""
+
 EXIT_HARD = 3
 """Exit status when the process had to exit without the middleware teardown."""
 
@@ -158,7 +162,7 @@ def main(args=None):
     signals.watch(node)
     try:
         while not signals.stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
+            executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
     except ExternalShutdownException:
         pass
     signals.stopping.set()
@@ -189,6 +193,7 @@ class StopSignals:
         self.stop = threading.Event()
         self.stopping = threading.Event()
         self._node = None
+        self._wake = None
         self._reader, self._writer = socket.socketpair()
         self._writer.setblocking(False)
         for signum in STOP_SIGNALS:
@@ -197,8 +202,11 @@ class StopSignals:
         threading.Thread(target=self._wait, name='qfa_signals', daemon=True).start()
 
     def watch(self, node):
-        """Close ``node`` if the main thread cannot."""
+        """Close ``node`` if the main thread cannot; wake its executor on a stop signal."""
+        self._wake = node.create_guard_condition(lambda: None)
         self._node = node
+        if self.stop.is_set():
+            self._wake.trigger()
 
     def _wait(self):
         while True:
@@ -206,6 +214,8 @@ class StopSignals:
             if not data or data[0] in STOP_SIGNALS:
                 break
         self.stop.set()
+        if self._wake is not None:
+            self._wake.trigger()
         # The last resort, in C: fires even if a hung call holds the interpreter lock.
         faulthandler.dump_traceback_later(
             SPIN_EXIT_TIMEOUT_S + CLOSE_TIMEOUT_S + MIDDLEWARE_TIMEOUT_S + 2.0, exit=True)

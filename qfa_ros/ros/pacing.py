@@ -25,14 +25,17 @@ LATE_NS = 5_000_000
 RECORD_PERIOD_S = 0.05
 """How often the recording thread writes what was published meanwhile [s]."""
 
+IDLE_PERIOD_S = 1.0
+"""How often the recording thread wakes while nothing is recorded [s]."""
+
 
 class Pacer:
     """
     Publish serialized messages, each as soon as the node clock reaches its stamp.
 
     :param node: The node (its clock: system time, or ``/clock`` with ``use_sim_time``).
-    :param on_published: Called on the pacer thread with ``(topic, msgtype, data, time_ns)``
-        after each publication (the recording hook), or None.
+    :param on_published: Called on the pacer thread with ``(publisher, msgtype, data,
+        time_ns)`` after each publication (the recording hook), or None.
     :param on_empty: Called on the pacer thread when it has published everything it was
         given (it asks the sensor thread for more), or None.
     """
@@ -112,9 +115,13 @@ class Pacer:
     def _publish_hand(self, clock, generation):
         """Publish the messages in hand, each at its stamp, until done, cleared or stopped."""
         on_published = self._on_published
+        # Read once per hand, not per sample (the property costs about as much as a
+        # publication): the messages in hand were stamped on the clock of that moment.
+        simulated = clock.ros_time_is_active
+        wait = self._wait_until
         for index, (stamp, publisher, msgtype, data) in enumerate(self._hand):
             self._hand_index = index
-            now = self._wait_until(clock, stamp, generation)
+            now = wait(clock, stamp, generation, simulated)
             if now is None:
                 return
             publisher.publish(data)
@@ -126,9 +133,9 @@ class Pacer:
             if delay > self.max_delay_ns:
                 self.max_delay_ns = delay
             if on_published is not None:
-                on_published(publisher.topic_name, msgtype, data, now)
+                on_published(publisher, msgtype, data, now)
 
-    def _wait_until(self, clock, stamp, generation):
+    def _wait_until(self, clock, stamp, generation, simulated):
         """
         Sleep until the node clock reaches ``stamp``; return the clock then [ns].
 
@@ -137,11 +144,13 @@ class Pacer:
         while True:
             if self._stop or generation != self._generation:
                 return None
-            if clock.ros_time_is_active:
+            if simulated:
                 now = clock.now().nanoseconds
                 if now >= stamp:
                     return now
                 time.sleep(SIM_POLL_S)
+                # use_sim_time may have been switched off meanwhile.
+                simulated = clock.ros_time_is_active
                 continue
             # The node clock is the system clock (CLOCK_REALTIME, as time.time_ns) unless
             # use_sim_time made it follow /clock; time.time_ns costs far less than Clock.now.
@@ -183,22 +192,30 @@ class RecordingQueue:
         with self._lock:
             self.flush()
 
-    def append(self, topic, msgtype, data, time_ns):
-        """Queue one published message (any thread; never blocks)."""
+    def append(self, publisher, msgtype, data, time_ns):
+        """Queue one message ``publisher`` published (any thread; never blocks)."""
         if self._recording.active:
-            self._queue.append((topic, msgtype, data, time_ns))
+            self._queue.append((publisher, msgtype, data, time_ns))
 
     def flush(self):
         """Record every queued message now (call with the node lock held)."""
         queue = self._queue
         recording = self._recording
+        topics = {}
         while queue:
-            topic, msgtype, data, time_ns = queue.popleft()
+            publisher, msgtype, data, time_ns = queue.popleft()
             if recording.active:
+                # The topic name is looked up here, off the publishing thread.
+                topic = topics.get(publisher)
+                if topic is None:
+                    topic = topics[publisher] = publisher.topic_name
                 recording.record(topic, msgtype, data, time_ns)
 
     def _loop(self):
-        while not self._stop.wait(RECORD_PERIOD_S):
+        # Without a recording nothing is queued: wake seldom (a recording started meanwhile
+        # is written at most IDLE_PERIOD_S later; stop wakes the thread at once).
+        while not self._stop.wait(RECORD_PERIOD_S if self._recording.active
+                                  else IDLE_PERIOD_S):
             if self._queue:
                 with self._lock:
                     self.flush()

@@ -106,12 +106,12 @@ PARAMETERS = (
     ParameterSpec('loop_rate_hz', 10000.0,
                   'Digital loop rate [Hz]; an integer multiple of sample_rate_hz', True,
                   1.0, 1.0e6),
-    ParameterSpec('stream.lead_s', 0.1,
+    ParameterSpec('stream.lead_s', 0.15,
                   'How far ahead of the clock the sensor thread computes the model [s]; each '
                   'sample is still published at its own instant. A parameter change reaches '
                   'the samples stamped up to this much later; a stall shorter than this '
                   'delays no sample', True, 0.002, 1.0),
-    ParameterSpec('stream.batch_s', 0.05,
+    ParameterSpec('stream.batch_s', 0.1,
                   'How often the sensor thread wakes to compute the model up to '
                   'stream.lead_s ahead [s] (shorter than stream.lead_s); also the longest '
                   'wait for a ground-truth input before a sample holds the last one', True,

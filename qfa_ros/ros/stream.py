@@ -9,7 +9,9 @@ ground-truth topic input a sample cannot be computed before its input exists: th
 computes when an input arrives and the pacer publishes at once.
 """
 
+import bisect
 import copy
+from itertools import repeat
 import sys
 import threading
 import time
@@ -37,9 +39,11 @@ SKIP_WARN_S = 10.0
 WARM_UP_SAMPLES = 50
 """Samples run on a copy of the model before the grid is anchored (JIT, first calls)."""
 
-SWITCH_INTERVAL_S = 0.0005
-"""Python's GIL switch interval while the node runs [s] (the default 5 ms would let a busy
-thread hold the pacer that long; see docs/node.md)."""
+SWITCH_INTERVAL_S = 0.00005
+"""Python's GIL switch interval while the node runs [s]. A thread waiting for the GIL waits
+this long before it asks the holder to drop it, and a busy thread that drops the GIL
+briefly (numba kernels, ctypes) mostly takes it back first; so this is about how long a
+batch holds the pacer up (the default 5 ms would hold it that long; see docs/node.md)."""
 
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 TEMPERATURE_TYPE = 'sensor_msgs/msg/Temperature'
@@ -339,12 +343,11 @@ class SampleStream:
         self.pause_reason = reason if not valid[-1] else None
         items = []
         if valid.any():
-            imu = self._imu_publisher
             valid_stamps = stamps[valid]
             rate = output.gyro[valid] if self._imu_encoder.has_rate else None
             messages = self._imu_encoder.encode(valid_stamps, output.accel[valid], rate)
-            items = [(stamp, 0, imu, IMU_TYPE, data)
-                     for stamp, data in zip(valid_stamps.tolist(), messages)]
+            items = list(zip(valid_stamps.tolist(), repeat(self._imu_publisher), repeat(IMU_TYPE),
+                             messages))
         self.withheld += int(len(valid) - np.count_nonzero(valid))
         due = np.arange((-(first + 1)) % self._temperature_every, len(stamps),
                         self._temperature_every)
@@ -354,16 +357,18 @@ class SampleStream:
                 else thermal.reading_c(output.v_temp[due])
             self.last_temperature = float(readings[-1])
             message = self._temperature
-            for stamp, reading in zip(stamps[due].tolist(), readings.tolist()):
+            imu_stamps = [item[0] for item in items]
+            # Inserted from the last: the earlier insertion points stay valid.
+            for stamp, reading in reversed(list(zip(stamps[due].tolist(),
+                                                    readings.tolist()))):
                 message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp,
                                                                                  NS_PER_S)
                 message.temperature = reading
-                items.append((stamp, 1, self._temperature_publisher, TEMPERATURE_TYPE,
+                # The temperature reading follows the sample it belongs to.
+                items.insert(bisect.bisect_right(imu_stamps, stamp),
+                             (stamp, self._temperature_publisher, TEMPERATURE_TYPE,
                               serialize_message(message)))
-            # The temperature reading follows the sample it belongs to.
-            items.sort(key=lambda item: item[:2])
-        self.pacer.put([(stamp, publisher, msgtype, data)
-                        for stamp, _, publisher, msgtype, data in items])
+        self.pacer.put(items)
 
     # Diagnostics ------------------------------------------------------------------------
     def status(self):
