@@ -488,6 +488,14 @@ class QfaTriad:
                 force = np.asarray(self.profile.specific_force, dtype=float)[None, :]
                 return force, np.repeat(force, n_samples, axis=0), \
                     self._rate(n_samples, angular_rate)
+            if getattr(self.profile, 'is_static', False):
+                # A trajectory at rest: one value for the chunk, as a StaticProfile.
+                force, rest_rate = self.profile.rest_values()
+                force = force[None, :]
+                if angular_rate is None:
+                    angular_rate = np.repeat(rest_rate[None, :], n_samples, axis=0)
+                return force, np.repeat(force, n_samples, axis=0), \
+                    self._rate(n_samples, angular_rate)
             force, rate = self._motion(n_samples)
             if force is None:
                 force = self.profile.evaluate(self.time + np.arange(n_steps) * self.dt)
