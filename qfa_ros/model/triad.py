@@ -414,11 +414,6 @@ class QfaTriad:
             return None, np.zeros((n_samples, 3))
         return self.profile.sample_means(self.time, self.sample_period, n_samples)
 
-    def _gyro_output(self, rate, truth, temperature):
-        if self.gyro is None:
-            return np.full((len(truth), 3), np.nan)
-        return self.gyro.run(rate, truth, temperature)[0]
-
     def run(self, n_samples, specific_force=None, angular_rate=None):
         """
         Advance ``n_samples`` output samples and return a :class:`TriadOutput`.
@@ -458,8 +453,14 @@ class QfaTriad:
         self._refresh()
         counts = np.empty((len(AXES), n_samples))
         flags = np.empty((len(AXES), n_samples), dtype=np.int8)
+        if self.gyro is None:
+            gyro, beside = np.full((n_samples, 3), np.nan), ()
+        else:
+            # The gyros share nothing with the loops: they run beside them on the threads.
+            call, gyro, _ = self.gyro.job(rate, truth, temperature)
+            beside = (call,)
         run_axes(self.axes, sensed, scale, offset, self.decimation, counts, flags,
-                 self.workers)
+                 self.workers, beside)
         index = self.sample_index + np.arange(n_samples)
         valid = np.empty((n_samples, 3), dtype=bool)
         for i, loop in enumerate(self.axes):
@@ -471,8 +472,7 @@ class QfaTriad:
         return TriadOutput(stamps_ns=self.stamp_ns(index), accel=accel,
                            counts=counts.T.copy(), flags=flags.T.copy(), valid=valid,
                            truth=truth, temperature=temperature, v_temp=v_temp,
-                           gyro=self._gyro_output(rate, truth, temperature),
-                           rate_truth=rate)
+                           gyro=gyro, rate_truth=rate)
 
     def _input(self, n_samples, specific_force, angular_rate=None):
         # Return the specific force at the rate it changes ((1, 3), (n_samples, 3) or
