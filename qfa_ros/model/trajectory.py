@@ -269,16 +269,24 @@ class Trajectory:
         return position, dcm_to_quaternion(dcm0), velocity_body, k['body_rate']
 
 
-@njit(cache=True, nogil=True)
-def _sensed(c, x, t, out_force, out_rate, index, p, d1, d2):
+@njit(cache=True, nogil=True, inline='always')
+def _sensed(c, x, t, out_force, out_rate, index, p, d1, d2, piece):
     """
     Add f^b and w_ib^b at time ``t`` to row ``index`` of the outputs.
 
     The compiled twin of :meth:`Trajectory.kinematics` (the tests hold it to it).
+    ``piece`` is where the search for ``t``'s piece starts, the piece of the previous
+    call (times advance by much less than a piece); the piece found is returned.
     """
     inside = x[0] <= t <= x[-1]
     t = min(max(t, x[0]), x[-1])
-    i = min(max(np.searchsorted(x, t, side='right') - 1, 0), x.shape[0] - 2)
+    # The piece x[i] <= t < x[i + 1] (the last one at the end): searchsorted's answer,
+    # found by walking from the previous one.
+    i = min(max(piece, 0), x.shape[0] - 2)
+    while i < x.shape[0] - 2 and t >= x[i + 1]:
+        i += 1
+    while i > 0 and t < x[i]:
+        i -= 1
     s = t - x[i]
     for ch in range(6):
         value, first, second = c[0, i, ch], 0.0, 0.0
@@ -335,6 +343,7 @@ def _sensed(c, x, t, out_force, out_rate, index, p, d1, d2):
     out_rate[index, 1] += b1[0] * ie + b1[1] * inn + b1[2] * iu + dpitch * cr + dyaw * sr * cp
     out_rate[index, 2] += b2[0] * ie + b2[1] * inn + b2[2] * iu - dpitch * sr \
         + dyaw * cr * cp
+    return i
 
 
 @njit(cache=True, nogil=True)
@@ -342,12 +351,16 @@ def _sample_means(c, x, start, period, out_force, out_rate):
     """Two-point Gauss-Legendre means of f^b and w_ib^b over consecutive samples."""
     offset = 0.5 / math.sqrt(3.0)
     p, d1, d2 = np.empty(6), np.empty(6), np.empty(6)
+    first = min(max(start, x[0]), x[-1])
+    piece = np.searchsorted(x, first, side='right') - 1
     for k in range(out_force.shape[0]):
         out_force[k] = 0.0
         out_rate[k] = 0.0
         centre = start + (k + 0.5) * period
-        _sensed(c, x, centre - offset * period, out_force, out_rate, k, p, d1, d2)
-        _sensed(c, x, centre + offset * period, out_force, out_rate, k, p, d1, d2)
+        piece = _sensed(c, x, centre - offset * period, out_force, out_rate, k, p, d1, d2,
+                        piece)
+        piece = _sensed(c, x, centre + offset * period, out_force, out_rate, k, p, d1, d2,
+                        piece)
         for j in range(3):
             out_force[k, j] *= 0.5
             out_rate[k, j] *= 0.5
