@@ -7,7 +7,9 @@ output, 10 kHz loops), interleaved in one process so that machine load hits both
 - *static, accelerometers only*: level, no gyros (``TriadConfig(gyro=None)``), the
   ``qfa-sim static`` figure;
 - *drive, full IMU*: the gyro triad and the built-in vehicle drive on the WGS-84 Earth
-  (specific force and rate from the trajectory, ``qfa-sim trajectory --motion drive``).
+  (specific force and rate from the trajectory, ``qfa-sim trajectory --motion drive``);
+- *static on the Earth*, with and without the gyros: level at latitude 45 deg, the
+  node's default pose (one value per chunk, as a level ``StaticProfile``).
 
 The acceptance figure is the ratio of their real-time multiples (issue 15: >= 0.90).
 Each is measured on the wall clock and on the process's CPU time (sensor seconds per
@@ -49,6 +51,9 @@ def main():
                                                                  profile=drive),
         'static on the Earth, full IMU': lambda: QfaTriad(
             TriadConfig(), rng=0, profile=trajectory.static(45.0)),
+        # The same input without the gyros: what the gyros cost, apart from the input.
+        'static on the Earth, accelerometers only': lambda: QfaTriad(
+            TriadConfig(gyro=None), rng=0, profile=trajectory.static(45.0)),
     }
     results = {name: [] for name in cases}
     for _ in range(args.repeat):
