@@ -3,6 +3,8 @@
 import math
 from pathlib import Path
 import re
+import subprocess
+import sys
 
 import numba
 import numpy as np
@@ -13,6 +15,7 @@ from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.cli.sim import static_sensor
 from qfa_ros.model import axis as axis_module
 from qfa_ros.model import kernel
+from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.allan import allan_deviation, allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop, pendulum_matrices
 from qfa_ros.model.drift import SECONDS_PER_YEAR
@@ -35,6 +38,7 @@ from qfa_ros.model.triad import (
     FLAG_OVER_RANGE,
     QfaTriad,
     TriadConfig,
+    TriadOutput,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -284,13 +288,18 @@ def test_same_seed_same_output_and_chunking_is_invisible():
     assert not np.array_equal(one.accel, other.accel)
 
 
-@pytest.mark.parametrize('source', ['static', 'sine', 'per-sample array'])
+@pytest.mark.parametrize('source', ['static', 'sine', 'per-sample array', 'at rest on the Earth',
+                                    'drive'])
 def test_threaded_axes_equal_the_serial_run(monkeypatch, source):
-    # Small thresholds: a 3000-sample chunk runs as 15 slices per axis on the threads.
+    # Small thresholds: a 3000-sample chunk runs as 15 slices per axis on the threads (and
+    # the gyros as 15 slices beside them).
     monkeypatch.setattr(axis_module, 'PARALLEL_MIN_STEPS', 1000)
     monkeypatch.setattr(axis_module, 'SLICE_STEPS', 2000)
-    profile = SineProfile(37.0, amplitude=(0.2, -0.1, 0.3), offset=(0.0, 0.0, G)) \
-        if source == 'sine' else None
+    profile = {
+        'sine': lambda: SineProfile(37.0, amplitude=(0.2, -0.1, 0.3), offset=(0.0, 0.0, G)),
+        'at rest on the Earth': lambda: trajectories.static(45.0, roll=0.2),
+        'drive': lambda: trajectories.vehicle_drive().shifted(-20.0),  # accelerating at 0
+    }.get(source, lambda: None)()
     force = None
     if source == 'per-sample array':
         force = StaticProfile.orientation(0.3, 0.2).evaluate(np.zeros(3000)) \
@@ -301,7 +310,7 @@ def test_threaded_axes_equal_the_serial_run(monkeypatch, source):
         triad = QfaTriad(config, rng=9, profile=profile)
         triad.workers = workers
         outputs.append([triad.run(3000, specific_force=force), triad.run(7)])
-    for field in ('accel', 'counts', 'flags', 'truth', 'temperature'):
+    for field in ('accel', 'counts', 'flags', 'truth', 'temperature', 'gyro', 'rate_truth'):
         for threaded in outputs[1:]:
             for serial_part, part in zip(outputs[0], threaded):
                 assert np.array_equal(getattr(part, field), getattr(serial_part, field))
@@ -329,6 +338,34 @@ def test_a_static_profile_equals_the_same_force_given_as_an_array(given):
     out = triad.run(400, specific_force=force)
     for field in ('accel', 'counts', 'truth'):
         assert np.array_equal(getattr(out, field), getattr(expected, field))
+
+
+def test_a_trajectory_at_rest_held_per_chunk_equals_it_given_per_sample():
+    # Held over the chunk (one value for the loops), or given per sample: the same stream.
+    profile = trajectories.static(30.0, roll=0.3, pitch=-0.2)
+    config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant'))
+    expected = QfaTriad(config, rng=6, profile=profile)
+    triad = QfaTriad(config, rng=6, profile=profile)
+    force, rate = profile.rest_values()
+    for n in (400, 31):
+        held = expected.run(n)
+        given = triad.run(n, specific_force=np.tile(force, (n, 1)),
+                          angular_rate=np.tile(rate, (n, 1)))
+        for field in TriadOutput.FIELDS:
+            assert np.array_equal(getattr(given, field), getattr(held, field)), field
+
+
+def test_qfa_sim_static_loads_only_what_it_runs():
+    # Start-up time: no interpolation (a body at rest), no MCAP writer, no ROS.
+    code = ('import sys\n'
+            'from qfa_ros.cli.sim import main\n'
+            'main(["static", "--duration", "0.1"])\n'
+            'print(sorted({m.split(".")[0] + "." + m.split(".")[1] for m in sys.modules\n'
+            '              if m.startswith(("scipy.interpolate", "scipy.optimize", "mcap.",\n'
+            '                               "qfa_ros.bag", "rclpy."))}))\n')
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                            check=True, timeout=300)
+    assert result.stdout.strip().splitlines()[-1] == '[]'
 
 
 def test_allan_deviation_follows_allantools():

@@ -100,7 +100,7 @@ class AxisLoop:
                         self.state_f, self.state_i, out_mean, out_flags)
 
 
-def run_axes(loops, sensed, scale, offset, decimation, counts, flags, workers):
+def run_axes(loops, sensed, scale, offset, decimation, counts, flags, workers, beside=()):
     """
     Run the kernel of every axis over one chunk, in turn or as time slices on threads.
 
@@ -125,6 +125,10 @@ def run_axes(loops, sensed, scale, offset, decimation, counts, flags, workers):
         Saturation bits per sample, written.
     workers : int
         Threads that may run axes at once (1: the calling thread only).
+    beside : sequence of callables
+        Independent GIL-free work over the same samples (the gyro triad): ``call(a, b)``
+        does samples ``a..b-1``; run as a chain of the axes' time slices beside them on
+        the threads, or once over the chunk after them.
     """
     n_samples = counts.shape[1]
 
@@ -139,6 +143,8 @@ def run_axes(loops, sensed, scale, offset, decimation, counts, flags, workers):
     if not threaded:
         for i, loop in enumerate(loops):
             loop.run(sensed[i], scale[i], offset[i], decimation, counts[i], flags[i])
+        for call in beside:
+            call(0, n_samples)
         return
     step_input = sensed.shape[1] == n_samples * decimation and decimation > 1
     size = max(1, SLICE_STEPS // decimation)
@@ -147,4 +153,5 @@ def run_axes(loops, sensed, scale, offset, decimation, counts, flags, workers):
                                  part(scale[i], a, b, False), part(offset[i], a, b, False),
                                  decimation, counts[i, a:b], flags[i, a:b])
                for a, b in bounds] for i, loop in enumerate(loops)]
+    chains += [[functools.partial(call, a, b) for a, b in bounds] for call in beside]
     run_chains(chains, workers)

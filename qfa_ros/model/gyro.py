@@ -203,37 +203,6 @@ class GyroTriad:
         return c.arw ** 2 / self.dt + c.bias_instability ** 2 \
             + (c.quantization / self.dt) ** 2 / 6.0
 
-    def _slow_blocks(self, count):
-        """Advance the bias-instability and rate-random-walk processes ``count`` blocks."""
-        values = np.zeros((count, 3))
-        if self.config.bias_instability > 0:
-            drive = self._flicker.standard_normal((count, 3, len(self._phi))) \
-                * self._innovation_std
-            _gauss_markov(drive, self._phi, self._flicker_state, values)
-        if self._walk_std > 0:
-            walk = self._walk_state + np.cumsum(
-                self._walk.standard_normal((count, 3)) * self._walk_std, axis=0)
-            values += walk
-            self._walk_state = walk[-1]
-        return values
-
-    def _noise(self, n):
-        noise = np.empty((n, 3))
-        held = min(n, self._slow_left)
-        noise[:held] = self._slow
-        rest = n - held
-        if rest > 0:
-            count = -(-rest // self._block)
-            values = self._slow_blocks(count)
-            noise[held:] = np.repeat(values, self._block, axis=0)[:rest]
-            self._slow = values[-1]
-            self._slow_left = count * self._block - rest
-        else:
-            self._slow_left -= held
-        if self._white_std > 0:
-            noise += self._white.standard_normal((n, 3)) * self._white_std
-        return noise
-
     def run(self, rate, specific_force, temperature):
         """
         Return (output rate [rad/s], saturated bool) per sample, each (n, 3).
@@ -248,48 +217,95 @@ class GyroTriad:
         temperature : array_like, (n,)
             Body temperature per sample [degC].
         """
+        job, output, saturated = self.job(rate, specific_force, temperature)
+        job(0, len(output))
+        return output, saturated
+
+    def job(self, rate, specific_force, temperature):
+        """
+        Return (call, output, saturated): ``call(a, b)`` writes :meth:`run`'s samples a..b-1.
+
+        The arguments are those of :meth:`run`, checked now. The calls must cover
+        ``0..n`` in order (one call, or consecutive slices); each runs the compiled loop,
+        which releases the GIL, so the triad runs them on the threads beside the
+        accelerometer axes.
+        """
         rate = np.ascontiguousarray(rate, dtype=float)
         force = np.ascontiguousarray(specific_force, dtype=float)
         n = len(rate)
         if rate.shape != (n, 3) or force.shape != (n, 3):
             raise ValueError('rate and specific_force must have shape (n, 3)')
-        u = self.unit
-        d_t = np.asarray(temperature, dtype=float) - self.config.reference_c
-        output = self._noise(n)
+        d_t = np.ascontiguousarray(np.broadcast_to(
+            np.asarray(temperature, dtype=float) - self.config.reference_c, (n,)))
+        output = np.empty((n, 3))
         saturated = np.empty((n, 3), dtype=np.bool_)
-        _output_equation(rate, force, d_t, self._sensing, u.scale_factor, u.scale_factor_tc,
-                         u.asymmetry, u.bias, u.bias_tc, u.g_sensitivity,
-                         self.config.quantization, self.dt, self.config.range,
-                         self._angle_residual, output, saturated)
-        return output, saturated
+        u = self.unit
+        c = self.config
+
+        def call(a, b):
+            slow_left = np.array([self._slow_left], dtype=np.int64)
+            _gyro_chunk(self._white, self._flicker, self._walk, self._white_std, self._block,
+                        c.bias_instability > 0, self._phi, self._innovation_std,
+                        self._flicker_state, self._walk_std, self._walk_state, self._slow,
+                        slow_left, rate[a:b], force[a:b], d_t[a:b], self._sensing,
+                        u.scale_factor, u.scale_factor_tc, u.asymmetry, u.bias, u.bias_tc,
+                        u.g_sensitivity, c.quantization, self.dt, c.range,
+                        self._angle_residual, output[a:b], saturated[a:b])
+            self._slow_left = int(slow_left[0])
+
+        return call, output, saturated
 
 
 @njit(cache=True, nogil=True)
-def _gauss_markov(drive, phi, state, out):
-    """Add the sum over components j of ``b_j[k] = phi_j b_j[k-1] + drive[k, axis, j]``."""
-    for axis in range(drive.shape[1]):
-        for j in range(drive.shape[2]):
-            value = state[axis, j]
-            for k in range(drive.shape[0]):
-                value = phi[j] * value + drive[k, axis, j]
-                out[k, axis] += value
-            state[axis, j] = value
-
-
-@njit(cache=True, nogil=True)
-def _output_equation(rate, force, d_t, sensing, sf, sf_tc, asymmetry, bias, bias_tc, g_sens,
-                     quantum, dt, limit, residual, out, saturated):
+def _gyro_chunk(white, flicker, walk, white_std, block, flicker_on, phi, innovation_std,
+                flicker_state, walk_std, walk_state, slow, slow_left, rate, force, d_t,
+                sensing, sf, sf_tc, asymmetry, bias, bias_tc, g_sens, quantum, dt, limit,
+                residual, out, saturated):
     """
-    Add the output equation of the module docstring to the noise in ``out`` (n, 3).
+    Run the noise and the output equation of the module docstring over ``n`` samples.
 
-    Then quantize the angle (``residual`` carries the remainder between calls) and clip.
+    The slow processes (Gauss-Markov sum ``phi_j b_j + q_j v``, then the rate random
+    walk, its steps summed from the chunk's first block and added to the walk's value at
+    the chunk's start) advance once per ``block`` samples and hold; ``slow`` (3,) is
+    the value held and ``slow_left[0]`` the samples it still holds. The white noise is
+    ``white_std`` times a standard normal per sample and axis. Each stream draws in a
+    fixed order (Gauss-Markov per block, axis, component; walk per block, axis; white
+    per sample, axis), so the output depends on the seed, not on the chunk lengths.
+    Then the angle is quantized (``residual`` carries the remainder) and clipped.
     """
-    for k in range(rate.shape[0]):
+    n = rate.shape[0]
+    n_components = phi.shape[0]
+    walk_start = walk_state.copy()
+    steps = np.zeros(3)
+    stepped = False
+    left = slow_left[0]
+    for k in range(n):
+        if left == 0:
+            for i in range(3):
+                value = 0.0
+                if flicker_on:
+                    for j in range(n_components):
+                        state = phi[j] * flicker_state[i, j] \
+                            + flicker.standard_normal() * innovation_std[j]
+                        flicker_state[i, j] = state
+                        value += state
+                slow[i] = value
+            if walk_std > 0:
+                for i in range(3):
+                    step = walk.standard_normal() * walk_std
+                    steps[i] = step if not stepped else steps[i] + step
+                    slow[i] += walk_start[i] + steps[i]
+                stepped = True
+            left = block
+        left -= 1
         for i in range(3):
+            noise = slow[i]
+            if white_std > 0:
+                noise += white.standard_normal() * white_std
             sensed = sensing[i, 0] * rate[k, 0] + sensing[i, 1] * rate[k, 1] \
                 + sensing[i, 2] * rate[k, 2]
             sign = 1.0 if sensed > 0 else (-1.0 if sensed < 0 else 0.0)
-            value = out[k, i] + sensed * (1.0 + sf[i] + sf_tc[i] * d_t[k] + asymmetry[i] * sign) \
+            value = noise + sensed * (1.0 + sf[i] + sf_tc[i] * d_t[k] + asymmetry[i] * sign) \
                 + bias[i] + bias_tc[i] * d_t[k] + g_sens[i, 0] * force[k, 0] \
                 + g_sens[i, 1] * force[k, 1] + g_sens[i, 2] * force[k, 2]
             if quantum > 0:
@@ -300,3 +316,7 @@ def _output_equation(rate, force, d_t, sensing, sf, sf_tc, asymmetry, bias, bias
                 value = counts * quantum / dt
             saturated[k, i] = abs(value) > limit
             out[k, i] = min(max(value, -limit), limit)
+    if stepped:
+        for i in range(3):
+            walk_state[i] = walk_start[i] + steps[i]
+    slow_left[0] = left

@@ -433,7 +433,15 @@ class ThermalModel:
         v_true = self.voltage_at(probe)
         code = np.clip(np.rint((v_true + cfg.tsensor_noise_v * noise[:, 1]) / cfg.adc_lsb_v),
                        0, (1 << cfg.adc_bits) - 1).astype(np.int64)
+        if n and sensor[0] == sensor[-1] and np.all(sensor == sensor[0]) \
+                and np.all(hysteresis == hysteresis[0]):
+            # A body at a constant temperature (the usual static case): the temperature
+            # terms are evaluated once, not per sample, and held.
+            bias = np.repeat(self.zero_bias(sensor[:1], hysteresis[:1]), n, axis=0)
+            scale_factor_error = np.repeat(self.scale_factor_error(sensor[:1]), n, axis=0)
+        else:
+            bias = self.zero_bias(sensor, hysteresis)
+            scale_factor_error = self.scale_factor_error(sensor)
         return ThermalChunk(time=times[:n], ambient_c=ambient, sensor_c=sensor,
                             v_temp_true=v_true, v_temp=code * cfg.adc_lsb_v, adc_code=code,
-                            bias=self.zero_bias(sensor, hysteresis),
-                            scale_factor_error=self.scale_factor_error(sensor))
+                            bias=bias, scale_factor_error=scale_factor_error)

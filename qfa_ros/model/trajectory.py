@@ -31,6 +31,9 @@ scripts already are.
 
 One cohesive module: the pose representation, its exact kinematics (and their compiled
 twin, held equal by the tests), the scripts and the file format that build it.
+:mod:`scipy.interpolate` (a third of a second to import) is loaded only when a moving
+trajectory is evaluated or a file read: a body at rest (``qfa-sim static``, the node's
+default pose) never needs it.
 """
 
 import csv
@@ -38,7 +41,6 @@ import math
 
 from numba import njit
 import numpy as np
-from scipy.interpolate import CubicSpline, PPoly
 
 from qfa_ros.model import earth
 
@@ -105,31 +107,47 @@ class Trajectory:
 
     Parameters
     ----------
-    poly : scipy.interpolate.PPoly
-        Six channels (lat [rad], lon [rad], h [m], roll, pitch, yaw [rad]) over time [s].
+    poly : scipy.interpolate.PPoly or tuple
+        Six channels (lat [rad], lon [rad], h [m], roll, pitch, yaw [rad]) over time [s]:
+        a ``PPoly`` or its ``(c, x)`` (coefficients (k, m, 6), breakpoints (m + 1,)),
+        from which the ``PPoly`` is made when first needed.
     name : str
         What it is (printed by ``qfa-sim``).
     """
 
     def __init__(self, poly, name='trajectory'):
-        if poly.c.ndim != 3 or poly.c.shape[2] != 6:
+        if isinstance(poly, tuple):
+            c, x = (np.asarray(v, dtype=float) for v in poly)
+            self._poly = None
+        else:
+            c, x = poly.c, poly.x
+            self._poly = poly
+        if c.ndim != 3 or c.shape[2] != 6 or x.shape != (c.shape[1] + 1,):
             raise ValueError('poly must have six channels')
-        self.poly = poly
+        self._c, self._x = c, x
         self.name = name
-        self.start = float(poly.x[0])
-        self.end = float(poly.x[-1])
-        self._d1 = poly.derivative(1)
-        self._d2 = poly.derivative(2)
-        values = poly(np.array([self.start, self.end]))
-        self._still = bool(np.all(poly.c[:-1] == 0.0)) and np.allclose(values[0], values[1])
+        self.start = float(x[0])
+        self.end = float(x[-1])
+        self._derivatives = None
+        # Without terms of order >= 1 every piece is its constant: the values at the start
+        # and the end are the first and last pieces' constants.
+        self._still = bool(np.all(c[:-1] == 0.0)) and np.allclose(c[-1, 0], c[-1, -1])
+        self._constant = self._still and bool(np.all(c[-1] == c[-1, 0]))
         self._rest_cache = None
+
+    @property
+    def poly(self):
+        """Return the :class:`scipy.interpolate.PPoly` of the six channels."""
+        if self._poly is None:
+            from scipy.interpolate import PPoly
+            self._poly = PPoly(self._c, self._x, extrapolate=False)
+        return self._poly
 
     def shifted(self, start_s):
         """Return the same motion starting at time ``start_s`` [s] instead of its own."""
         if start_s == self.start:
             return self
-        poly = PPoly(self.poly.c, self.poly.x - self.start + start_s, extrapolate=False)
-        return Trajectory(poly, self.name)
+        return Trajectory((self._c, self._x - self.start + start_s), self.name)
 
     @property
     def duration(self):
@@ -143,10 +161,18 @@ class Trajectory:
 
     def _channels(self, t):
         t = np.asarray(t, dtype=float)
+        if self._constant:
+            # The constant of every piece, what PPoly's Horner scheme returns exactly
+            # when every higher coefficient is zero; no rates, no accelerations.
+            zero = np.zeros((len(t), 6))
+            return np.broadcast_to(self._c[-1, 0], zero.shape).copy(), zero, zero.copy()
+        if self._derivatives is None:
+            self._derivatives = (self.poly.derivative(1), self.poly.derivative(2))
+        d1, d2 = self._derivatives
         clamped = np.clip(t, self.start, self.end)
         inside = ((t >= self.start) & (t <= self.end))[:, None]
-        return (self.poly(clamped), np.where(inside, self._d1(clamped), 0.0),
-                np.where(inside, self._d2(clamped), 0.0))
+        return (self.poly(clamped), np.where(inside, d1(clamped), 0.0),
+                np.where(inside, d2(clamped), 0.0))
 
     def kinematics(self, t):
         """
@@ -201,15 +227,26 @@ class Trajectory:
         angle increments divided by the period) to O(period^4).
         """
         if self._still:
-            if self._rest_cache is None:
-                k = self.kinematics(np.array([self.start]))
-                self._rest_cache = (k['specific_force'][0], k['angular_rate'][0])
-            force, rate = self._rest_cache
+            force, rate = self.rest_values()
             return np.tile(force, (n, 1)), np.tile(rate, (n, 1))
         force = np.empty((n, 3))
         rate = np.empty((n, 3))
-        _sample_means(self.poly.c, self.poly.x, float(start), float(period), force, rate)
+        _sample_means(self._c, self._x, float(start), float(period), force, rate)
         return force, rate
+
+    def rest_values(self):
+        """
+        Return (f^b, w_ib^b) of a body at rest (:attr:`is_static`), each shape (3,).
+
+        The values at the start, computed once: what every sample of a trajectory at rest
+        sees, so a caller can hold them over a whole chunk.
+        """
+        if not self._still:
+            raise ValueError(f'{self.name} is not at rest')
+        if self._rest_cache is None:
+            k = self.kinematics(np.array([self.start]))
+            self._rest_cache = (k['specific_force'][0], k['angular_rate'][0])
+        return self._rest_cache
 
     def local_pose(self, t):
         """
@@ -220,7 +257,7 @@ class Trajectory:
         axes; body rate w_nb^b [rad/s] in body axes.
         """
         k = self.kinematics(np.atleast_1d(t))
-        origin = self.poly(np.array([self.start]))[0]
+        origin = self._channels(np.array([self.start]))[0][0]
         c_e_n0 = ecef_to_enu_matrix(origin[0], origin[1])
         delta = geodetic_to_ecef(k['latitude'], k['longitude'], k['height']) \
             - geodetic_to_ecef(origin[0], origin[1], origin[2])
@@ -232,16 +269,24 @@ class Trajectory:
         return position, dcm_to_quaternion(dcm0), velocity_body, k['body_rate']
 
 
-@njit(cache=True, nogil=True)
-def _sensed(c, x, t, out_force, out_rate, index, p, d1, d2):
+@njit(cache=True, nogil=True, inline='always')
+def _sensed(c, x, t, out_force, out_rate, index, p, d1, d2, piece):
     """
     Add f^b and w_ib^b at time ``t`` to row ``index`` of the outputs.
 
     The compiled twin of :meth:`Trajectory.kinematics` (the tests hold it to it).
+    ``piece`` is where the search for ``t``'s piece starts, the piece of the previous
+    call (times advance by much less than a piece); the piece found is returned.
     """
     inside = x[0] <= t <= x[-1]
     t = min(max(t, x[0]), x[-1])
-    i = min(max(np.searchsorted(x, t, side='right') - 1, 0), x.shape[0] - 2)
+    # The piece x[i] <= t < x[i + 1] (the last one at the end): searchsorted's answer,
+    # found by walking from the previous one.
+    i = min(max(piece, 0), x.shape[0] - 2)
+    while i < x.shape[0] - 2 and t >= x[i + 1]:
+        i += 1
+    while i > 0 and t < x[i]:
+        i -= 1
     s = t - x[i]
     for ch in range(6):
         value, first, second = c[0, i, ch], 0.0, 0.0
@@ -298,6 +343,7 @@ def _sensed(c, x, t, out_force, out_rate, index, p, d1, d2):
     out_rate[index, 1] += b1[0] * ie + b1[1] * inn + b1[2] * iu + dpitch * cr + dyaw * sr * cp
     out_rate[index, 2] += b2[0] * ie + b2[1] * inn + b2[2] * iu - dpitch * sr \
         + dyaw * cr * cp
+    return i
 
 
 @njit(cache=True, nogil=True)
@@ -305,12 +351,16 @@ def _sample_means(c, x, start, period, out_force, out_rate):
     """Two-point Gauss-Legendre means of f^b and w_ib^b over consecutive samples."""
     offset = 0.5 / math.sqrt(3.0)
     p, d1, d2 = np.empty(6), np.empty(6), np.empty(6)
+    first = min(max(start, x[0]), x[-1])
+    piece = np.searchsorted(x, first, side='right') - 1
     for k in range(out_force.shape[0]):
         out_force[k] = 0.0
         out_rate[k] = 0.0
         centre = start + (k + 0.5) * period
-        _sensed(c, x, centre - offset * period, out_force, out_rate, k, p, d1, d2)
-        _sensed(c, x, centre + offset * period, out_force, out_rate, k, p, d1, d2)
+        piece = _sensed(c, x, centre - offset * period, out_force, out_rate, k, p, d1, d2,
+                        piece)
+        piece = _sensed(c, x, centre + offset * period, out_force, out_rate, k, p, d1, d2,
+                        piece)
         for j in range(3):
             out_force[k, j] *= 0.5
             out_rate[k, j] *= 0.5
@@ -319,6 +369,17 @@ def _sample_means(c, x, start, period, out_force, out_rate):
 def quintic_poly(times, values, rates, accelerations):
     """
     Return the C2 piecewise quintic through knot values, rates and accelerations.
+
+    A :class:`scipy.interpolate.PPoly`; :func:`quintic_coefficients` gives its ``(c, x)``.
+    """
+    from scipy.interpolate import PPoly
+    return PPoly(*quintic_coefficients(times, values, rates, accelerations),
+                 extrapolate=False)
+
+
+def quintic_coefficients(times, values, rates, accelerations):
+    """
+    Return ``(c, x)`` of the C2 piecewise quintic through knot values, rates, accelerations.
 
     ``times`` (m,) strictly increasing [s]; the others (m, channels). Per piece of
     length ``h``, with the residuals ``D0 = y1 - y0 - y0' h - y0'' h^2/2``,
@@ -339,7 +400,7 @@ def quintic_poly(times, values, rates, accelerations):
     c[2] = (20 * d0 - 8 * d1 * h + d2 * h * h) / (2 * h ** 3)
     c[1] = (-30 * d0 + 14 * d1 * h - 2 * d2 * h * h) / (2 * h ** 4)
     c[0] = (12 * d0 - 6 * d1 * h + d2 * h * h) / (2 * h ** 5)
-    return PPoly(c, x, extrapolate=False)
+    return c, x
 
 
 def _location(latitude_deg, longitude_deg, height_m):
@@ -370,7 +431,7 @@ def static(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, roll=0.0, pitch=0
     location = _location(latitude_deg, longitude_deg, height_m)
     pose = np.array([location + (roll, pitch, yaw)] * 2)
     zero = np.zeros_like(pose)
-    return Trajectory(quintic_poly([0.0, 1.0], pose, zero, zero), 'static')
+    return Trajectory(quintic_coefficients([0.0, 1.0], pose, zero, zero), 'static')
 
 
 TUMBLE_ATTITUDES = ((0.0, 0.0), (math.pi, 0.0), (0.0, -math.pi / 2), (0.0, math.pi / 2),
@@ -562,6 +623,7 @@ def load_csv(path):
     channels = np.radians(data[:, 1:])
     channels[:, 2] = data[:, 3]
     channels[:, 3:] = np.unwrap(channels[:, 3:], axis=0)
+    from scipy.interpolate import CubicSpline, PPoly
     spline = CubicSpline(data[:, 0], channels, axis=0, bc_type='clamped')
     return Trajectory(PPoly(spline.c, spline.x, extrapolate=False), f'file {path}')
 

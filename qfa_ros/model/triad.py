@@ -417,11 +417,6 @@ class QfaTriad:
             return None, np.zeros((n_samples, 3))
         return self.profile.sample_means(self.time, self.sample_period, n_samples)
 
-    def _gyro_output(self, rate, truth, temperature):
-        if self.gyro is None:
-            return np.full((len(truth), 3), np.nan)
-        return self.gyro.run(rate, truth, temperature)[0] - self.gyro_bias_correction
-
     def run(self, n_samples, specific_force=None, angular_rate=None):
         """
         Advance ``n_samples`` output samples and return a :class:`TriadOutput`.
@@ -461,8 +456,16 @@ class QfaTriad:
         self._refresh()
         counts = np.empty((len(AXES), n_samples))
         flags = np.empty((len(AXES), n_samples), dtype=np.int8)
+        if self.gyro is None:
+            gyro, beside = np.full((n_samples, 3), np.nan), ()
+        else:
+            # The gyros share nothing with the loops: they run beside them on the threads.
+            call, gyro, _ = self.gyro.job(rate, truth, temperature)
+            beside = (call,)
         run_axes(self.axes, sensed, scale, offset, self.decimation, counts, flags,
-                 self.workers)
+                 self.workers, beside)
+        if self.gyro is not None:
+            gyro -= self.gyro_bias_correction
         index = self.sample_index + np.arange(n_samples)
         valid = np.empty((n_samples, 3), dtype=bool)
         for i, loop in enumerate(self.axes):
@@ -474,8 +477,7 @@ class QfaTriad:
         return TriadOutput(stamps_ns=self.stamp_ns(index), accel=accel,
                            counts=counts.T.copy(), flags=flags.T.copy(), valid=valid,
                            truth=truth, temperature=temperature, v_temp=v_temp,
-                           gyro=self._gyro_output(rate, truth, temperature),
-                           rate_truth=rate)
+                           gyro=gyro, rate_truth=rate)
 
     def _input(self, n_samples, specific_force, angular_rate=None):
         # Return the specific force at the rate it changes ((1, 3), (n_samples, 3) or
@@ -489,6 +491,14 @@ class QfaTriad:
         elif specific_force is None:
             if isinstance(self.profile, StaticProfile):
                 force = np.asarray(self.profile.specific_force, dtype=float)[None, :]
+                return force, np.repeat(force, n_samples, axis=0), \
+                    self._rate(n_samples, angular_rate)
+            if getattr(self.profile, 'is_static', False):
+                # A trajectory at rest: one value for the chunk, as a StaticProfile.
+                force, rest_rate = self.profile.rest_values()
+                force = force[None, :]
+                if angular_rate is None:
+                    angular_rate = np.repeat(rest_rate[None, :], n_samples, axis=0)
                 return force, np.repeat(force, n_samples, axis=0), \
                     self._rate(n_samples, angular_rate)
             force, rate = self._motion(n_samples)
