@@ -47,11 +47,18 @@ def domain_id(tag):
     Return a ROS domain id distinct per ``tag`` within this test run.
 
     ``QFA_TEST_DOMAINS=LOW-HIGH`` confines the ids (default 1-100), so that two test runs
-    on one machine (two work trees) never share a domain.
+    on one machine (two work trees) never share a domain. Tags get consecutive ids in the
+    order they are first asked for (a hash of the tag collided in a range of 13), so the
+    nodes of one test never share a domain while the run uses fewer tags than the range.
     """
     low, high = (int(part) for part in os.environ.get('QFA_TEST_DOMAINS', '1-100').split('-'))
     span = high - low + 1
-    return low + (os.getpid() * 7 + sum(ord(c) * (i + 1) for i, c in enumerate(tag))) % span
+    index = _DOMAIN_TAGS.setdefault(tag, len(_DOMAIN_TAGS))
+    return low + (os.getpid() * 7 + index) % span
+
+
+_DOMAIN_TAGS = {}
+"""Tags in the order they were first given a domain in this test process."""
 
 
 def node_environment(domain):
