@@ -60,9 +60,9 @@ def _write_atomically(table, path):
     os.replace(temporary, path)
 
 
-def _prepare(study, parts):
+def _prepare(study, parts, code):
     """Create or check the parts directory; return the batches still to compute."""
-    identity = {'digest': study.digest(), 'code': code_digest(), 'study': study.to_dict()}
+    identity = {'digest': study.digest(), 'code': code, 'study': study.to_dict()}
     marker = parts / STUDY_FILE
     if marker.exists():
         try:
@@ -121,7 +121,8 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
 
     out_path = Path(out_path)
     parts = parts_directory(out_path)
-    pending = _prepare(study, parts)
+    code = code_digest()
+    pending = _prepare(study, parts, code)
     done = len(study.batches) - len(pending)
     if done:
         log(f'{done} of {len(study.batches)} batches already done in {parts}; '
@@ -163,7 +164,7 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
     table = table.sort_by([('unit', 'ascending'), ('calibration', 'ascending')])
     table = table.replace_schema_metadata({
         'qfa_ros.study': json.dumps(study.to_dict(), default=str),
-        'qfa_ros.code_digest': code_digest()})
+        'qfa_ros.code_digest': code})
     _write_atomically(table, out_path)
     log(f'{study.units} units x {study.calibrations} calibrations -> {out_path} '
         f'({time.perf_counter() - started:.1f} s for {len(pending)} batches)')

@@ -40,9 +40,9 @@ import yaml
 
 from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
 from qfa_ros.calibration.experiments import IMPROVED_SCHEDULE, PAPER_SCHEDULE
+from qfa_ros.model.errors import ERROR_PROFILES
 
 SCHEDULES = {'paper': PAPER_SCHEDULE, 'improved': IMPROVED_SCHEDULE}
-ERROR_PROFILES = ('paper', 'ideal')
 AGING_DISTRIBUTIONS = ('normal', 'uniform')
 SPANS_PPM = {'paper': 200.0, 'year': 100.0, 'large': 1000.0}
 """Drift spans of the one-calibration Monte Carlo [ppm]: the paper's +-200 ppm; one year

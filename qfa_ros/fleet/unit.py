@@ -39,7 +39,7 @@ from qfa_ros.calibration.experiments import (
 )
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
-from qfa_ros.model.errors import ErrorProfile, PaperRoom
+from qfa_ros.model.errors import error_profile, PaperRoom
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
@@ -56,7 +56,7 @@ TORQUER_COMPONENT = 'l_coil'
 
 
 def _profile(environment):
-    profile = ErrorProfile() if environment.error_profile == 'paper' else ErrorProfile.ideal()
+    profile = error_profile(environment.error_profile)
     if environment.magnet_tc_ppm is not None:
         profile = replace(profile, magnet_tc_ppm=environment.magnet_tc_ppm)
     # The study ages k_t itself; the profile keeps only its temperature coefficients.

@@ -551,6 +551,11 @@ def _vibration(location, duration_s, frequency_hz, knots_per_cycle, motion):
     return Trajectory(quintic_poly(t, values, rates, accelerations))
 
 
+def _sine(amplitude, w, s, c):
+    """Return ``amplitude sin(w t)`` and its first two derivatives, given its sin and cos."""
+    return amplitude * s, amplitude * w * c, -amplitude * w * w * s
+
+
 def coning(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0.5,
            frequency_hz=10.0, duration_s=60.0, yaw=math.pi / 2, knots_per_cycle=32):
     """
@@ -565,8 +570,7 @@ def coning(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0.5
     def motion(t):
         values, rates, accelerations = (np.zeros((len(t), 6)) for _ in range(3))
         s, c = np.sin(w * t), np.cos(w * t)
-        values[:, 3], rates[:, 3], accelerations[:, 3] = \
-            amplitude * s, amplitude * w * c, -amplitude * w * w * s
+        values[:, 3], rates[:, 3], accelerations[:, 3] = _sine(amplitude, w, s, c)
         values[:, 4], rates[:, 4], accelerations[:, 4] = \
             amplitude * (c - 1), -amplitude * w * s, -amplitude * w * w * c
         values[:, 5] = yaw
@@ -592,10 +596,8 @@ def sculling(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0
     def motion(t):
         values, rates, accelerations = (np.zeros((len(t), 6)) for _ in range(3))
         s, c = np.sin(w * t), np.cos(w * t)
-        values[:, 3], rates[:, 3], accelerations[:, 3] = \
-            amplitude * s, amplitude * w * c, -amplitude * w * w * s
-        values[:, 2], rates[:, 2], accelerations[:, 2] = \
-            displacement_m * s, displacement_m * w * c, -displacement_m * w * w * s
+        values[:, 3], rates[:, 3], accelerations[:, 3] = _sine(amplitude, w, s, c)
+        values[:, 2], rates[:, 2], accelerations[:, 2] = _sine(displacement_m, w, s, c)
         values[:, 5] = yaw
         return values, rates, accelerations
 
