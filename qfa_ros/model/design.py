@@ -8,6 +8,7 @@ from scipy.linalg import expm
 
 from qfa_ros.model.hardware import nominal_gains
 from qfa_ros.model.noise import acceleration_variance
+from qfa_ros.model.parallel import single_threaded_blas
 
 GAIN_FRAC_BITS = 32
 """Fraction bits of the controller gain word k(D(z))."""
@@ -96,7 +97,8 @@ def pendulum_matrices(hw, loop_period):
     block = np.zeros((3, 3))
     block[:2, :2] = a
     block[:2, 2:] = b
-    phi = expm(block * loop_period)
+    with single_threaded_blas():
+        phi = expm(block * loop_period)
     return phi[:2, :2].copy(), phi[:2, 2].copy()
 
 
