@@ -13,6 +13,7 @@ import argparse
 import contextlib
 import datetime
 import functools
+import gc
 import math
 import sys
 import time
@@ -32,7 +33,9 @@ from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 from qfa_ros.model.unit import draw_unit
 
-STATIC_CHUNK_SECONDS = 30.0
+CHUNK_SECONDS = 30.0
+"""Sensor time per chunk of the static and trajectory scenarios [s]: long enough for the
+axes' threads and for the next chunk's preparation to overlap a chunk's loops."""
 SIM_START_NS = 1_767_225_600_000_000_000
 """Default start of simulated recordings: 2026-01-01T00:00:00Z [ns since the epoch].
 
@@ -41,9 +44,6 @@ timelines) or the wall clock (a bag would differ from run to run): same seed, sa
 Defined here, not in the bag layer, so that ``qfa-sim static`` does not load the MCAP
 writer it does not use.
 """
-TRAJECTORY_CHUNK_SECONDS = 1.0
-"""Sensor time per :meth:`QfaTriad.run` call of the static scenario [s]."""
-
 
 def scenario_bag(args, config):
     """Return a :class:`ScenarioBag` for ``--out``, or a null context without it."""
@@ -81,7 +81,7 @@ def run_static(args, out=None):
     config, profile = static_sensor()
     triad = QfaTriad(config, rng=args.seed, profile=profile, start_ns=args.start_ns)
     rate = int(round(config.sample_rate_hz))
-    chunk = int(round(STATIC_CHUNK_SECONDS * config.sample_rate_hz))
+    chunk = int(round(CHUNK_SECONDS * config.sample_rate_hz))
     total = int(round(args.duration * config.sample_rate_hz))
     # Per axis, the phase of (accel - reference) for the Allan deviation (one row, the
     # only array of the run's length) and the sums of its first two powers.
@@ -97,8 +97,7 @@ def run_static(args, out=None):
                  leave=False) as progress:
         if bag:
             bag.write_phase('static', sensor_time_ns(triad))
-        while done < total:
-            part = triad.run(min(chunk, total - done))
+        for part in triad.run_chunks(total, chunk):
             n = len(part.stamps_ns)
             if reference is None:
                 reference = part.accel.mean(axis=0)
@@ -146,7 +145,7 @@ def run_trajectory(args, out=None):
     duration = args.duration if args.duration is not None else max(motion.duration, 60.0)
     config = TriadConfig(sample_rate_hz=args.rate)
     triad = QfaTriad(config, rng=args.seed, profile=motion, start_ns=args.start_ns)
-    chunk = int(round(TRAJECTORY_CHUNK_SECONDS * config.sample_rate_hz))
+    chunk = int(round(CHUNK_SECONDS * config.sample_rate_hz))
     total = int(round(duration * config.sample_rate_hz))
     truth_every = max(1, int(round(config.sample_rate_hz / args.truth_rate)))
     accel_error = np.zeros(3)
@@ -160,8 +159,7 @@ def run_trajectory(args, out=None):
     with bag if bag else contextlib.nullcontext():
         if bag:
             bag.write_phase(motion.name, args.start_ns)
-        while done < total:
-            part = triad.run(min(chunk, total - done))
+        for part in triad.run_chunks(total, chunk):
             accel_error += (part.accel - part.truth).sum(axis=0)
             gyro_error += (part.gyro - part.rate_truth).sum(axis=0)
             if bag:
@@ -388,7 +386,13 @@ def main(argv=None):
         print('qfa-sim: --out must name a .mcap file', file=sys.stderr)
         return 2
     start = time.perf_counter()
-    status = SCENARIOS[args.scenario](args)
+    # The imports and numba's first compile leave ~1e5 long-lived objects; a full
+    # collection walks them all (~60 ms), so they are kept out of the run's collections.
+    gc.freeze()
+    try:
+        status = SCENARIOS[args.scenario](args)
+    finally:
+        gc.unfreeze()
     print(f'wall time {time.perf_counter() - start:.2f} s', file=sys.stdout)
     return status
 

@@ -83,16 +83,35 @@ def allan_deviation_of_phase(phase, sample_period, taus='octave'):
     return m * sample_period, deviation
 
 
+_BLOCK = 8192
+"""Phase points per cache block: factors up to it share one pass over the phase."""
+
+
 # reassoc lets LLVM vectorize the sum (order of additions only; checked against allantools).
 @njit(cache=True, nogil=True, fastmath={'reassoc'})
 def _overlapping_adev(phase, factors, out):
     # out[j]: overlapping Allan deviation at factor m = factors[j] from the phase series.
+    # Factors up to _BLOCK are summed block by block of k, so the phase a block needs
+    # (k .. k + _BLOCK + 2 m) is read from memory once for all of them, not once each.
     n = phase.shape[0]
+    totals = np.zeros(factors.shape[0])
+    for start in range(0, n, _BLOCK):
+        for j in range(factors.shape[0]):
+            m = factors[j]
+            if m > _BLOCK:
+                continue
+            stop = min(start + _BLOCK, n - 2 * m)
+            total = 0.0
+            for k in range(start, stop):
+                d = phase[k + 2 * m] - 2.0 * phase[k + m] + phase[k]
+                total += d * d
+            totals[j] += total
     for j in range(factors.shape[0]):
         m = factors[j]
-        terms = n - 2 * m
-        total = 0.0
-        for k in range(terms):
-            d = phase[k + 2 * m] - 2.0 * phase[k + m] + phase[k]
-            total += d * d
-        out[j] = math.sqrt(total / (2.0 * terms)) / m
+        if m > _BLOCK:
+            total = 0.0
+            for k in range(n - 2 * m):
+                d = phase[k + 2 * m] - 2.0 * phase[k + m] + phase[k]
+                total += d * d
+            totals[j] = total
+        out[j] = math.sqrt(totals[j] / (2.0 * (n - 2 * m))) / m

@@ -7,7 +7,7 @@ import numpy as np
 from qfa_ros.model import kernel
 from qfa_ros.model.design import design_controller, pendulum_matrices
 from qfa_ros.model.hardware import counts_to_accel, loop_gains, STANDARD_GRAVITY
-from qfa_ros.model.parallel import run_chains
+from qfa_ros.model.parallel import ChainRun, start_chains
 
 PARALLEL_MIN_STEPS = 20_000
 """Loop steps per axis from which :func:`run_axes` spreads the axes over threads."""
@@ -101,8 +101,14 @@ class AxisLoop:
 
 
 def run_axes(loops, sensed, scale, offset, decimation, counts, flags, workers, beside=()):
+    """Run the kernel of every axis over one chunk (:func:`start_axes`, then join)."""
+    start_axes(loops, sensed, scale, offset, decimation, counts, flags, workers,
+               beside).join()
+
+
+def start_axes(loops, sensed, scale, offset, decimation, counts, flags, workers, beside=()):
     """
-    Run the kernel of every axis over one chunk, in turn or as time slices on threads.
+    Start the kernel of every axis over one chunk, in turn or as time slices on threads.
 
     Each axis draws from its own stream and its slices run in order, so the output is
     identical whatever ``workers`` is. Threads are used from ``PARALLEL_MIN_STEPS`` loop
@@ -129,6 +135,11 @@ def run_axes(loops, sensed, scale, offset, decimation, counts, flags, workers, b
         Independent GIL-free work over the same samples (the gyro triad): ``call(a, b)``
         does samples ``a..b-1``; run as a chain of the axes' time slices beside them on
         the threads, or once over the chunk after them.
+
+    Returns
+    -------
+    qfa_ros.model.parallel.ChainRun
+        Its ``join()`` returns when every output is written (at once when run in turn).
     """
     n_samples = counts.shape[1]
 
@@ -145,7 +156,7 @@ def run_axes(loops, sensed, scale, offset, decimation, counts, flags, workers, b
             loop.run(sensed[i], scale[i], offset[i], decimation, counts[i], flags[i])
         for call in beside:
             call(0, n_samples)
-        return
+        return ChainRun(())
     step_input = sensed.shape[1] == n_samples * decimation and decimation > 1
     size = max(1, SLICE_STEPS // decimation)
     bounds = [(a, min(a + size, n_samples)) for a in range(0, n_samples, size)]
@@ -154,4 +165,4 @@ def run_axes(loops, sensed, scale, offset, decimation, counts, flags, workers, b
                                  decimation, counts[i, a:b], flags[i, a:b])
                for a, b in bounds] for i, loop in enumerate(loops)]
     chains += [[functools.partial(call, a, b) for a, b in bounds] for call in beside]
-    run_chains(chains, workers)
+    return start_chains(chains, workers)

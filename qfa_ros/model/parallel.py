@@ -46,21 +46,45 @@ def run_chains(chains, workers):
     """
     Run every chain's calls in order, the chains concurrently on up to ``workers`` threads.
 
+    :func:`start_chains` then :meth:`ChainRun.join`.
+    """
+    start_chains(chains, workers).join()
+
+
+def start_chains(chains, workers):
+    """
+    Start running every chain's calls in order, the chains concurrently; return the run.
+
     A chain is a sequence of callables without arguments that must run one after the
     other (the time slices of one axis); different chains share nothing. The calls are
     meant to release the GIL (numba ``nogil=True``). A free thread takes the next call of
     the idle chain with the most calls left, so three chains on two threads keep both
-    busy (a makespan of about 3/2 of one chain, not 2). The calling thread is one of the
-    workers, so progress never waits for the pool. The first exception is re-raised
-    after every thread has stopped.
+    busy (a makespan of about 3/2 of one chain, not 2). Up to ``workers - 1`` helper
+    threads start at once; the calling thread may do other work (holding the GIL is
+    fine: the calls do not need it) and then joins them with :meth:`ChainRun.join`, so
+    progress never waits for the pool.
     """
-    pending = [deque(chain) for chain in chains]
-    busy = [False] * len(pending)
-    errors = []
-    # Guards pending, busy and errors; notified whenever a call ends.
-    condition = threading.Condition()
+    run = ChainRun(chains)
+    helpers = max(0, min(workers, len(chains)) - 1)
+    run.futures = [_pool().submit(run.work) for _ in range(helpers)]
+    return run
 
-    def work():
+
+class ChainRun:
+    """Chains being run by :func:`start_chains`; :meth:`join` waits for all of them."""
+
+    def __init__(self, chains):
+        self.pending = [deque(chain) for chain in chains]
+        self.busy = [False] * len(self.pending)
+        self.errors = []
+        self.futures = []
+        # Guards pending, busy and errors; notified whenever a call ends.
+        self.condition = threading.Condition()
+
+    def work(self):
+        """Run calls until none is left (or one failed); any thread may call this."""
+        pending, busy, errors, condition = self.pending, self.busy, self.errors, \
+            self.condition
         while True:
             with condition:
                 while True:
@@ -77,7 +101,7 @@ def run_chains(chains, workers):
                 call = pending[k].popleft()
             try:
                 call()
-            except BaseException as error:  # noqa: B902 - handed to the caller below
+            except BaseException as error:  # noqa: B902 - handed to the caller by join
                 with condition:
                     errors.append(error)
                     condition.notify_all()
@@ -86,10 +110,11 @@ def run_chains(chains, workers):
                 busy[k] = False
                 condition.notify_all()
 
-    helpers = max(0, min(workers, len(pending)) - 1)
-    futures = [_pool().submit(work) for _ in range(helpers)]
-    work()
-    for future in futures:
-        future.result()
-    if errors:
-        raise errors[0]
+    def join(self):
+        """Work on the calls left with the calling thread; re-raise the first failure."""
+        self.work()
+        for future in self.futures:
+            future.result()
+        self.futures = []
+        if self.errors:
+            raise self.errors[0]

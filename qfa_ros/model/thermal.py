@@ -436,9 +436,10 @@ class ThermalModel:
         if n and sensor[0] == sensor[-1] and np.all(sensor == sensor[0]) \
                 and np.all(hysteresis == hysteresis[0]):
             # A body at a constant temperature (the usual static case): the temperature
-            # terms are evaluated once, not per sample, and held.
-            bias = np.repeat(self.zero_bias(sensor[:1], hysteresis[:1]), n, axis=0)
-            scale_factor_error = np.repeat(self.scale_factor_error(sensor[:1]), n, axis=0)
+            # terms are evaluated once, not per sample, and held (read-only views).
+            bias = np.broadcast_to(self.zero_bias(sensor[:1], hysteresis[:1]), (n, N_AXES))
+            scale_factor_error = np.broadcast_to(self.scale_factor_error(sensor[:1]),
+                                                 (n, N_AXES))
         else:
             bias = self.zero_bias(sensor, hysteresis)
             scale_factor_error = self.scale_factor_error(sensor)

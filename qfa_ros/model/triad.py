@@ -13,7 +13,7 @@ import numbers
 import numpy as np
 
 from qfa_ros.model import kernel
-from qfa_ros.model.axis import AxisLoop, run_axes
+from qfa_ros.model.axis import AxisLoop, start_axes
 from qfa_ros.model.drift import DriftModel
 from qfa_ros.model.gyro import GyroConfig, GyroTriad
 from qfa_ros.model.hardware import AxisHardware, counts_to_accel, STANDARD_GRAVITY
@@ -388,7 +388,7 @@ class QfaTriad:
     def _start_equilibrium(self):
         # Start each loop at rest under the initial input so runs need no warm-up.
         f0 = self.profile.evaluate(np.zeros(1))[0]
-        sensed = self._sensed(f0[None, :])[0]
+        sensed = self._sensed(f0[None, :], self.time)[0]
         if self.thermal is not None:  # the loop input includes the thermal terms (run)
             sensed = sensed * (1.0 + self.thermal.scale_factor_error(self.temperature)) \
                 + self.thermal.zero_bias(self.temperature)
@@ -399,9 +399,9 @@ class QfaTriad:
             loop.state_i[kernel.T_LAST] = command
             loop.state_i[kernel.T_INTEGRATOR] = command << 28
 
-    def _sensed(self, specific_force):
+    def _sensed(self, specific_force, time):
         a = specific_force @ self._misalignment.T
-        return self._bias + self.drift.bias_at(self.time) + a + self._k2 * a * a
+        return self._bias + self.drift.bias_at(time) + a + self._k2 * a * a
 
     # Motion (trajectory, gyros) -------------------------------------------------------
     def is_at_rest(self):
@@ -411,11 +411,11 @@ class QfaTriad:
                 'at rest'
         return None
 
-    def _motion(self, n_samples):
+    def _motion(self, start, n_samples):
         # Per-sample mean specific force and angular rate of a trajectory, else None.
         if not hasattr(self.profile, 'sample_means'):
             return None, np.zeros((n_samples, 3))
-        return self.profile.sample_means(self.time, self.sample_period, n_samples)
+        return self.profile.sample_means(start, self.sample_period, n_samples)
 
     def run(self, n_samples, specific_force=None, angular_rate=None):
         """
@@ -434,36 +434,101 @@ class QfaTriad:
             True angular rate w_ib^b [rad/s] per sample, shape (n_samples, 3), with
             ``specific_force``; default: the trajectory's, or zero.
         """
-        if int(n_samples) != n_samples or n_samples < 0:
-            raise ValueError(f'n_samples must be a non-negative integer, got {n_samples!r}')
-        n_samples = int(n_samples)
-        force, truth, rate = self._input(n_samples, specific_force, angular_rate)
+        n_samples = _sample_count('n_samples', n_samples)
+        chunk = self._prepare(self.sample_index, n_samples, specific_force, angular_rate)
+        self._launch(chunk).join()
+        return self._finish(chunk)
+
+    def run_chunks(self, n_samples, chunk_samples):
+        """
+        Advance ``n_samples`` in chunks of ``chunk_samples``; yield each chunk's output.
+
+        The outputs are those of :meth:`run` called chunk after chunk (same numbers), but
+        the work around the loops overlaps them: while the threads run a chunk's loops
+        and gyros, the calling thread prepares the next chunk's input and thermal terms,
+        then assembles the chunk's output, and the caller's own work on a yielded chunk
+        overlaps the next chunk's loops. The triad's state must not be changed while
+        iterating; closing the generator early lets the chunk in flight finish first
+        (the triad has then advanced past the last chunk yielded).
+
+        Parameters
+        ----------
+        n_samples : int
+            Samples to run in all.
+        chunk_samples : int
+            Samples per chunk (the last one may be shorter), at least 1.
+        """
+        n_samples = _sample_count('n_samples', n_samples)
+        chunk_samples = _sample_count('chunk_samples', chunk_samples)
+        if chunk_samples < 1:
+            raise ValueError(f'chunk_samples must be at least 1, got {chunk_samples}')
+        sizes = [min(chunk_samples, n_samples - done)
+                 for done in range(0, n_samples, chunk_samples)]
+        if not sizes:
+            return
+        chunk = self._prepare(self.sample_index, sizes[0])
+        running = self._launch(chunk)
+        start = self.sample_index + sizes[0]
+        try:
+            for size in sizes[1:] + [None]:
+                upcoming = None if size is None else self._prepare(start, size)
+                running.join()
+                running = None
+                output = self._finish(chunk)
+                if upcoming is not None:
+                    start += size
+                    chunk = upcoming
+                    running = self._launch(chunk)
+                yield output
+        finally:
+            if running is not None:
+                running.join()
+                self._finish(chunk)
+
+    def _prepare(self, start_index, n_samples, specific_force=None, angular_rate=None):
+        # Everything a chunk's loops need that does not depend on them: the input and
+        # the thermal terms (the thermal model advances, the loops do not).
+        force, truth, rate = self._input(start_index * self.sample_period, n_samples,
+                                         specific_force, angular_rate)
         # Rows per axis: one value for the chunk, one per sample or one per loop step.
-        sensed = np.ascontiguousarray(self._sensed(force).T)
+        chunk = _Chunk(start_index, n_samples, truth, rate)
+        chunk.sensed = np.ascontiguousarray(
+            self._sensed(force, start_index * self.sample_period).T)
         if self.thermal is not None:
-            chunk = self.thermal.run(n_samples, self.sample_period)
-            temperature = chunk.sensor_c
-            v_temp = chunk.v_temp
-            # Gains follow the chunk's mean temperature: it moves far slower than a chunk.
-            self.temperature = float(temperature.mean())
-            scale = np.ascontiguousarray(1.0 + chunk.scale_factor_error.T)
-            offset = np.ascontiguousarray(chunk.bias.T)
+            terms = self.thermal.run(n_samples, self.sample_period)
+            chunk.temperature = terms.sensor_c
+            chunk.v_temp = terms.v_temp
+            chunk.scale = 1.0 + _held_or_per_sample(terms.scale_factor_error)
+            chunk.offset = _held_or_per_sample(terms.bias)
         else:
-            temperature = np.full(n_samples, self.temperature)
-            v_temp = np.full(n_samples, np.nan)
-            scale = np.ones((len(AXES), 1))
-            offset = np.zeros((len(AXES), 1))
+            chunk.temperature = np.full(n_samples, self.temperature)
+            chunk.v_temp = np.full(n_samples, np.nan)
+            chunk.scale = np.ones((len(AXES), 1))
+            chunk.offset = np.zeros((len(AXES), 1))
+        return chunk
+
+    def _launch(self, chunk):
+        # Start the chunk's loops (and gyros) on the threads; the triad is at its start.
+        if self.thermal is not None:
+            # Gains follow the chunk's mean temperature: it moves far slower than a chunk.
+            self.temperature = float(chunk.temperature.mean())
         self._refresh()
-        counts = np.empty((len(AXES), n_samples))
-        flags = np.empty((len(AXES), n_samples), dtype=np.int8)
+        n_samples = chunk.n_samples
+        chunk.counts = np.empty((len(AXES), n_samples))
+        chunk.flags = np.empty((len(AXES), n_samples), dtype=np.int8)
         if self.gyro is None:
-            gyro, beside = np.full((n_samples, 3), np.nan), ()
+            chunk.gyro, beside = np.full((n_samples, 3), np.nan), ()
         else:
             # The gyros share nothing with the loops: they run beside them on the threads.
-            call, gyro, _ = self.gyro.job(rate, truth, temperature)
+            call, chunk.gyro, _ = self.gyro.job(chunk.rate, chunk.truth, chunk.temperature)
             beside = (call,)
-        run_axes(self.axes, sensed, scale, offset, self.decimation, counts, flags,
-                 self.workers, beside)
+        return start_axes(self.axes, chunk.sensed, chunk.scale, chunk.offset,
+                          self.decimation, chunk.counts, chunk.flags, self.workers, beside)
+
+    def _finish(self, chunk):
+        # The chunk's output once its loops ran; the triad moves to its end.
+        n_samples = chunk.n_samples
+        gyro = chunk.gyro
         if self.gyro is not None:
             gyro -= self.gyro_bias_correction
         index = self.sample_index + np.arange(n_samples)
@@ -471,22 +536,24 @@ class QfaTriad:
         for i, loop in enumerate(self.axes):
             valid[:, i] = (not loop.open_loop) & (index >= self.settle_until[i])
         self.sample_index += n_samples
-        accel = counts.T * self.scale
+        counts = chunk.counts.T
+        accel = counts * self.scale
         if self.temperature_compensation and self.temperature_compensator is not None:
-            accel = self.temperature_compensator.apply(accel, v_temp)
+            accel = self.temperature_compensator.apply(accel, chunk.v_temp)
         return TriadOutput(stamps_ns=self.stamp_ns(index), accel=accel,
-                           counts=counts.T.copy(), flags=flags.T.copy(), valid=valid,
-                           truth=truth, temperature=temperature, v_temp=v_temp,
-                           gyro=gyro, rate_truth=rate)
+                           counts=counts.copy(), flags=chunk.flags.T.copy(), valid=valid,
+                           truth=chunk.truth, temperature=chunk.temperature,
+                           v_temp=chunk.v_temp, gyro=gyro, rate_truth=chunk.rate)
 
-    def _input(self, n_samples, specific_force, angular_rate=None):
+    def _input(self, start, n_samples, specific_force, angular_rate=None):
         # Return the specific force at the rate it changes ((1, 3), (n_samples, 3) or
-        # (n_steps, 3)), its mean per sample (truth) and the angular rate per sample.
+        # (n_steps, 3)), its mean per sample (truth) and the angular rate per sample, for
+        # the samples from sensor time ``start`` [s].
         n_steps = n_samples * self.decimation
         rate = None
         if self.fixture is not None:
             # The dividing head replaces every other input while it is set.
-            force = self.fixture.evaluate(self.time + np.arange(n_steps) * self.dt)
+            force = self.fixture.evaluate(start + np.arange(n_steps) * self.dt)
             angular_rate = None
         elif specific_force is None:
             if isinstance(self.profile, StaticProfile):
@@ -501,9 +568,9 @@ class QfaTriad:
                     angular_rate = np.repeat(rest_rate[None, :], n_samples, axis=0)
                 return force, np.repeat(force, n_samples, axis=0), \
                     self._rate(n_samples, angular_rate)
-            force, rate = self._motion(n_samples)
+            force, rate = self._motion(start, n_samples)
             if force is None:
-                force = self.profile.evaluate(self.time + np.arange(n_steps) * self.dt)
+                force = self.profile.evaluate(start + np.arange(n_steps) * self.dt)
         else:
             force = np.asarray(specific_force, dtype=float)
             if force.shape not in ((n_samples, 3), (n_steps, 3)):
@@ -538,6 +605,32 @@ class QfaTriad:
             parts.append(self.run(n))
             total -= n
         return concatenate(parts)
+
+
+class _Chunk:
+    """The arrays of one chunk between :meth:`QfaTriad._prepare` and ``_finish``."""
+
+    def __init__(self, start_index, n_samples, truth, rate):
+        self.start_index = start_index
+        self.n_samples = n_samples
+        self.truth = truth
+        self.rate = rate
+        self.sensed = self.temperature = self.v_temp = self.scale = self.offset = None
+        self.counts = self.flags = self.gyro = None
+
+
+def _held_or_per_sample(values):
+    """Return per-axis rows of (n, 3) ``values``: (3, 1) when all rows are equal, else (3, n)."""
+    if len(values) and np.all(values == values[0]):
+        return np.ascontiguousarray(values[:1].T)
+    return np.ascontiguousarray(values.T)
+
+
+def _sample_count(name, value):
+    """Return ``value`` as a non-negative int, else raise ValueError naming ``name``."""
+    if isinstance(value, bool) or int(value) != value or value < 0:
+        raise ValueError(f'{name} must be a non-negative integer, got {value!r}')
+    return int(value)
 
 
 def _is_real(value):
