@@ -11,6 +11,7 @@ computes when an input arrives and the pacer publishes at once.
 
 import bisect
 import copy
+import gc
 from itertools import repeat
 import sys
 import threading
@@ -216,6 +217,12 @@ class SampleStream:
         serialize_message(self._temperature)
         if model.thermal is not None:
             model.thermal.reading_c(output.v_temp)
+        # rclpy, numba and the model leave ~1.4e5 long-lived objects: a full collection
+        # walks them all holding the GIL (~90 ms here, every sample of it late), and one
+        # comes whenever enough new objects survive (the recorder's). Frozen, they are
+        # left out of every collection; this process runs one node, so they live as long.
+        gc.collect()
+        gc.freeze()
 
     def _step(self):
         """Compute one batch, or one slice of a fast schedule; return True for the latter."""
