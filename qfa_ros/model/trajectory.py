@@ -29,8 +29,13 @@ survey exports and is the quantity an INS is scored against; a command script (t
 gnss-ins-sim motion definition) would be a second way to write what the built-in
 scripts already are.
 
-One cohesive module: the pose representation, its exact kinematics (and their compiled
-twin, held equal by the tests), the scripts and the file format that build it.
+The sensors read the mean of f^b and w_ib^b over each sample period
+(:meth:`Trajectory.sample_means`): exact integrals of verified per-piece Chebyshev fits of
+the compiled twin of the kinematics, within 1e-10 m/s^2 and 1e-13 rad/s (or 1e-11 of the
+magnitude), built by :mod:`qfa_ros.model.trajectory_means`.
+
+One cohesive module: the pose representation, its exact kinematics, the scripts and the
+file format that build it.
 :mod:`scipy.interpolate` (a third of a second to import) is loaded only when a moving
 trajectory is evaluated or a file read: a body at rest (``qfa-sim static``, the node's
 default pose) never needs it.
@@ -39,10 +44,10 @@ default pose) never needs it.
 import csv
 import math
 
-from numba import njit
 import numpy as np
 
 from qfa_ros.model import earth
+from qfa_ros.model.trajectory_means import PiecewiseMeans
 
 CSV_COLUMNS = ('time_s', 'latitude_deg', 'longitude_deg', 'height_m', 'roll_deg',
                'pitch_deg', 'yaw_deg')
@@ -134,6 +139,7 @@ class Trajectory:
         self._still = bool(np.all(c[:-1] == 0.0)) and np.allclose(c[-1, 0], c[-1, -1])
         self._constant = self._still and bool(np.all(c[-1] == c[-1, 0]))
         self._rest_cache = None
+        self._means = None
 
     @property
     def poly(self):
@@ -222,17 +228,17 @@ class Trajectory:
         """
         Return (mean f^b, mean w_ib^b) over ``n`` samples of ``period`` from ``start``.
 
-        Two-point Gauss-Legendre quadrature per sample: exact for cubics in time, so
-        the sample means are the integrals a strapdown algorithm expects (velocity and
-        angle increments divided by the period) to O(period^4).
+        Each (n, 3) [m/s^2], [rad/s]: the exact means over each sample (what a strapdown
+        algorithm reads as velocity and angle increments divided by the period), within
+        1e-10 m/s^2 and 1e-13 rad/s or 1e-11 of the magnitude
+        (:mod:`qfa_ros.model.trajectory_means`), however the samples are cut into calls.
         """
         if self._still:
             force, rate = self.rest_values()
             return np.tile(force, (n, 1)), np.tile(rate, (n, 1))
-        force = np.empty((n, 3))
-        rate = np.empty((n, 3))
-        _sample_means(self._c, self._x, float(start), float(period), force, rate)
-        return force, rate
+        if self._means is None:
+            self._means = PiecewiseMeans(self._c, self._x)
+        return self._means.sample_means(start, period, n)
 
     def rest_values(self):
         """
@@ -267,103 +273,6 @@ class Trajectory:
         dcm0 = c_e_n0 @ c_n_e @ k['dcm']
         velocity_body = np.einsum('nji,nj->ni', k['dcm'], k['velocity'])
         return position, dcm_to_quaternion(dcm0), velocity_body, k['body_rate']
-
-
-@njit(cache=True, nogil=True, inline='always')
-def _sensed(c, x, t, out_force, out_rate, index, p, d1, d2, piece):
-    """
-    Add f^b and w_ib^b at time ``t`` to row ``index`` of the outputs.
-
-    The compiled twin of :meth:`Trajectory.kinematics` (the tests hold it to it).
-    ``piece`` is where the search for ``t``'s piece starts, the piece of the previous
-    call (times advance by much less than a piece); the piece found is returned.
-    """
-    inside = x[0] <= t <= x[-1]
-    t = min(max(t, x[0]), x[-1])
-    # The piece x[i] <= t < x[i + 1] (the last one at the end): searchsorted's answer,
-    # found by walking from the previous one.
-    i = min(max(piece, 0), x.shape[0] - 2)
-    while i < x.shape[0] - 2 and t >= x[i + 1]:
-        i += 1
-    while i > 0 and t < x[i]:
-        i -= 1
-    s = t - x[i]
-    for ch in range(6):
-        value, first, second = c[0, i, ch], 0.0, 0.0
-        for j in range(1, c.shape[0]):
-            second = second * s + first
-            first = first * s + value
-            value = value * s + c[j, i, ch]
-        p[ch] = value
-        d1[ch] = first if inside else 0.0
-        d2[ch] = 2.0 * second if inside else 0.0
-    lat, h = p[0], p[2]
-    sl, cl = math.sin(lat), math.cos(lat)
-    e2 = earth.ECCENTRICITY_SQUARED
-    a = earth.SEMI_MAJOR_AXIS
-    s2 = sl * sl
-    w2 = 1.0 - e2 * s2
-    w = math.sqrt(w2)
-    r_e = a / w
-    r_n = r_e * (1.0 - e2) / w2
-    dr_e = r_e * e2 * sl * cl / w2
-    dr_n = 3.0 * r_n * e2 * sl * cl / w2
-    dlat, dlon, dh = d1[0], d1[1], d1[2]
-    ve = (r_e + h) * cl * dlon
-    vn = (r_n + h) * dlat
-    vu = dh
-    ae = (dr_e * dlat + dh) * cl * dlon - (r_e + h) * sl * dlat * dlon + (r_e + h) * cl * d2[1]
-    an = (dr_n * dlat + dh) * dlat + (r_n + h) * d2[0]
-    au = d2[2]
-    omega = earth.EARTH_RATE
-    we, wn, wu = 0.0, omega * cl, omega * sl
-    te, tn = -vn / (r_n + h), ve / (r_e + h)
-    tu = tn * sl / cl
-    ce, cn, cu = 2.0 * we + te, 2.0 * wn + tn, 2.0 * wu + tu
-    gamma = earth.GAMMA_EQUATOR * (1.0 + earth.SOMIGLIANA_K * s2) / w
-    gamma *= 1.0 - 2.0 / a * (1.0 + earth.FLATTENING + earth.GRAVITY_RATIO_M
-                              - 2.0 * earth.FLATTENING * s2) * h + 3.0 * h * h / (a * a)
-    fe = ae + cn * vu - cu * vn
-    fn = an + cu * ve - ce * vu
-    fu = au + ce * vn - cn * ve + gamma
-    roll, pitch, yaw = p[3], p[4], p[5]
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    # Columns of C_b^n = R_z R_y R_x: rows of C_n^b.
-    b0 = (cy * cp, sy * cp, -sp)
-    b1 = (cy * sp * sr - sy * cr, sy * sp * sr + cy * cr, cp * sr)
-    b2 = (cy * sp * cr + sy * sr, sy * sp * cr - cy * sr, cp * cr)
-    ie, inn, iu = we + te, wn + tn, wu + tu
-    droll, dpitch, dyaw = d1[3], d1[4], d1[5]
-    out_force[index, 0] += b0[0] * fe + b0[1] * fn + b0[2] * fu
-    out_force[index, 1] += b1[0] * fe + b1[1] * fn + b1[2] * fu
-    out_force[index, 2] += b2[0] * fe + b2[1] * fn + b2[2] * fu
-    out_rate[index, 0] += b0[0] * ie + b0[1] * inn + b0[2] * iu + droll - dyaw * sp
-    out_rate[index, 1] += b1[0] * ie + b1[1] * inn + b1[2] * iu + dpitch * cr + dyaw * sr * cp
-    out_rate[index, 2] += b2[0] * ie + b2[1] * inn + b2[2] * iu - dpitch * sr \
-        + dyaw * cr * cp
-    return i
-
-
-@njit(cache=True, nogil=True)
-def _sample_means(c, x, start, period, out_force, out_rate):
-    """Two-point Gauss-Legendre means of f^b and w_ib^b over consecutive samples."""
-    offset = 0.5 / math.sqrt(3.0)
-    p, d1, d2 = np.empty(6), np.empty(6), np.empty(6)
-    first = min(max(start, x[0]), x[-1])
-    piece = np.searchsorted(x, first, side='right') - 1
-    for k in range(out_force.shape[0]):
-        out_force[k] = 0.0
-        out_rate[k] = 0.0
-        centre = start + (k + 0.5) * period
-        piece = _sensed(c, x, centre - offset * period, out_force, out_rate, k, p, d1, d2,
-                        piece)
-        piece = _sensed(c, x, centre + offset * period, out_force, out_rate, k, p, d1, d2,
-                        piece)
-        for j in range(3):
-            out_force[k, j] *= 0.5
-            out_rate[k, j] *= 0.5
 
 
 def quintic_poly(times, values, rates, accelerations):

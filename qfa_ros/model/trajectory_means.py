@@ -1,0 +1,388 @@
+r"""Sample means of a trajectory's specific force and angular rate, from verified fits.
+
+A sensor sample is the mean of f^b and w_ib^b over its period (what a strapdown
+algorithm reads as velocity and angle increments divided by the period). Evaluating the
+exact kinematics (:func:`sensed`, the compiled twin of
+:meth:`qfa_ros.model.trajectory.Trajectory.kinematics`: 8 trig functions, a square
+root and six polynomial channels with two derivatives) costs ~0.15 us a point, so a
+quadrature with two points a sample costs ~0.3 ms a sensor second at 1 kHz.
+:class:`PiecewiseMeans` evaluates it far less often:
+
+- **Fit.** Each polynomial piece of the trajectory is fitted, when a sample first
+  reaches it, by Chebyshev interpolants of the six outputs on Chebyshev-Lobatto nodes of
+  degree 2, 4, 8, 16, 32 (nested: each doubling reuses every point). A degree is
+  accepted when the interpolant matches the exact outputs at the n points between its
+  nodes (the next grid's new nodes) to :data:`FIT_FRACTION` of the tolerance, for each
+  channel ``max(FORCE_TOLERANCE, RELATIVE_TOLERANCE |f|)`` [m/s^2] and
+  ``max(RATE_TOLERANCE, RELATIVE_TOLERANCE |w|)`` [rad/s], ``|.|`` the channel's largest
+  magnitude on the piece. A piece no degree 32 fits is cut in halves, recursively. The
+  fits stay within each piece: the outputs are analytic inside a piece and kinked at its
+  knots (C2 positions: f^b has a kink, w_ib^b a jump of its second derivative).
+- **Integrate.** The mean over a sample is the exact integral of the fits over it,
+  cut at the segment boundaries and the trajectory's ends (the body rests at the end
+  poses outside), divided by its length. The mean of ``T_k`` over ``[y, x]`` comes from
+  the divided differences ``D_k = (T_k(x) - T_k(y)) / (x - y)``, whose recurrence
+  ``D_{k+1} = 2 x D_k + 2 T_k(y) - D_{k-1}`` has no cancellation however short the
+  sample is on however long a segment (a 600 s dwell), unlike a difference of
+  antiderivatives.
+
+So the means are the exact means of the trajectory to the tolerance, which sits far
+below what the sensors resolve: 1e-10 m/s^2 is 1 % of an accelerometer's ~1e-8 m/s^2
+resolution, 1e-13 rad/s (or 1e-11 of the rate) is 1e-5 of the gyros' 1.5e-8 rad/s bias
+instability, and 1e-11 relative is 1e-5 of a 1 ppm scale-factor error. The fits depend
+on the piece alone, so the means do not depend on how the samples are cut into calls.
+"""
+
+import math
+
+from numba import njit
+import numpy as np
+
+from qfa_ros.model import earth
+
+FORCE_TOLERANCE = 1e-10
+"""Absolute error bound of the mean specific force [m/s^2]."""
+RATE_TOLERANCE = 1e-13
+"""Absolute error bound of the mean angular rate [rad/s]."""
+RELATIVE_TOLERANCE = 1e-11
+"""Error bound relative to a channel's largest magnitude on a piece (the larger applies)."""
+FIT_FRACTION = 0.25
+"""The fits are held to this fraction of the bounds: margin for the errors between checks."""
+MAX_DEGREE = 8
+"""Highest Chebyshev degree tried before a segment is cut in halves (a sample's cost
+grows with the degree; a fit's with the number of segments)."""
+MAX_DEPTH = 30
+"""Most halvings of a piece (the fit at this depth is kept whatever its error)."""
+DIRECT_SAMPLES = 6.0
+"""Pieces shorter than this many sample periods are integrated directly (see the top)."""
+_COSINES = np.cos(np.pi * np.arange(4 * MAX_DEGREE) / (2 * MAX_DEGREE))
+"""cos(pi m / (2 MAX_DEGREE)), m < 4 MAX_DEGREE: every node, check and DCT cosine."""
+_GAUSS_NODES, _GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(3)
+
+
+@njit(cache=True, nogil=True, inline='always')
+def _channel(c, i, ch, s, inside):
+    """Return channel ``ch`` of piece ``i`` at local time ``s`` and its two derivatives."""
+    value, first, second = c[0, i, ch], 0.0, 0.0
+    for j in range(1, c.shape[0]):
+        second = second * s + first
+        first = first * s + value
+        value = value * s + c[j, i, ch]
+    return (value, first, 2.0 * second) if inside else (value, 0.0, 0.0)
+
+
+@njit(cache=True, nogil=True)
+def sensed(c, i, s, inside, out):
+    """
+    Write f^b [m/s^2] and w_ib^b [rad/s] of piece ``i`` at local time ``s`` [s] to ``out``.
+
+    ``c`` holds the ``PPoly`` coefficients (k, m, 6) of the six channels; ``inside``
+    False gives the body at rest at that pose (rates and accelerations zero). The
+    compiled twin of :meth:`qfa_ros.model.trajectory.Trajectory.kinematics` (Groves 2013,
+    eq. 5.54; the tests hold the two equal).
+    """
+    lat, dlat, ddlat = _channel(c, i, 0, s, inside)
+    _, dlon, ddlon = _channel(c, i, 1, s, inside)
+    h, dh, ddh = _channel(c, i, 2, s, inside)
+    roll, droll, _ = _channel(c, i, 3, s, inside)
+    pitch, dpitch, _ = _channel(c, i, 4, s, inside)
+    yaw, dyaw, _ = _channel(c, i, 5, s, inside)
+    sl, cl = math.sin(lat), math.cos(lat)
+    e2 = earth.ECCENTRICITY_SQUARED
+    a = earth.SEMI_MAJOR_AXIS
+    s2 = sl * sl
+    w2 = 1.0 - e2 * s2
+    w = math.sqrt(w2)
+    r_e = a / w
+    r_n = r_e * (1.0 - e2) / w2
+    dr_e = r_e * e2 * sl * cl / w2
+    dr_n = 3.0 * r_n * e2 * sl * cl / w2
+    ve = (r_e + h) * cl * dlon
+    vn = (r_n + h) * dlat
+    vu = dh
+    ae = (dr_e * dlat + dh) * cl * dlon - (r_e + h) * sl * dlat * dlon + (r_e + h) * cl * ddlon
+    an = (dr_n * dlat + dh) * dlat + (r_n + h) * ddlat
+    au = ddh
+    omega = earth.EARTH_RATE
+    we, wn, wu = 0.0, omega * cl, omega * sl
+    te, tn = -vn / (r_n + h), ve / (r_e + h)
+    tu = tn * sl / cl
+    ce, cn, cu = 2.0 * we + te, 2.0 * wn + tn, 2.0 * wu + tu
+    gamma = earth.GAMMA_EQUATOR * (1.0 + earth.SOMIGLIANA_K * s2) / w
+    gamma *= 1.0 - 2.0 / a * (1.0 + earth.FLATTENING + earth.GRAVITY_RATIO_M
+                              - 2.0 * earth.FLATTENING * s2) * h + 3.0 * h * h / (a * a)
+    fe = ae + cn * vu - cu * vn
+    fn = an + cu * ve - ce * vu
+    fu = au + ce * vn - cn * ve + gamma
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    # Columns of C_b^n = R_z R_y R_x: rows of C_n^b.
+    b0 = (cy * cp, sy * cp, -sp)
+    b1 = (cy * sp * sr - sy * cr, sy * sp * sr + cy * cr, cp * sr)
+    b2 = (cy * sp * cr + sy * sr, sy * sp * cr - cy * sr, cp * cr)
+    ie, inn, iu = we + te, wn + tn, wu + tu
+    out[0] = b0[0] * fe + b0[1] * fn + b0[2] * fu
+    out[1] = b1[0] * fe + b1[1] * fn + b1[2] * fu
+    out[2] = b2[0] * fe + b2[1] * fn + b2[2] * fu
+    out[3] = b0[0] * ie + b0[1] * inn + b0[2] * iu + droll - dyaw * sp
+    out[4] = b1[0] * ie + b1[1] * inn + b1[2] * iu + dpitch * cr + dyaw * sr * cp
+    out[5] = b2[0] * ie + b2[1] * inn + b2[2] * iu - dpitch * sr + dyaw * cr * cp
+
+
+@njit(cache=True, nogil=True)
+def _clenshaw(coef, n, ch, u):
+    """Return sum_k coef[k, ch] T_k(u), k = 0..n."""
+    b1, b2 = 0.0, 0.0
+    for k in range(n, 0, -1):
+        b1, b2 = 2.0 * u * b1 - b2 + coef[k, ch], b1
+    return u * b1 - b2 + coef[0, ch]
+
+
+@njit(cache=True, nogil=True)
+def _fit(c, x, i, a, b, tolerance, coef):
+    """
+    Fit the outputs of piece ``i`` on ``[a, b]`` (Chebyshev, ``u = (2t - a - b)/(b - a)``).
+
+    Write the coefficients (degree + 1, 6) to ``coef``; return the degree accepted, or
+    -1 when degree :data:`MAX_DEGREE` misses the tolerance (``coef`` then holds that fit).
+    ``tolerance`` is (absolute force, absolute rate, relative).
+    """
+    mid, half = 0.5 * (a + b), 0.5 * (b - a)
+    values = np.empty((MAX_DEGREE + 1, 6))
+    merged = np.empty((MAX_DEGREE + 1, 6))
+    checks = np.empty((MAX_DEGREE, 6))
+    scale = np.zeros(6)
+    n = 2
+    for j in range(n + 1):
+        sensed(c, i, mid + half * _COSINES[j * (2 * MAX_DEGREE // n)] - x[i], True, values[j])
+    while True:
+        # Interpolant through the Lobatto nodes u_j = cos(pi j / n) (a DCT-I).
+        step = 2 * MAX_DEGREE // n
+        for k in range(n + 1):
+            for ch in range(6):
+                total = 0.5 * (values[0, ch] + (-1.0) ** k * values[n, ch])
+                for j in range(1, n):
+                    total += values[j, ch] * _COSINES[(j * k * step) % (4 * MAX_DEGREE)]
+                coef[k, ch] = total * (2.0 / n) * (0.5 if k == 0 or k == n else 1.0)
+        for j in range(n):
+            u = _COSINES[(2 * j + 1) * step // 2]
+            sensed(c, i, mid + half * u - x[i], True, checks[j])
+        for ch in range(6):
+            for j in range(n + 1):
+                scale[ch] = max(scale[ch], abs(values[j, ch]))
+            for j in range(n):
+                scale[ch] = max(scale[ch], abs(checks[j, ch]))
+        good = True
+        for ch in range(6):
+            bound = FIT_FRACTION * max(tolerance[ch // 3], tolerance[2] * scale[ch])
+            for j in range(n):
+                u = _COSINES[(2 * j + 1) * step // 2]
+                if abs(_clenshaw(coef, n, ch, u) - checks[j, ch]) > bound:
+                    good = False
+        if good:
+            return n
+        if 2 * n > MAX_DEGREE:
+            return -1
+        for j in range(n + 1):
+            merged[2 * j] = values[j]
+        for j in range(n):
+            merged[2 * j + 1] = checks[j]
+        values, merged = merged, values
+        n *= 2
+
+
+@njit(cache=True, nogil=True)
+def _build(c, x, first, last, shortest, tolerance, piece_start, piece_count, bounds, degree,
+           offset, coefs, used):
+    """
+    Fit pieces ``first..last`` not yet fitted; return False when the storage is full.
+
+    Segments of a piece are stored consecutively, in time order, from
+    ``piece_start[i]``; ``used`` holds the segments and coefficient rows in use. Pieces
+    shorter than ``shortest`` [s] are marked for direct integration (count -1). A
+    segment's rows are the Chebyshev coefficients ``e_1..e_{n+1}`` of the antiderivative
+    of its fit (row 0 unused).
+    """
+    coef = np.empty((MAX_DEGREE + 1, 6))
+    stack = np.empty((MAX_DEPTH + 2, 3))
+    for i in range(first, last + 1):
+        if piece_count[i] != 0:
+            continue
+        if x[i + 1] - x[i] < shortest:
+            piece_count[i] = -1
+            continue
+        segments, rows = used[0], used[1]
+        # Depth-first, right halves pushed first: segments come out in time order.
+        stack[0, 0], stack[0, 1], stack[0, 2] = x[i], x[i + 1], 0.0
+        top = 1
+        while top > 0:
+            top -= 1
+            a, b, depth = stack[top, 0], stack[top, 1], stack[top, 2]
+            n = _fit(c, x, i, a, b, tolerance, coef)
+            if n < 0 and depth < MAX_DEPTH:
+                middle = 0.5 * (a + b)
+                stack[top, 0], stack[top, 1], stack[top, 2] = middle, b, depth + 1
+                stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = a, middle, depth + 1
+                top += 2
+                continue
+            n = n if n >= 0 else MAX_DEGREE
+            if segments >= bounds.shape[0] or rows + n + 2 > coefs.shape[0]:
+                return False
+            bounds[segments, 0], bounds[segments, 1] = a, b
+            degree[segments], offset[segments] = n, rows
+            for ch in range(6):
+                coefs[rows, ch] = 0.0
+                for j in range(1, n + 2):
+                    left = coef[j - 1, ch] * (2.0 if j == 1 else 1.0)
+                    right = coef[j + 1, ch] if j + 1 <= n else 0.0
+                    coefs[rows + j, ch] = (left - right) / (2.0 * j)
+            segments += 1
+            rows += n + 2
+        piece_start[i] = used[0]
+        piece_count[i] = segments - used[0]
+        used[0], used[1] = segments, rows
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _means(c, x, start, period, rest, piece_start, piece_count, bounds, degree, offset, coefs,
+           out_force, out_rate):
+    """Write the exact means of the fits over consecutive samples of ``period`` [s]."""
+    m = x.shape[0] - 1
+    total = np.empty(6)
+    point = np.empty(6)
+    i = min(max(np.searchsorted(x, start, side='right') - 1, 0), m - 1)
+    for k in range(out_force.shape[0]):
+        a = start + k * period
+        b = start + (k + 1) * period
+        total[:] = 0.0
+        if a < x[0]:
+            total += (min(b, x[0]) - a) * rest[0]
+        if b > x[m]:
+            total += (b - max(a, x[m])) * rest[1]
+        low, high = max(a, x[0]), min(b, x[m])
+        while low < high:
+            while i < m - 1 and low >= x[i + 1]:
+                i += 1
+            while i > 0 and low < x[i]:
+                i -= 1
+            if piece_count[i] < 0:
+                # A short piece: three-point Gauss-Legendre on its part of the sample.
+                end = min(high, x[i + 1]) if i < m - 1 else high
+                half = 0.5 * (end - low)
+                for q in range(3):
+                    sensed(c, i, low + half * (1.0 + _GAUSS_NODES[q]) - x[i], True, point)
+                    for ch in range(6):
+                        total[ch] += half * _GAUSS_WEIGHTS[q] * point[ch]
+                low = end
+                continue
+            g = piece_start[i]
+            while bounds[g, 1] < x[i + 1] and low >= bounds[g, 1]:
+                g += 1
+            end = min(high, bounds[g, 1])
+            # The mean over [y, z] is sum_j e_j D_j, D_j = (T_j(z) - T_j(y)) / (z - y).
+            span = bounds[g, 1] - bounds[g, 0]
+            y = (2.0 * low - bounds[g, 0] - bounds[g, 1]) / span
+            z = (2.0 * end - bounds[g, 0] - bounds[g, 1]) / span
+            row = offset[g]
+            v0 = v1 = v2 = v3 = v4 = v5 = 0.0
+            d_previous, d_current = 0.0, 1.0
+            t_previous, t_current = 1.0, y
+            for j in range(1, degree[g] + 2):
+                r = row + j
+                v0 += coefs[r, 0] * d_current
+                v1 += coefs[r, 1] * d_current
+                v2 += coefs[r, 2] * d_current
+                v3 += coefs[r, 3] * d_current
+                v4 += coefs[r, 4] * d_current
+                v5 += coefs[r, 5] * d_current
+                d_previous, d_current = \
+                    d_current, 2.0 * z * d_current + 2.0 * t_current - d_previous
+                t_previous, t_current = t_current, 2.0 * y * t_current - t_previous
+            weight = end - low
+            total[0] += weight * v0
+            total[1] += weight * v1
+            total[2] += weight * v2
+            total[3] += weight * v3
+            total[4] += weight * v4
+            total[5] += weight * v5
+            low = end
+        scale = 1.0 / (b - a)
+        for ch in range(3):
+            out_force[k, ch] = total[ch] * scale
+            out_rate[k, ch] = total[3 + ch] * scale
+
+
+class PiecewiseMeans:
+    """
+    Sample means of f^b and w_ib^b of a moving trajectory, from per-piece verified fits.
+
+    Parameters
+    ----------
+    c : numpy.ndarray
+        ``PPoly`` coefficients (k, m, 6) of lat, lon [rad], h [m], roll, pitch, yaw [rad].
+    x : numpy.ndarray
+        Breakpoints (m + 1,) [s], strictly increasing.
+    """
+
+    def __init__(self, c, x):
+        self._c = np.ascontiguousarray(c, dtype=float)
+        self._x = np.ascontiguousarray(x, dtype=float)
+        m = self._x.shape[0] - 1
+        if self._c.ndim != 3 or self._c.shape[1:] != (m, 6) or m < 1:
+            raise ValueError('c must have shape (k, m, 6) for m + 1 breakpoints x')
+        self._tolerance = np.array([FORCE_TOLERANCE, RATE_TOLERANCE, RELATIVE_TOLERANCE])
+        self._rest = np.empty((2, 6))
+        sensed(self._c, 0, 0.0, False, self._rest[0])
+        sensed(self._c, m - 1, self._x[m] - self._x[m - 1], False, self._rest[1])
+        self._piece_start = np.zeros(m, dtype=np.int64)
+        self._piece_count = np.zeros(m, dtype=np.int64)
+        self._used = np.zeros(2, dtype=np.int64)
+        self._allocate(64, 64 * 9)
+
+    def _allocate(self, segments, rows):
+        """Grow the segment storage to ``segments`` segments and ``rows`` coefficient rows."""
+        used_segments, used_rows = self._used
+        bounds, degree = np.empty((segments, 2)), np.zeros(segments, dtype=np.int64)
+        offset, coefs = np.zeros(segments, dtype=np.int64), np.empty((rows, 6))
+        if used_segments:
+            bounds[:used_segments] = self._bounds[:used_segments]
+            degree[:used_segments] = self._degree[:used_segments]
+            offset[:used_segments] = self._offset[:used_segments]
+            coefs[:used_rows] = self._coefs[:used_rows]
+        self._bounds, self._degree, self._offset, self._coefs = bounds, degree, offset, coefs
+
+    @property
+    def segments(self):
+        """Return the (start, end) [s] and degree of every segment fitted so far."""
+        used = self._used[0]
+        return self._bounds[:used].copy(), self._degree[:used].copy()
+
+    def sample_means(self, start, period, n):
+        """
+        Return (mean f^b (n, 3) [m/s^2], mean w_ib^b (n, 3) [rad/s]) over ``n`` samples.
+
+        Sample ``k`` spans ``[start + k period, start + (k + 1) period]`` [s].
+        """
+        start, period = float(start), float(period)
+        if not period > 0:
+            raise ValueError('period must be positive')
+        force, rate = np.empty((n, 3)), np.empty((n, 3))
+        if n == 0:
+            return force, rate
+        x = self._x
+        low = min(max(start, x[0]), x[-1])
+        high = min(max(start + n * period, x[0]), x[-1])
+        m = x.shape[0] - 1
+        first = min(max(int(np.searchsorted(x, low, side='right')) - 1, 0), m - 1)
+        last = min(max(int(np.searchsorted(x, high, side='left')) - 1, 0), m - 1)
+        while not _build(self._c, x, first, last, DIRECT_SAMPLES * period, self._tolerance,
+                         self._piece_start,
+                         self._piece_count, self._bounds, self._degree, self._offset,
+                         self._coefs, self._used):
+            self._allocate(2 * self._bounds.shape[0] + last - first + 1,
+                           2 * self._coefs.shape[0] + (MAX_DEGREE + 2) * (last - first + 1))
+        _means(self._c, x, start, period, self._rest, self._piece_start, self._piece_count,
+               self._bounds, self._degree, self._offset, self._coefs, force, rate)
+        return force, rate
