@@ -27,6 +27,7 @@ import yaml
 from qfa_ros.bag.trace import key_values_to_dict
 from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.cli.sim import SIM_START_NS
+from qfa_ros.model.gyro import GyroConfig
 
 
 def read_all(path):
@@ -106,8 +107,17 @@ def test_static_bag_is_reproduced_by_its_command(tmp_path):
     assert len(imu) == 10000
     first = imu[0][1]
     assert first.header.frame_id == 'imu_link'
-    assert first.orientation_covariance[0] == -1 and first.angular_velocity_covariance[0] == -1
+    assert first.orientation_covariance[0] == -1
     assert first.linear_acceleration_covariance[0] > 0
+    # The full IMU: the gyros see the Earth rate, level at 45 deg north, x east (yaw 0).
+    assert first.angular_velocity_covariance[0] > 0
+    rate = np.mean([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z]
+                    for _, m in imu], axis=0)
+    earth_rate = 7.292115e-5 * np.array([0.0, np.cos(np.pi / 4), np.sin(np.pi / 4)])
+    gyro = GyroConfig()
+    # 5 sigma of a 10 s mean of the angle random walk, plus 5 sigma of the turn-on bias.
+    np.testing.assert_allclose(rate, earth_rate,
+                               atol=5 * gyro.arw / np.sqrt(10.0) + 5 * gyro.turn_on_bias)
     stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in imu])
     assert np.all(np.diff(stamps) == 1_000_000)
     assert stamps.tolist() == [t for t, _ in imu]

@@ -134,6 +134,23 @@ def test_gyro_bias_schedule_removes_the_bias_and_keeps_the_earth_rate():
         run_schedule(plain, gyro_bias_schedule(plain, CalibrationState()))
 
 
+def test_static_summary_does_not_depend_on_the_gyros(tmp_path, capsys):
+    # qfa-sim static leaves the gyros out when no bag is written: the accelerometers'
+    # numbers (and so the summary) are the same as with them, which the bag run has.
+    assert sim.main(['static', '--duration', '40', '--seed', '3']) == 0
+    without = capsys.readouterr().out
+    assert sim.main(['static', '--duration', '40', '--seed', '3', '--out',
+                     str(tmp_path / 'static.mcap')]) == 0
+    with_gyros = capsys.readouterr().out
+    rows = [line for line in without.splitlines() if line.split()[:1] in (['x'], ['y'], ['z'])]
+    assert len(rows) == 3
+    assert all(row in with_gyros.splitlines() for row in rows)
+    with AnyReader([tmp_path / 'static.mcap']) as reader:
+        imu = next(c for c in reader.connections if c.topic == '/imu/data_raw')
+        message = reader.deserialize(next(reader.messages([imu]))[2], imu.msgtype)
+        assert message.angular_velocity_covariance[0] > 0
+
+
 def test_qfa_sim_trajectory_writes_imu_and_truth(tmp_path, capsys):
     path = tmp_path / 'turn.mcap'
     assert sim.main(['trajectory', '--motion', 'rate-table', '--duration', '3', '--rate',
