@@ -11,8 +11,8 @@ Each repetition runs, interleaved so that a busy machine affects all alike:
   wall time, CPU time and peak RSS (``os.wait4``);
 * the limit: a bare numba loop doing the kernel's arithmetic with the project's
   parameters (ADC rounding, Q32/Q20 lead and integrator, exact-ZOH pendulum, torquer
-  delay, 10:1 averaging) and the full noise model (white and ADC noise per step, five
-  Gauss-Markov drives per sample) drawn inside the loop from a ``numpy.random.Generator``
+  delay, 10:1 averaging) and the full noise model (white and ADC noise per step, four
+  Gauss-Markov drives per 0.1 s block, as the model) drawn inside the loop from a ``numpy.random.Generator``
   passed into ``@njit``; the same loop without noise; and the project's kernel
   (``kernel.run_axis``, one axis, noise drawn inside) over the same steps. These run in
   this process on one core; their CPU time is reported beside the wall time.
@@ -35,7 +35,7 @@ import numpy as np
 
 @njit(cache=True, nogil=True)
 def limit_loop(rng, n_samples, draw, decimation, level, white_std, adc_std, phi, drive,
-               state, ad, bd, k0, k_sense, k_fb, gain, a1, b0, b1, ki, limit, out):
+               state, gm_block, ad, bd, k0, k_sense, k_fb, gain, a1, b0, b1, ki, limit, out):
     """Bare closed loop with the full noise model drawn from ``rng`` if ``draw``."""
     theta = 0.0
     omega = 0.0
@@ -46,7 +46,8 @@ def limit_loop(rng, n_samples, draw, decimation, level, white_std, adc_std, phi,
     for j in range(n_samples):
         held = level
         for k in range(phi.shape[0]):
-            state[k] = phi[k] * state[k] + drive[k] * rng.standard_normal()
+            if j % gm_block == 0:
+                state[k] = phi[k] * state[k] + drive[k] * rng.standard_normal()
             held += state[k]
         total = 0.0
         for _ in range(decimation):
@@ -83,7 +84,7 @@ def limit_arguments(noise_on):
     pf, pi = loop.params_f, loop.params_i
     limit = (int(pi[kernel.Q_DA2_FULL_SCALE]) << 8) << 20
     return (config.decimation, 9.80665, noise.white_std, noise.adc_std, noise.phi.copy(),
-            noise.drive_std.copy(), noise.bias_state[2].copy(),
+            noise.drive_std.copy(), noise.bias_state[2].copy(), noise.gm_block,
             pf[kernel.P_AD00:kernel.P_AD11 + 1].copy(), pf[kernel.P_BD0:kernel.P_BD1 + 1].copy(),
             pf[kernel.P_PENDULOSITY], pf[kernel.P_K_SENSE], pf[kernel.P_K_FB],
             int(pi[kernel.Q_GAIN]), int(pi[kernel.Q_A1]), int(pi[kernel.Q_B0]),

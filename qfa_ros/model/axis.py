@@ -60,6 +60,8 @@ class AxisLoop:
         self.gm_phi = noise.phi
         self.gm_drive = noise.drive_std
         self.gm_state = noise.bias_state[axis]  # a view: the source sees the state move
+        self.params_i[kernel.Q_GM_BLOCK] = noise.gm_block
+        self.state_i[kernel.T_GM_LEFT] = 0  # the new processes step at the next sample
 
     def update(self, drift):
         """Recompute the kernel parameters for the relative ``drift`` of each component."""

@@ -276,6 +276,18 @@ def _gyro_chunk(white, flicker, walk, white_std, block, flicker_on, phi, innovat
     """
     n = rate.shape[0]
     n_components = phi.shape[0]
+    # The output equation without noise first: no draws, no branch, so LLVM can
+    # vectorize it; the noise and the quantization follow sample by sample.
+    for k in range(n):
+        w0, w1, w2 = rate[k, 0], rate[k, 1], rate[k, 2]
+        f0, f1, f2 = force[k, 0], force[k, 1], force[k, 2]
+        change = d_t[k]
+        for i in range(3):
+            sensed = sensing[i, 0] * w0 + sensing[i, 1] * w1 + sensing[i, 2] * w2
+            out[k, i] = sensed * (1.0 + sf[i] + sf_tc[i] * change
+                                  + asymmetry[i] * np.sign(sensed)) \
+                + bias[i] + bias_tc[i] * change + g_sens[i, 0] * f0 + g_sens[i, 1] * f1 \
+                + g_sens[i, 2] * f2
     walk_start = walk_state.copy()
     steps = np.zeros(3)
     stepped = False
@@ -302,18 +314,10 @@ def _gyro_chunk(white, flicker, walk, white_std, block, flicker_on, phi, innovat
                 stepped = True
             left = block
         left -= 1
-        w0, w1, w2 = rate[k, 0], rate[k, 1], rate[k, 2]
-        f0, f1, f2 = force[k, 0], force[k, 1], force[k, 2]
-        change = d_t[k]
         for i in range(3):
-            noise = slow[i]
+            value = out[k, i] + slow[i]
             if white_std > 0:
-                noise += white.standard_normal() * white_std
-            sensed = sensing[i, 0] * w0 + sensing[i, 1] * w1 + sensing[i, 2] * w2
-            sign = 1.0 if sensed > 0 else (-1.0 if sensed < 0 else 0.0)
-            value = noise + sensed * (1.0 + sf[i] + sf_tc[i] * change + asymmetry[i] * sign) \
-                + bias[i] + bias_tc[i] * change + g_sens[i, 0] * f0 + g_sens[i, 1] * f1 \
-                + g_sens[i, 2] * f2
+                value += white.standard_normal() * white_std
             if quantum > 0:
                 # Whole angle quanta per sample; the remainder stays for the next sample.
                 angle = value * dt + residual[i]

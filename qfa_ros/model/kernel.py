@@ -28,7 +28,8 @@ Q_OPEN_LOOP = 5          # 1: feedback off, pendulum latched, output = k(D(z)) e
 Q_DA2_FULL_SCALE = 6     # [count]
 Q_ADC_FULL_SCALE = 7     # [count]
 Q_RANGE_COUNTS = 8       # rated range in command counts
-N_INT_PARAMS = 9
+Q_GM_BLOCK = 9           # samples per Gauss-Markov step (the bias instability holds)
+N_INT_PARAMS = 10
 
 # Float state: pendulum angle [rad] and rate [rad/s].
 S_THETA, S_OMEGA = range(2)
@@ -36,7 +37,8 @@ N_FLOAT_STATE = 2
 
 # Integer state: controller memories and the DA2 word on the torquer.
 T_X_PREV, T_Y_PREV, T_INTEGRATOR, T_APPLIED, T_LAST = range(5)
-N_INT_STATE = 5
+T_GM_LEFT = 5            # samples the present Gauss-Markov value still holds
+N_INT_STATE = 6
 
 _GAIN_SHIFT = 24         # Q32 gain * count -> Q8 signal
 _COEF_SHIFT = 20         # Q20 coefficients
@@ -59,11 +61,12 @@ def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
     ``a_i = s_i c_j + o_j + sum_k b_k[j] + sigma_w w_i`` [m/s^2]: ``s`` the sensed
     specific force (model-equation terms included), ``c`` and ``o`` the thermal
     scale (1 + e(T)) and zero bias, ``b_k`` the first-order Gauss-Markov processes of
-    the bias instability, ``b_k[j] = phi_k b_k[j-1] + q_k v_{j,k}``, held over each
-    sample, and ``w_i`` white. The ADC adds ``sigma_adc n_i`` [count]. ``v``, ``w`` and
-    ``n`` are standard normal draws from ``rng`` in a fixed order (per sample: the
-    Gauss-Markov drives; per step: ``w`` then ``n``; a source whose std is 0 draws
-    nothing), so the output depends on the seed, not on the chunk lengths.
+    the bias instability, ``b_k = phi_k b_k + q_k v_k`` once every ``Q_GM_BLOCK``
+    samples and held in between (``phi_k``, ``q_k`` for that step), and ``w_i`` white.
+    The ADC adds ``sigma_adc n_i`` [count]. ``v``, ``w`` and ``n`` are standard normal
+    draws from ``rng`` in a fixed order (at a Gauss-Markov step, before its sample: the
+    drives; per step: ``w`` then ``n``; a source whose std is 0 draws nothing), so the
+    output depends on the seed, not on the chunk lengths.
 
     Parameters
     ----------
@@ -113,6 +116,7 @@ def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
     da2_fs = params_i[Q_DA2_FULL_SCALE]
     adc_fs = params_i[Q_ADC_FULL_SCALE]
     range_counts = params_i[Q_RANGE_COUNTS]
+    gm_block = params_i[Q_GM_BLOCK]
     integrator_limit = (da2_fs << _SIGNAL_SHIFT) << _COEF_SHIFT
     draw_white = white_std > 0.0
     draw_adc = adc_std > 0.0
@@ -133,6 +137,7 @@ def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
     integrator = state_i[T_INTEGRATOR]
     applied = state_i[T_APPLIED]
     output = state_i[T_LAST]
+    gm_left = state_i[T_GM_LEFT]
 
     n_samples = out_mean.shape[0]
     per_step = sensed.shape[0] == n_samples * decimation and decimation > 1
@@ -141,10 +146,14 @@ def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
     offset_per_sample = offset.shape[0] > 1
     for j in range(n_samples):
         held = offset[j if offset_per_sample else 0]
-        for k in range(n_components):
-            value = gm_phi[k] * gm_state[k] + gm_drive[k] * rng.standard_normal()
-            gm_state[k] = value
-            held += value
+        if n_components:
+            if gm_left <= 0:
+                for k in range(n_components):
+                    gm_state[k] = gm_phi[k] * gm_state[k] + gm_drive[k] * rng.standard_normal()
+                gm_left = gm_block
+            gm_left -= 1
+            for k in range(n_components):
+                held += gm_state[k]
         factor = scale[j if scale_per_sample else 0]
         if not per_step:
             held += sensed[j if per_sample else 0] * factor
@@ -227,3 +236,4 @@ def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
     state_i[T_INTEGRATOR] = integrator
     state_i[T_APPLIED] = applied
     state_i[T_LAST] = output
+    state_i[T_GM_LEFT] = gm_left
