@@ -12,10 +12,11 @@ Each repetition runs, interleaved so that a busy machine affects all alike:
 * the limit: a bare numba loop doing the kernel's arithmetic with the project's
   parameters (ADC rounding, Q32/Q20 lead and integrator, exact-ZOH pendulum, torquer
   delay, 10:1 averaging) and the full noise model (white and ADC noise per step, four
-  Gauss-Markov drives per 0.1 s block, as the model) drawn inside the loop from a ``numpy.random.Generator``
-  passed into ``@njit``; the same loop without noise; and the project's kernel
-  (``kernel.run_axis``, one axis, noise drawn inside) over the same steps. These run in
-  this process on one core; their CPU time is reported beside the wall time.
+  Gauss-Markov drives per 0.1 s block, as the model) drawn inside the loop from a
+  ``numpy.random.Generator`` passed into ``@njit``; the same loop without noise; and the
+  project's kernel (``kernel.run_axis``, one axis, noise drawn inside) over the same
+  steps. These run in this process on one core; their CPU time is reported beside the
+  wall time.
 
 Prints a Markdown table of medians: seconds, axis-steps per second, real-time multiple,
 and the ratio of the whole process to the two-core limit (three axes of D seconds at
