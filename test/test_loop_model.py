@@ -17,7 +17,7 @@ from qfa_ros.model import axis as axis_module
 from qfa_ros.model import kernel
 from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.allan import allan_deviation, allan_deviation_of_phase
-from qfa_ros.model.design import LinearLoop, pendulum_matrices
+from qfa_ros.model.design import LinearLoop, matrix_exponential, pendulum_matrices
 from qfa_ros.model.drift import SECONDS_PER_YEAR
 from qfa_ros.model.earth import normal_gravity
 from qfa_ros.model.hardware import (
@@ -344,6 +344,20 @@ def test_pipelined_chunks_equal_chunk_by_chunk_runs(source):
     assert np.array_equal(early.run(1000).accel, expected.accel[5000:6000])
     with pytest.raises(ValueError, match='chunk_samples'):
         next(QfaTriad(config, rng=4).run_chunks(10, 0))
+
+
+def test_matrix_exponential_equals_scipy():
+    from scipy.linalg import expm
+    rng = np.random.default_rng(3)
+    hw = TriadConfig().hardware
+    pendulum = np.array([[0.0, 1.0, 0.0],
+                         [-hw.stiffness / hw.inertia, -hw.damping / hw.inertia, 1 / hw.inertia],
+                         [0.0, 0.0, 0.0]]) * 1e-4
+    for matrix in (pendulum, np.zeros((3, 3)), rng.standard_normal((3, 3)) * 0.01,
+                   rng.standard_normal((3, 3)) * 3.0, rng.standard_normal((2, 2))):
+        expected = expm(matrix)
+        np.testing.assert_allclose(matrix_exponential(matrix), expected,
+                                   rtol=1e-12, atol=1e-14 * np.abs(expected).max())
 
 
 def test_chains_keep_their_order_and_raise_the_first_error():

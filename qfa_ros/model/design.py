@@ -4,11 +4,9 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
-from scipy.linalg import expm
 
 from qfa_ros.model.hardware import nominal_gains
 from qfa_ros.model.noise import acceleration_variance
-from qfa_ros.model.parallel import single_threaded_blas
 
 GAIN_FRAC_BITS = 32
 """Fraction bits of the controller gain word k(D(z))."""
@@ -97,9 +95,33 @@ def pendulum_matrices(hw, loop_period):
     block = np.zeros((3, 3))
     block[:2, :2] = a
     block[:2, 2:] = b
-    with single_threaded_blas():
-        phi = expm(block * loop_period)
+    phi = matrix_exponential(block * loop_period)
     return phi[:2, :2].copy(), phi[:2, 2].copy()
+
+
+def matrix_exponential(matrix):
+    """
+    Return ``e^matrix`` of a small square matrix (Taylor series, scaling and squaring).
+
+    The matrix is scaled by ``2^-s`` to a 1-norm of at most 1/2, its series summed to 20
+    terms (remainder below 1e-24 of the result) and squared ``s`` times: equal to
+    ``scipy.linalg.expm`` to rounding (``test_matrix_exponential_equals_scipy``). Not that
+    one because its LAPACK solve wakes scipy's OpenBLAS helper thread, which then spins
+    for ~0.1 s on the other core after every triad construction; numpy's 3x3 products
+    run on the calling thread.
+    """
+    matrix = np.asarray(matrix, dtype=float)
+    norm = np.linalg.norm(matrix, 1)
+    squarings = max(0, math.ceil(math.log2(2.0 * norm))) if norm > 0 else 0
+    scaled = matrix / 2.0 ** squarings
+    result = np.eye(len(matrix))
+    term = np.eye(len(matrix))
+    for k in range(1, 21):
+        term = term @ scaled / k
+        result = result + term
+    for _ in range(squarings):
+        result = result @ result
+    return result
 
 
 def design_controller(hw, loop_rate_hz, crossover_hz=300.0, integrator_ratio=0.1,

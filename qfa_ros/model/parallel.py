@@ -5,8 +5,6 @@ from concurrent.futures import ThreadPoolExecutor
 import os
 import threading
 
-from threadpoolctl import threadpool_limits
-
 _POOL_LOCK = threading.Lock()  # protects the creation of _POOL
 _POOL = None
 
@@ -17,19 +15,6 @@ def available_cores():
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not Linux
         return os.cpu_count() or 1
-
-
-def single_threaded_blas():
-    """
-    Return a context manager in which BLAS and LAPACK run on the calling thread only.
-
-    The model's matrices are 3x3 at most, yet one ``scipy.linalg.expm`` or ``solve``
-    wakes OpenBLAS's helper thread, which then spins for about 0.1 s: on two cores it
-    takes the core the axes' threads (or a second fleet worker, or the publishing
-    thread) would use. Used as a context (``with single_threaded_blas():``) around such
-    calls, or called once by an entry point to keep the whole process on one BLAS thread.
-    """
-    return threadpool_limits(limits=1, user_api='blas')
 
 
 def _pool():
