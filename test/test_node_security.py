@@ -199,7 +199,13 @@ def test_cancel_restores_the_sensor_for_every_schedule_kind(setup):
     assert response.success, response.message
     estimate = response.message.split('forward gain drift [ppm] ', 1)[1].split(';')[0]
     values = [float(part.split()[1].split('±')[0]) for part in estimate.split(', ')]
-    assert values == pytest.approx(FORWARD_DRIFT_PPM, abs=5.0)
+    # The drifted references would give ~0. The margin: the schedules above advanced the
+    # sensor time by as much as the cancels let them (more on a busy machine), over which
+    # the default room wanders; 0.5 degC moves I_ref by 15 ppm on every axis (30 ppm/degC,
+    # not compensated without a temperature calibration): -14 ppm was seen once.
+    assert values == pytest.approx(FORWARD_DRIFT_PPM, abs=30.0)
+    errors = [value - drift for value, drift in zip(values, FORWARD_DRIFT_PPM)]
+    assert max(errors) - min(errors) < 10.0  # a common-mode shift, not per-axis errors
 
 
 def test_security_enabled_without_security_exits_with_one_line(tmp_path):
