@@ -55,6 +55,8 @@ MAX_DEPTH = 30
 """Most halvings of a piece (the fit at this depth is kept whatever its error)."""
 DIRECT_SAMPLES = 6.0
 """Pieces shorter than this many sample periods are integrated directly (see the top)."""
+FAST_BLOCK = 64
+"""Samples evaluated side by side by :func:`_fast`."""
 FAST_REACH = 1.0
 """Samples inside a segment of degree n take its mean polynomial when their length is at most
 ``FAST_REACH / n^2`` of the segment's half length (see :func:`_mean_polynomial`)."""
@@ -286,38 +288,35 @@ def _mean_polynomial(coefs, row, n, h, work, means):
 
 
 @njit(cache=True, nogil=True)
-def _fast(start, period, k, low, high, n, means, row, out_force, out_rate):
+def _fast(start, period, k, low, high, n, means, row, u2, f, g, out_force, out_rate):
     """
     Write the means of samples ``k..`` lying wholly in ``[low, high]``; return the next.
 
-    The caller has checked sample ``k``.
-    Each is ``q`` of :func:`_mean_polynomial` at the sample's start by Clenshaw's
-    recurrence (six channels side by side).
+    The caller has checked sample ``k``. Each mean is ``q`` of :func:`_mean_polynomial`
+    at the sample's start, by Clenshaw's recurrence run over a block of samples at once
+    (independent lanes the compiler vectorizes); ``u2``, ``f``, ``g`` (block,) are work
+    space. Every sample's arithmetic is the same whatever the block it falls in.
     """
-    first = k
-    while k < out_force.shape[0]:
-        a = start + k * period
-        if k > first and start + (k + 1) * period > high:
-            break
-        u2 = 2.0 * (2.0 * a - low - high) / (high - low)
-        f0 = f1 = f2 = f3 = f4 = f5 = 0.0
-        g0 = g1 = g2 = g3 = g4 = g5 = 0.0
-        for j in range(row + n, row, -1):
-            f0, g0 = u2 * f0 - g0 + means[j, 0], f0
-            f1, g1 = u2 * f1 - g1 + means[j, 1], f1
-            f2, g2 = u2 * f2 - g2 + means[j, 2], f2
-            f3, g3 = u2 * f3 - g3 + means[j, 3], f3
-            f4, g4 = u2 * f4 - g4 + means[j, 4], f4
-            f5, g5 = u2 * f5 - g5 + means[j, 5], f5
-        u = 0.5 * u2
-        out_force[k, 0] = u * f0 - g0 + means[row, 0]
-        out_force[k, 1] = u * f1 - g1 + means[row, 1]
-        out_force[k, 2] = u * f2 - g2 + means[row, 2]
-        out_rate[k, 0] = u * f3 - g3 + means[row, 3]
-        out_rate[k, 1] = u * f4 - g4 + means[row, 4]
-        out_rate[k, 2] = u * f5 - g5 + means[row, 5]
-        k += 1
-    return k
+    count, end = out_force.shape[0], k + 1
+    while end < count and start + (end + 1) * period <= high:
+        end += 1
+    for first in range(k, end, u2.shape[0]):
+        size = min(u2.shape[0], end - first)
+        for s in range(size):
+            u2[s] = 2.0 * (2.0 * (start + (first + s) * period) - low - high) / (high - low)
+        for ch in range(6):
+            top = means[row + n, ch]
+            for s in range(size):
+                f[s], g[s] = top, 0.0
+            for j in range(row + n - 1, row, -1):
+                coefficient = means[j, ch]
+                for s in range(size):
+                    f[s], g[s] = u2[s] * f[s] - g[s] + coefficient, f[s]
+            out, column, constant = (out_force, ch, means[row, ch]) if ch < 3 else \
+                (out_rate, ch - 3, means[row, ch])
+            for s in range(size):
+                out[first + s, column] = 0.5 * u2[s] * f[s] - g[s] + constant
+    return end
 
 
 @njit(cache=True, nogil=True)
@@ -334,6 +333,7 @@ def _means(c, x, start, period, fast, rest, piece_start, piece_count, bounds, de
     total = np.empty(6)
     point = np.empty(6)
     work = np.empty((MAX_DEGREE + 2, 6))
+    u2, b1, b2 = np.empty(FAST_BLOCK), np.empty(FAST_BLOCK), np.empty(FAST_BLOCK)
     i = min(max(np.searchsorted(x, start, side='right') - 1, 0), m - 1)
     k = 0
     while k < out_force.shape[0]:
@@ -355,7 +355,7 @@ def _means(c, x, start, period, fast, rest, piece_start, piece_count, bounds, de
                                          means)
                         mean_period[g] = period
                     k = _fast(start, period, k, bounds[g, 0], bounds[g, 1], n, means,
-                              offset[g], out_force, out_rate)
+                              offset[g], u2, b1, b2, out_force, out_rate)
                     continue
         total[:] = 0.0
         if a < x[0]:
