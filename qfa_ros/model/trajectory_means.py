@@ -25,6 +25,15 @@ quadrature with two points a sample costs ~0.3 ms a sensor second at 1 kHz.
   ``D_{k+1} = 2 x D_k + 2 T_k(y) - D_{k-1}`` has no cancellation however short the
   sample is on however long a segment (a 600 s dwell), unlike a difference of
   antiderivatives.
+- **Fast path.** Over the samples lying wholly inside one segment the mean is itself a
+  polynomial of the sample's start, ``q(u) = (E(u + h) - E(u)) / h`` in the segment's
+  Chebyshev variable ``u`` (``E`` the antiderivative of the fit, ``h`` the sample's
+  length in ``u``). Its Chebyshev coefficients come once per segment and sample period
+  (cached) from the finite Taylor series ``sum_j h^(j-1) / j! E^(j)``, which has no
+  cancellation when ``h n^2 <= 1`` (:data:`FAST_REACH`); each sample is then one
+  Clenshaw evaluation of ``q`` (~10-20 ns for six channels, against ~60-80 ns for the
+  integral). Samples straddling a segment boundary or the trajectory's ends, and
+  segments too short in samples, keep the integral.
 
 So the means are the exact means of the trajectory to the tolerance, which sits far
 below what the sensors resolve: 1e-10 m/s^2 is 1 % of an accelerometer's ~1e-8 m/s^2
