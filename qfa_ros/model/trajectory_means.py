@@ -40,6 +40,9 @@ below what the sensors resolve: 1e-10 m/s^2 is 1 % of an accelerometer's ~1e-8 m
 resolution, 1e-13 rad/s (or 1e-11 of the rate) is 1e-5 of the gyros' 1.5e-8 rad/s bias
 instability, and 1e-11 relative is 1e-5 of a 1 ppm scale-factor error. The fits depend
 on the piece alone, so the means do not depend on how the samples are cut into calls.
+
+One cohesive module: the fits, their integrals and the mean polynomials share one
+segment store that the compiled sample loop walks.
 """
 
 import math
