@@ -1,15 +1,18 @@
 """Benchmark ``Trajectory.sample_means``: the per-piece fits against the old two-point Gauss.
 
-Run: ``.venv/bin/python bench/trajectory_means.py [--seconds S] [--old REV]``. Prints
-Markdown: CPU ms per sensor second at 1 kHz, 1 s calls as the triad makes them, from
-t = 10 s on fresh trajectories (so the fits are built inside the timing). The old code
-is ``qfa_ros/model/trajectory.py`` at git revision ``REV`` (before the fits), loaded
-from git beside the new one and run interleaved in the same process.
+Run: ``.venv/bin/python bench/trajectory_means.py [--seconds S] [--repeats R] [--old REV]``.
+Prints Markdown: CPU ms per sensor second at 1 kHz, 1 s calls as the triad makes them,
+from t = 10 s on fresh trajectories (so the fits are built inside the timing), the median
+of ``R`` runs. Three ways side by side, interleaved in one process: the old code
+(``qfa_ros/model/trajectory.py`` at git revision ``REV``, before the fits, loaded from
+git), the fits integrated sample by sample (``PiecewiseMeans(fast=False)``), and the
+fits with each segment's mean polynomial for the samples inside it (the default).
 """
 
 import argparse
 import importlib.util
 import pathlib
+import statistics
 import subprocess
 import tempfile
 import time
@@ -35,32 +38,47 @@ def cost(motion, seconds, rate_hz=1000.0):
     start = time.process_time()
     for k in range(int(seconds)):
         motion.sample_means(10.0 + k, 1.0 / rate_hz, n)
-    return (time.process_time() - start) / seconds * 1e3
+    return (time.process_time() - start) / int(seconds) * 1e3
 
 
 def main():
     """Run the benchmark and print a Markdown table."""
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument('--seconds', type=float, default=30.0, help='sensor seconds a case')
+    parser.add_argument('--repeats', type=int, default=5, help='runs a case (median)')
     parser.add_argument('--old', default='c4d7d2e', help='git revision of the old code')
     args = parser.parse_args()
     from qfa_ros.model import trajectory
+    from qfa_ros.model.trajectory_means import PiecewiseMeans
     old = load_old(args.old)
-    names = ('vehicle_drive', 'coning', 'sculling', 'rate_table_turn', 'six_position_tumble')
-    for module in (old, trajectory):  # compile outside the timing
-        for name in names:
-            getattr(module, name)().sample_means(0.0, 1e-3, 10)
-    print(f'{args.seconds:g} sensor seconds at 1 kHz from t = 10 s, 1 s calls, CPU time\n')
-    print('| trajectory | pieces / s | old GL2 [ms / sensor s] | new [ms / sensor s] '
-          '| old / new |')
-    print('|---|---|---|---|---|')
-    for name in names:
+
+    def integrated(name):
         motion = getattr(trajectory, name)()
-        old_ms = cost(getattr(old, name)(), args.seconds)
-        new_ms = cost(motion, args.seconds)
+        motion._means = PiecewiseMeans(motion._c, motion._x, fast=False)
+        return motion
+
+    ways = {'old': lambda name: getattr(old, name)(), 'integrated': integrated,
+            'fast': lambda name: getattr(trajectory, name)()}
+    names = ('vehicle_drive', 'coning', 'sculling', 'rate_table_turn', 'six_position_tumble')
+    for make in ways.values():  # compile outside the timing
+        for name in names:
+            make(name).sample_means(0.0, 1e-3, 10)
+    print(f'{args.seconds:g} sensor seconds at 1 kHz from t = 10 s, 1 s calls, CPU time, '
+          f'median of {args.repeats}\n')
+    print('| trajectory | pieces / s | old GL2 [ms / sensor s] | integrated [ms / sensor s] '
+          '| fast [ms / sensor s] | old / fast | integrated / fast |')
+    print('|---|---|---|---|---|---|---|')
+    for name in names:
+        runs = {way: [] for way in ways}
+        for _ in range(args.repeats):
+            for way, make in ways.items():
+                runs[way].append(cost(make(name), args.seconds))
+        ms = {way: statistics.median(values) for way, values in runs.items()}
+        motion = getattr(trajectory, name)()
         pieces = (len(motion.poly.x) - 1) / motion.duration
-        print(f'| {name}() | {pieces:.3g} | {old_ms:.3f} | {new_ms:.3f} '
-              f'| {old_ms / new_ms:.2f} |')
+        print(f'| {name}() | {pieces:.3g} | {ms["old"]:.3f} | {ms["integrated"]:.3f} '
+              f'| {ms["fast"]:.3f} | {ms["old"] / ms["fast"]:.2f} '
+              f'| {ms["integrated"] / ms["fast"]:.2f} |')
 
 
 if __name__ == '__main__':

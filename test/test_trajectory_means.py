@@ -4,8 +4,14 @@ import numpy as np
 from numpy.testing import assert_allclose
 import pytest
 
-from qfa_ros.model import trajectory
-from qfa_ros.model.trajectory_means import FORCE_TOLERANCE, RATE_TOLERANCE, RELATIVE_TOLERANCE
+from qfa_ros.model import earth, trajectory
+from qfa_ros.model.trajectory_means import (
+    FAST_REACH,
+    FORCE_TOLERANCE,
+    PiecewiseMeans,
+    RATE_TOLERANCE,
+    RELATIVE_TOLERANCE,
+)
 
 
 def reference_means(motion, start, period, n):
@@ -83,3 +89,50 @@ def test_a_long_dwell_keeps_its_precision():
     expected_force, expected_rate = reference_means(motion, start, 1e-3, 200)
     assert_allclose(force, expected_force, rtol=0, atol=FORCE_TOLERANCE)
     assert_allclose(rate, expected_rate, rtol=0, atol=RATE_TOLERANCE)
+
+
+def straight_drive(duration_s=1000.0, speed=20.0):
+    """Return one quintic piece: a drive due east at constant speed, 45 deg N."""
+    latitude = np.radians(45.0)
+    _, r_e = earth.radii_of_curvature(latitude)
+    rate = speed / (r_e * np.cos(latitude))
+    values = [[latitude, 0.0, 0.0, 0.0, 0.0, 0.0],
+              [latitude, rate * duration_s, 0.0, 0.0, 0.0, 0.0]]
+    rates = [[0.0, rate, 0.0, 0.0, 0.0, 0.0]] * 2
+    return trajectory.Trajectory(
+        trajectory.quintic_coefficients([0.0, duration_s], values, rates, np.zeros((2, 6))),
+        'straight drive')
+
+
+@pytest.mark.parametrize('name', ['drive', 'dwell', 'straight'])
+def test_mean_polynomials_equal_the_integrals(name):
+    # Samples inside one segment take its mean polynomial; the integral path and the
+    # 8-point reference agree with them, also on a 600 s dwell and a 1000 s piece.
+    period, n = 1e-3, 200
+    if name == 'drive':
+        motion, start = trajectory.vehicle_drive(), 30.0103
+    elif name == 'dwell':
+        motion = trajectory.six_position_tumble(dwell_s=600.0)
+        start = motion.start + 599.7
+    else:
+        motion = straight_drive()
+        start = motion.end - 0.5
+    means = PiecewiseMeans(motion.poly.c, motion.poly.x)
+    fast = means.sample_means(start, period, n)
+    integrated = PiecewiseMeans(motion.poly.c, motion.poly.x, fast=False).sample_means(
+        start, period, n)
+    reference = reference_means(motion, start, period, n)
+    # Most samples lie inside a segment short enough in samples for the fast path.
+    bounds, degree = means.segments
+    edges = start + period * np.arange(n + 1)
+    inside = np.zeros(n, dtype=bool)
+    for (low, high), d in zip(bounds, degree):
+        if 2.0 * period * d * d <= FAST_REACH * (high - low):
+            inside |= (edges[:-1] >= low) & (edges[1:] <= high)
+    assert inside.mean() > 0.9
+    for k, tolerance in enumerate((FORCE_TOLERANCE, RATE_TOLERANCE)):
+        scale = np.abs(reference[k]).max()
+        bound = max(tolerance, RELATIVE_TOLERANCE * scale)
+        assert_allclose(fast[k], reference[k], rtol=0, atol=bound)
+        assert_allclose(fast[k], integrated[k], rtol=0, atol=bound)
+        assert np.array_equal(motion.sample_means(start, period, n)[k], fast[k])

@@ -25,12 +25,24 @@ quadrature with two points a sample costs ~0.3 ms a sensor second at 1 kHz.
   ``D_{k+1} = 2 x D_k + 2 T_k(y) - D_{k-1}`` has no cancellation however short the
   sample is on however long a segment (a 600 s dwell), unlike a difference of
   antiderivatives.
+- **Fast path.** Over the samples lying wholly inside one segment the mean is itself a
+  polynomial of the sample's start, ``q(u) = (E(u + h) - E(u)) / h`` in the segment's
+  Chebyshev variable ``u`` (``E`` the antiderivative of the fit, ``h`` the sample's
+  length in ``u``). Its Chebyshev coefficients come once per segment and sample period
+  (cached) from the finite Taylor series ``sum_j h^(j-1) / j! E^(j)``, which has no
+  cancellation when ``h n^2 <= 1`` (:data:`FAST_REACH`); each sample is then one
+  Clenshaw evaluation of ``q`` (~10-20 ns for six channels, against ~60-80 ns for the
+  integral). Samples straddling a segment boundary or the trajectory's ends, and
+  segments too short in samples, keep the integral.
 
 So the means are the exact means of the trajectory to the tolerance, which sits far
 below what the sensors resolve: 1e-10 m/s^2 is 1 % of an accelerometer's ~1e-8 m/s^2
 resolution, 1e-13 rad/s (or 1e-11 of the rate) is 1e-5 of the gyros' 1.5e-8 rad/s bias
 instability, and 1e-11 relative is 1e-5 of a 1 ppm scale-factor error. The fits depend
 on the piece alone, so the means do not depend on how the samples are cut into calls.
+
+One cohesive module: the fits, their integrals and the mean polynomials share one
+segment store that the compiled sample loop walks.
 """
 
 import math
@@ -55,6 +67,11 @@ MAX_DEPTH = 30
 """Most halvings of a piece (the fit at this depth is kept whatever its error)."""
 DIRECT_SAMPLES = 6.0
 """Pieces shorter than this many sample periods are integrated directly (see the top)."""
+FAST_BLOCK = 64
+"""Samples evaluated side by side by :func:`_fast`."""
+FAST_REACH = 1.0
+"""Samples inside a segment of degree n take its mean polynomial when their length is at most
+``FAST_REACH / n^2`` of the segment's half length (see :func:`_mean_polynomial`)."""
 _COSINES = np.cos(np.pi * np.arange(4 * MAX_DEGREE) / (2 * MAX_DEGREE))
 """cos(pi m / (2 MAX_DEGREE)), m < 4 MAX_DEGREE: every node, check and DCT cosine."""
 _GAUSS_NODES, _GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(3)
@@ -140,19 +157,18 @@ def _clenshaw(coef, n, ch, u):
 
 
 @njit(cache=True, nogil=True)
-def _fit(c, x, i, a, b, tolerance, coef):
+def _fit(c, x, i, a, b, tolerance, coef, values, merged, checks, scale):
     """
     Fit the outputs of piece ``i`` on ``[a, b]`` (Chebyshev, ``u = (2t - a - b)/(b - a)``).
 
     Write the coefficients (degree + 1, 6) to ``coef``; return the degree accepted, or
     -1 when degree :data:`MAX_DEGREE` misses the tolerance (``coef`` then holds that fit).
-    ``tolerance`` is (absolute force, absolute rate, relative).
+    ``tolerance`` is (absolute force, absolute rate, relative); ``values``, ``merged``
+    (:data:`MAX_DEGREE` + 1, 6), ``checks`` (:data:`MAX_DEGREE`, 6) and ``scale`` (6,)
+    are work space.
     """
     mid, half = 0.5 * (a + b), 0.5 * (b - a)
-    values = np.empty((MAX_DEGREE + 1, 6))
-    merged = np.empty((MAX_DEGREE + 1, 6))
-    checks = np.empty((MAX_DEGREE, 6))
-    scale = np.zeros(6)
+    scale[:] = 0.0
     n = 2
     for j in range(n + 1):
         sensed(c, i, mid + half * _COSINES[j * (2 * MAX_DEGREE // n)] - x[i], True, values[j])
@@ -160,8 +176,9 @@ def _fit(c, x, i, a, b, tolerance, coef):
         # Interpolant through the Lobatto nodes u_j = cos(pi j / n) (a DCT-I).
         step = 2 * MAX_DEGREE // n
         for k in range(n + 1):
+            sign = 1.0 if k % 2 == 0 else -1.0
             for ch in range(6):
-                total = 0.5 * (values[0, ch] + (-1.0) ** k * values[n, ch])
+                total = 0.5 * (values[0, ch] + sign * values[n, ch])
                 for j in range(1, n):
                     total += values[j, ch] * _COSINES[(j * k * step) % (4 * MAX_DEGREE)]
                 coef[k, ch] = total * (2.0 / n) * (0.5 if k == 0 or k == n else 1.0)
@@ -205,6 +222,8 @@ def _build(c, x, first, last, shortest, tolerance, piece_start, piece_count, bou
     of its fit (row 0 unused).
     """
     coef = np.empty((MAX_DEGREE + 1, 6))
+    values, merged = np.empty((MAX_DEGREE + 1, 6)), np.empty((MAX_DEGREE + 1, 6))
+    checks, scale = np.empty((MAX_DEGREE, 6)), np.empty(6)
     stack = np.empty((MAX_DEPTH + 2, 3))
     for i in range(first, last + 1):
         if piece_count[i] != 0:
@@ -219,7 +238,7 @@ def _build(c, x, first, last, shortest, tolerance, piece_start, piece_count, bou
         while top > 0:
             top -= 1
             a, b, depth = stack[top, 0], stack[top, 1], stack[top, 2]
-            n = _fit(c, x, i, a, b, tolerance, coef)
+            n = _fit(c, x, i, a, b, tolerance, coef, values, merged, checks, scale)
             if n < 0 and depth < MAX_DEPTH:
                 middle = 0.5 * (a + b)
                 stack[top, 0], stack[top, 1], stack[top, 2] = middle, b, depth + 1
@@ -246,16 +265,110 @@ def _build(c, x, first, last, shortest, tolerance, piece_start, piece_count, bou
 
 
 @njit(cache=True, nogil=True)
-def _means(c, x, start, period, rest, piece_start, piece_count, bounds, degree, offset, coefs,
-           out_force, out_rate):
-    """Write the exact means of the fits over consecutive samples of ``period`` [s]."""
+def _mean_polynomial(coefs, row, n, h, work, means):
+    """
+    Write the Chebyshev coefficients of a segment's sample mean as a function of its start.
+
+    With ``E`` the antiderivative (rows ``row + 1 .. row + n + 1`` of ``coefs``) of a
+    degree ``n`` fit ``p`` in the segment's variable ``u`` and ``h`` a sample's length in
+    ``u``, ``q(u) = (E(u + h) - E(u)) / h = sum_{j >= 1} h^(j - 1) / j! E^(j)(u)``
+    (Taylor's series, finite), written to rows ``row .. row + n`` of ``means``. The sum
+    has no cancellation: with ``h n^2 <= 1`` (:data:`FAST_REACH`) the Chebyshev
+    coefficients of ``E^(j)`` grow at most ``n^2`` a derivative (Markov), so the terms
+    shrink at least like ``1 / j!``. ``work`` is (:data:`MAX_DEGREE` + 2, 6) work space.
+    """
+    for ch in range(6):
+        work[0, ch] = 0.0
+        for j in range(1, n + 2):
+            work[j, ch] = coefs[row + j, ch]
+        for j in range(n + 1):
+            means[row + j, ch] = 0.0
+    factor = 1.0
+    for j in range(1, n + 2):
+        top = n + 2 - j
+        for ch in range(6):
+            # Derivative in place: b_{k-1} = b_{k+1} + 2 k a_k, then b_0 halved.
+            after, current = 0.0, 0.0
+            for k in range(top, 0, -1):
+                below = after + 2.0 * k * work[k, ch]
+                work[k, ch] = current
+                after, current = current, below
+            work[0, ch] = 0.5 * current
+            for k in range(top):
+                means[row + k, ch] += factor * work[k, ch]
+        factor *= h / (j + 1)
+
+
+@njit(cache=True, nogil=True)
+def _fast(start, period, k, low, high, n, means, row, u2, f, g, out_force, out_rate):
+    """
+    Write the means of samples ``k..`` lying wholly in ``[low, high]``; return the next.
+
+    The caller has checked sample ``k``. Each mean is ``q`` of :func:`_mean_polynomial`
+    at the sample's start, by Clenshaw's recurrence run over a block of samples at once
+    (independent lanes the compiler vectorizes); ``u2``, ``f``, ``g`` (block,) are work
+    space. Every sample's arithmetic is the same whatever the block it falls in.
+    """
+    count, end = out_force.shape[0], k + 1
+    while end < count and start + (end + 1) * period <= high:
+        end += 1
+    for first in range(k, end, u2.shape[0]):
+        size = min(u2.shape[0], end - first)
+        for s in range(size):
+            u2[s] = 2.0 * (2.0 * (start + (first + s) * period) - low - high) / (high - low)
+        for ch in range(6):
+            top = means[row + n, ch]
+            for s in range(size):
+                f[s], g[s] = top, 0.0
+            for j in range(row + n - 1, row, -1):
+                coefficient = means[j, ch]
+                for s in range(size):
+                    f[s], g[s] = u2[s] * f[s] - g[s] + coefficient, f[s]
+            out, column, constant = (out_force, ch, means[row, ch]) if ch < 3 else \
+                (out_rate, ch - 3, means[row, ch])
+            for s in range(size):
+                out[first + s, column] = 0.5 * u2[s] * f[s] - g[s] + constant
+    return end
+
+
+@njit(cache=True, nogil=True)
+def _means(c, x, start, period, fast, rest, piece_start, piece_count, bounds, degree, offset,
+           coefs, means, mean_period, out_force, out_rate):
+    """
+    Write the exact means of the fits over consecutive samples of ``period`` [s].
+
+    With ``fast``, the samples wholly inside a segment take :func:`_fast` (``means``
+    holds each segment's mean polynomial, built for ``mean_period`` [s]); the others,
+    or all without ``fast``, integrate the fits piece by piece.
+    """
     m = x.shape[0] - 1
     total = np.empty(6)
     point = np.empty(6)
+    work = np.empty((MAX_DEGREE + 2, 6))
+    u2, b1, b2 = np.empty(FAST_BLOCK), np.empty(FAST_BLOCK), np.empty(FAST_BLOCK)
     i = min(max(np.searchsorted(x, start, side='right') - 1, 0), m - 1)
-    for k in range(out_force.shape[0]):
+    k = 0
+    while k < out_force.shape[0]:
         a = start + k * period
         b = start + (k + 1) * period
+        if fast and a >= x[0] and b <= x[m]:
+            while i < m - 1 and a >= x[i + 1]:
+                i += 1
+            while i > 0 and a < x[i]:
+                i -= 1
+            if piece_count[i] > 0:
+                g = piece_start[i]
+                while bounds[g, 1] < x[i + 1] and a >= bounds[g, 1]:
+                    g += 1
+                n, span = degree[g], bounds[g, 1] - bounds[g, 0]
+                if b <= bounds[g, 1] and 2.0 * period * n * n <= FAST_REACH * span:
+                    if mean_period[g] != period:
+                        _mean_polynomial(coefs, offset[g], n, 2.0 * period / span, work,
+                                         means)
+                        mean_period[g] = period
+                    k = _fast(start, period, k, bounds[g, 0], bounds[g, 1], n, means,
+                              offset[g], u2, b1, b2, out_force, out_rate)
+                    continue
         total[:] = 0.0
         if a < x[0]:
             total += (min(b, x[0]) - a) * rest[0]
@@ -312,6 +425,25 @@ def _means(c, x, start, period, rest, piece_start, piece_count, bounds, degree, 
         for ch in range(3):
             out_force[k, ch] = total[ch] * scale
             out_rate[k, ch] = total[3 + ch] * scale
+        k += 1
+
+
+@njit(cache=True, nogil=True)
+def _sample_means(c, x, start, period, fast, shortest, tolerance, rest, piece_start,
+                  piece_count, used, bounds, degree, offset, coefs, means, mean_period,
+                  out_force, out_rate):
+    """Fit the pieces the samples reach and write their means; False when storage is full."""
+    m = x.shape[0] - 1
+    low = min(max(start, x[0]), x[m])
+    high = min(max(start + out_force.shape[0] * period, x[0]), x[m])
+    first = min(max(np.searchsorted(x, low, side='right') - 1, 0), m - 1)
+    last = min(max(np.searchsorted(x, high, side='left') - 1, 0), m - 1)
+    if not _build(c, x, first, last, shortest, tolerance, piece_start, piece_count, bounds,
+                  degree, offset, coefs, used):
+        return False
+    _means(c, x, start, period, fast, rest, piece_start, piece_count, bounds, degree, offset,
+           coefs, means, mean_period, out_force, out_rate)
+    return True
 
 
 class PiecewiseMeans:
@@ -324,14 +456,18 @@ class PiecewiseMeans:
         ``PPoly`` coefficients (k, m, 6) of lat, lon [rad], h [m], roll, pitch, yaw [rad].
     x : numpy.ndarray
         Breakpoints (m + 1,) [s], strictly increasing.
+    fast : bool
+        Take each segment's mean polynomial for the samples wholly inside it (the
+        default); False integrates every sample (the slower path, kept for comparison).
     """
 
-    def __init__(self, c, x):
+    def __init__(self, c, x, fast=True):
         self._c = np.ascontiguousarray(c, dtype=float)
         self._x = np.ascontiguousarray(x, dtype=float)
         m = self._x.shape[0] - 1
         if self._c.ndim != 3 or self._c.shape[1:] != (m, 6) or m < 1:
             raise ValueError('c must have shape (k, m, 6) for m + 1 breakpoints x')
+        self._fast = bool(fast)
         self._tolerance = np.array([FORCE_TOLERANCE, RATE_TOLERANCE, RELATIVE_TOLERANCE])
         self._rest = np.empty((2, 6))
         sensed(self._c, 0, 0.0, False, self._rest[0])
@@ -346,12 +482,16 @@ class PiecewiseMeans:
         used_segments, used_rows = self._used
         bounds, degree = np.empty((segments, 2)), np.zeros(segments, dtype=np.int64)
         offset, coefs = np.zeros(segments, dtype=np.int64), np.empty((rows, 6))
+        means, mean_period = np.empty((rows, 6)), np.full(segments, np.nan)
         if used_segments:
             bounds[:used_segments] = self._bounds[:used_segments]
             degree[:used_segments] = self._degree[:used_segments]
             offset[:used_segments] = self._offset[:used_segments]
             coefs[:used_rows] = self._coefs[:used_rows]
+            means[:used_rows] = self._means[:used_rows]
+            mean_period[:used_segments] = self._mean_period[:used_segments]
         self._bounds, self._degree, self._offset, self._coefs = bounds, degree, offset, coefs
+        self._means, self._mean_period = means, mean_period
 
     @property
     def segments(self):
@@ -371,18 +511,10 @@ class PiecewiseMeans:
         force, rate = np.empty((n, 3)), np.empty((n, 3))
         if n == 0:
             return force, rate
-        x = self._x
-        low = min(max(start, x[0]), x[-1])
-        high = min(max(start + n * period, x[0]), x[-1])
-        m = x.shape[0] - 1
-        first = min(max(int(np.searchsorted(x, low, side='right')) - 1, 0), m - 1)
-        last = min(max(int(np.searchsorted(x, high, side='left')) - 1, 0), m - 1)
-        while not _build(self._c, x, first, last, DIRECT_SAMPLES * period, self._tolerance,
-                         self._piece_start,
-                         self._piece_count, self._bounds, self._degree, self._offset,
-                         self._coefs, self._used):
-            self._allocate(2 * self._bounds.shape[0] + last - first + 1,
-                           2 * self._coefs.shape[0] + (MAX_DEGREE + 2) * (last - first + 1))
-        _means(self._c, x, start, period, self._rest, self._piece_start, self._piece_count,
-               self._bounds, self._degree, self._offset, self._coefs, force, rate)
+        while not _sample_means(self._c, self._x, start, period, self._fast,
+                                DIRECT_SAMPLES * period, self._tolerance, self._rest,
+                                self._piece_start, self._piece_count, self._used,
+                                self._bounds, self._degree, self._offset, self._coefs,
+                                self._means, self._mean_period, force, rate):
+            self._allocate(2 * self._bounds.shape[0], 2 * self._coefs.shape[0])
         return force, rate
