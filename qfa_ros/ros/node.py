@@ -108,7 +108,7 @@ class QfaNode(Node):
         self._apply_drift()
 
         # The sensor thread and the executor thread share the model, the sample grid,
-        # the running schedule, the ground-truth input queue, the recording, the
+        # the running schedule, the ground-truth input queue, the
         # calibration state and the counters of the collaborators; _lock makes each
         # tick and each callback's use of them atomic.
         self._lock = threading.Lock()
@@ -240,8 +240,9 @@ class QfaNode(Node):
                     self._apply_ambient()
                 if names & RECORDER_PARAMETERS:
                     # What was published before the change goes to the recording it was in.
-                    self._stream.flush_recording()
-                    self._recording.restart()
+                    with self._recording.lock:
+                        self._stream.flush_recording()
+                        self._recording.restart()
             except (ValueError, OSError) as error:
                 self._schedules.last_error = f'applying {", ".join(sorted(names))}: {error}'
                 self.get_logger().error(self._schedules.last_error)
@@ -382,8 +383,10 @@ class QfaNode(Node):
     def diagnostics_callback(self):
         """Publish the stream, calibration, temperature and input status (about 1 Hz)."""
         with self._lock:
-            self._recording.publish(self._diagnostics_publisher, self._diagnostics.array(),
-                                    DIAGNOSTICS_TYPE)
+            array = self._diagnostics.array()
+        # Published and recorded outside the node lock: the recording's lock may wait for
+        # the disk, and the sensor thread must not wait behind it.
+        self._recording.publish(self._diagnostics_publisher, array, DIAGNOSTICS_TYPE)
 
     # Shutdown -------------------------------------------------------------------------
     def close(self, timeout_s=10.0):

@@ -164,16 +164,15 @@ class RecordingQueue:
     """
     Write what the pacer published into the flight recording, on a thread of its own.
 
-    The pacer only appends to a queue; every ``RECORD_PERIOD_S`` this thread takes the node
-    lock (the :class:`~qfa_ros.ros.recording.StreamRecording` contract) and records the
-    queued messages, so chunking, compression and fsync never delay a publication.
+    The pacer only appends to a queue; every ``RECORD_PERIOD_S`` this thread records the
+    queued messages under the recording's own lock, never the node lock, so chunking,
+    compression and a write the disk holds up delay neither a publication nor the sensor
+    thread that feeds the pacer.
 
-    :param lock: The node lock.
     :param recording: :class:`~qfa_ros.ros.recording.StreamRecording`.
     """
 
-    def __init__(self, lock, recording):
-        self._lock = lock
+    def __init__(self, recording):
         self._recording = recording
         # deque.append and popleft are atomic: the pacer appends, the writer pops.
         self._queue = collections.deque()
@@ -189,8 +188,7 @@ class RecordingQueue:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=timeout_s)
-        with self._lock:
-            self.flush()
+        self.flush()
 
     def append(self, publisher, msgtype, data, time_ns):
         """Queue one message ``publisher`` published (any thread; never blocks)."""
@@ -198,18 +196,22 @@ class RecordingQueue:
             self._queue.append((publisher, msgtype, data, time_ns))
 
     def flush(self):
-        """Record every queued message now (call with the node lock held)."""
+        """Record every message queued so far (any thread)."""
         queue = self._queue
-        recording = self._recording
         topics = {}
-        while queue:
-            publisher, msgtype, data, time_ns = queue.popleft()
-            if recording.active:
+        items = []
+        # Drained under the recording's lock: a restart waits for them to reach the file
+        # they were published in.
+        with self._recording.lock:
+            while queue:
+                publisher, msgtype, data, time_ns = queue.popleft()
                 # The topic name is looked up here, off the publishing thread.
                 topic = topics.get(publisher)
                 if topic is None:
                     topic = topics[publisher] = publisher.topic_name
-                recording.record(topic, msgtype, data, time_ns)
+                items.append((topic, msgtype, data, time_ns))
+            if items:
+                self._recording.record_many(items)
 
     def _loop(self):
         # Without a recording nothing is queued: wake seldom (a recording started meanwhile
@@ -217,5 +219,4 @@ class RecordingQueue:
         while not self._stop.wait(RECORD_PERIOD_S if self._recording.active
                                   else IDLE_PERIOD_S):
             if self._queue:
-                with self._lock:
-                    self.flush()
+                self.flush()

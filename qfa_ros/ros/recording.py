@@ -1,6 +1,7 @@
 """The flight recorder hook: what the node publishes, recorded as published, within limits."""
 
 import shutil
+import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -58,7 +59,8 @@ class StreamRecording:
     :data:`FREE_SPACE_CHECK_S`; before it falls under ``min_free_bytes`` the recording
     stops (the current file finished under its final name) with an ERROR diagnostic.
     A failed write stops the recording, never the stream; :attr:`problem` says why.
-    The caller holds the node lock around every method.
+    Thread-safe on its own lock, not the node's: a write the disk holds up (page-cache
+    writeback stalls ``write`` for 100 ms and more) must not hold up the sensor thread.
 
     :param node: The node (its name prefixes the files; its logger reports).
     :param values: The node's live parameter values.
@@ -79,6 +81,10 @@ class StreamRecording:
         self.problem_level = DiagnosticStatus.OK
         self._next_check = 0.0
         self._checked_path = None
+        # Protects the writer, its files and the fields above; re-entrant because a
+        # failed write stops (closes) the recording from inside record, and a caller may
+        # hold it around several calls (drain a queue, then restart).
+        self.lock = threading.RLock()
 
     @property
     def active(self):
@@ -97,6 +103,10 @@ class StreamRecording:
 
     def restart(self):
         """Close the current recording and open one with the present parameters."""
+        with self.lock:
+            self._restart()
+
+    def _restart(self):
         self.close()
         self.problem, self.problem_level = None, DiagnosticStatus.OK
         values = self._values
@@ -121,6 +131,10 @@ class StreamRecording:
 
     def close(self):
         """Finish the current file, if any; idempotent."""
+        with self.lock:
+            self._close()
+
+    def _close(self):
         recorder, self.recorder = self.recorder, None
         if recorder is not None:
             try:
@@ -135,6 +149,19 @@ class StreamRecording:
 
     def record(self, topic, msgtype, data, now_ns):
         """Record serialized ``data``; on failure or low free space stop recording and say why."""
+        with self.lock:
+            if self.recorder is not None:
+                self._record(topic, msgtype, data, now_ns)
+
+    def record_many(self, items):
+        """Record ``(topic, msgtype, data, now_ns)`` items in order, under one lock round."""
+        with self.lock:
+            for topic, msgtype, data, now_ns in items:
+                if self.recorder is None:
+                    return
+                self._record(topic, msgtype, data, now_ns)
+
+    def _record(self, topic, msgtype, data, now_ns):
         try:
             self.recorder.record(topic, msgtype, data, now_ns)
         except (OSError, ValueError) as error:

@@ -79,9 +79,10 @@ class SampleStream:
 
     Three threads: the sensor thread (model, grid, schedules, encoding; it holds ``lock``,
     the node's, for each batch, as the executor does for each callback that touches the
-    model, the grid, the running schedule, the ground-truth input or the recording); the
-    pacer thread (publishes; never takes ``lock``); the recording thread (writes the
-    flight recording; takes ``lock`` for each write).
+    model, the grid, the running schedule or the ground-truth input); the pacer thread
+    (publishes; never takes ``lock``); the recording thread (writes the flight recording
+    under the recording's own lock, never ``lock``: a write the disk holds up must not
+    hold up the sensor thread).
 
     :param node: The node (clock and logger).
     :param lock: The node lock.
@@ -128,7 +129,7 @@ class SampleStream:
         self._stop = threading.Event()
         # Set by the pacer when it runs dry and by a ground-truth input: compute now.
         self._wake = threading.Event()
-        self.recording_queue = RecordingQueue(lock, recording)
+        self.recording_queue = RecordingQueue(recording)
         self.pacer = Pacer(node, self.recording_queue.append, self._wake.set)
         self._thread = threading.Thread(target=self._loop, name='qfa_sensor', daemon=True)
 
@@ -149,7 +150,7 @@ class SampleStream:
         self.recording_queue.stop(timeout_s)
 
     def flush_recording(self):
-        """Record what was published so far (call with the node lock held)."""
+        """Record what was published so far (any thread)."""
         self.recording_queue.flush()
 
     def input_arrived(self):
