@@ -157,7 +157,30 @@ def _clenshaw(coef, n, ch, u):
 
 
 @njit(cache=True, nogil=True)
-def _fit(c, x, i, a, b, tolerance, coef, values, merged, checks, scale):
+def _knot(c, x, k, knots, known, out):
+    """
+    Write the outputs at knot ``k`` to ``out``, from a two-entry cache of knot values.
+
+    The value at a knot is always the same evaluation (piece ``k`` at its start, or the
+    last piece at its end), so it does not matter whether it comes from the cache
+    (``known`` the knots held in ``knots`` (2, 6), -1 none): neighbouring pieces share it.
+    """
+    for slot in range(2):
+        if known[slot] == k:
+            out[:] = knots[slot]
+            return
+    m = x.shape[0] - 1
+    if k < m:
+        sensed(c, k, 0.0, True, out)
+    else:
+        sensed(c, m - 1, x[m] - x[m - 1], True, out)
+    slot = 0 if known[0] < known[1] else 1
+    known[slot] = k
+    knots[slot] = out
+
+
+@njit(cache=True, nogil=True)
+def _fit(c, x, i, a, b, tolerance, coef, values, merged, checks, scale, knots, known):
     """
     Fit the outputs of piece ``i`` on ``[a, b]`` (Chebyshev, ``u = (2t - a - b)/(b - a)``).
 
@@ -165,13 +188,19 @@ def _fit(c, x, i, a, b, tolerance, coef, values, merged, checks, scale):
     -1 when degree :data:`MAX_DEGREE` misses the tolerance (``coef`` then holds that fit).
     ``tolerance`` is (absolute force, absolute rate, relative); ``values``, ``merged``
     (:data:`MAX_DEGREE` + 1, 6), ``checks`` (:data:`MAX_DEGREE`, 6) and ``scale`` (6,)
-    are work space.
+    are work space; ``knots`` and ``known`` the cache of :func:`_knot`.
     """
     mid, half = 0.5 * (a + b), 0.5 * (b - a)
     scale[:] = 0.0
     n = 2
     for j in range(n + 1):
-        sensed(c, i, mid + half * _COSINES[j * (2 * MAX_DEGREE // n)] - x[i], True, values[j])
+        t = mid + half * _COSINES[j * (2 * MAX_DEGREE // n)]
+        if j == 0 and b == x[i + 1]:
+            _knot(c, x, i + 1, knots, known, values[j])
+        elif j == n and a == x[i]:
+            _knot(c, x, i, knots, known, values[j])
+        else:
+            sensed(c, i, t - x[i], True, values[j])
     while True:
         # Interpolant through the Lobatto nodes u_j = cos(pi j / n) (a DCT-I).
         step = 2 * MAX_DEGREE // n
@@ -225,6 +254,7 @@ def _build(c, x, first, last, shortest, tolerance, piece_start, piece_count, bou
     values, merged = np.empty((MAX_DEGREE + 1, 6)), np.empty((MAX_DEGREE + 1, 6))
     checks, scale = np.empty((MAX_DEGREE, 6)), np.empty(6)
     stack = np.empty((MAX_DEPTH + 2, 3))
+    knots, known = np.empty((2, 6)), np.full(2, -1)
     for i in range(first, last + 1):
         if piece_count[i] != 0:
             continue
@@ -238,7 +268,8 @@ def _build(c, x, first, last, shortest, tolerance, piece_start, piece_count, bou
         while top > 0:
             top -= 1
             a, b, depth = stack[top, 0], stack[top, 1], stack[top, 2]
-            n = _fit(c, x, i, a, b, tolerance, coef, values, merged, checks, scale)
+            n = _fit(c, x, i, a, b, tolerance, coef, values, merged, checks, scale, knots,
+                     known)
             if n < 0 and depth < MAX_DEPTH:
                 middle = 0.5 * (a + b)
                 stack[top, 0], stack[top, 1], stack[top, 2] = middle, b, depth + 1
