@@ -58,9 +58,11 @@ def main():
             TriadConfig(gyro=None), rng=0, profile=trajectory.static(45.0)),
     }
     results = {name: [] for name in cases}
-    for _ in range(args.repeat):
-        for name, make in cases.items():
-            results[name].append(run(make, args.seconds, CHUNK_SECONDS))
+    names = list(cases)
+    for repetition in range(args.repeat):
+        # The order rotates: no case always runs first (fresh memory) or after the same one.
+        for name in names[repetition % len(names):] + names[:repetition % len(names)]:
+            results[name].append(run(cases[name], args.seconds, CHUNK_SECONDS))
     wall = {name: [w for w, _ in values] for name, values in results.items()}
     cpu = {name: [c for _, c in values] for name, values in results.items()}
     base = statistics.median(wall['static, accelerometers only'])
