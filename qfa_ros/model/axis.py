@@ -10,7 +10,7 @@ from qfa_ros.model.hardware import counts_to_accel, loop_gains, STANDARD_GRAVITY
 from qfa_ros.model.parallel import ChainRun, start_chains
 
 PARALLEL_MIN_STEPS = 20_000
-"""Loop steps per axis from which :func:`run_axes` spreads the axes over threads."""
+"""Loop steps per axis from which :func:`start_axes` spreads the axes over threads."""
 SLICE_STEPS = 20_000
 """Loop steps per time slice of an axis when the axes run on threads."""
 
@@ -100,12 +100,6 @@ class AxisLoop:
         kernel.run_axis(self.rng, sensed, scale, offset, self.gm_phi, self.gm_drive,
                         self.gm_state, decimation, self.params_f, self.params_i,
                         self.state_f, self.state_i, out_mean, out_flags)
-
-
-def run_axes(loops, sensed, scale, offset, decimation, counts, flags, workers, beside=()):
-    """Run the kernel of every axis over one chunk (:func:`start_axes`, then join)."""
-    start_axes(loops, sensed, scale, offset, decimation, counts, flags, workers,
-               beside).join()
 
 
 def start_axes(loops, sensed, scale, offset, decimation, counts, flags, workers, beside=()):

@@ -491,7 +491,7 @@ class QfaTriad:
         force, truth, rate = self._input(start_index * self.sample_period, n_samples,
                                          specific_force, angular_rate)
         # Rows per axis: one value for the chunk, one per sample or one per loop step.
-        chunk = _Chunk(start_index, n_samples, truth, rate)
+        chunk = _Chunk(n_samples, truth, rate)
         chunk.sensed = np.ascontiguousarray(
             self._sensed(force, start_index * self.sample_period).T)
         if self.thermal is not None:
@@ -610,8 +610,7 @@ class QfaTriad:
 class _Chunk:
     """The arrays of one chunk between :meth:`QfaTriad._prepare` and ``_finish``."""
 
-    def __init__(self, start_index, n_samples, truth, rate):
-        self.start_index = start_index
+    def __init__(self, n_samples, truth, rate):
         self.n_samples = n_samples
         self.truth = truth
         self.rate = rate
