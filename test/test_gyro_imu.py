@@ -66,6 +66,26 @@ def test_gyro_quantization_keeps_the_angle_and_range_clips():
     assert np.all(out[:, 2] == 1.0) and saturated[:, 2].all()
 
 
+def test_gyro_output_does_not_depend_on_how_the_samples_are_cut():
+    # Every noise term on (blocks of 10 samples at 100 Hz), a moving rate: one run over
+    # all samples equals runs and job slices of uneven lengths, some inside a block.
+    config = GyroConfig().with_errors(rate_random_walk=1.0 * DEG_PER_HOUR / 60.0,
+                                      quantization=1e-7)
+    t = np.arange(2500) / 100.0
+    rate = np.column_stack([0.1 * np.sin(t), 0.05 * np.cos(3 * t), np.full_like(t, 1e-4)])
+    force = np.tile([[0.0, 0.0, 9.8]], (len(t), 1))
+    _, (whole, _) = _run(config, rate, force)
+    gyro = GyroTriad(config, 100.0, np.random.default_rng(0))
+    parts = []
+    for a, b in [(0, 1), (1, 100), (100, 357), (357, 1400), (1400, 2500)]:
+        call, out, _ = gyro.job(rate[a:b], force[a:b], np.full(b - a, 25.0))
+        middle = (b - a) // 3
+        call(0, middle)
+        call(middle, b - a)
+        parts.append(out)
+    np.testing.assert_array_equal(np.concatenate(parts), whole)
+
+
 @pytest.mark.parametrize('name, value', [('arw', -1.0), ('range', 0.0),
                                          ('correlation_times', ()), ('bias_tc', math.nan)])
 def test_gyro_config_refuses_bad_values(name, value):

@@ -13,6 +13,12 @@ PARALLEL_MIN_STEPS = 20_000
 """Loop steps per axis from which :func:`start_axes` spreads the axes over threads."""
 SLICE_STEPS = 20_000
 """Loop steps per time slice of an axis when the axes run on threads."""
+BESIDE_SLICE_STEPS = 100_000
+"""Loop steps' worth of samples per call of the work beside the axes (the gyros).
+
+Five axis slices: that work costs ~1/20 of an axis a sample, and each call pays a fixed
+~20 us (numba unboxing its random generator), so its calls can be fewer; each still
+lasts less than an axis slice, so the last one adds no tail to the chunk."""
 
 
 class AxisLoop:
@@ -129,8 +135,8 @@ def start_axes(loops, sensed, scale, offset, decimation, counts, flags, workers,
         Threads that may run axes at once (1: the calling thread only).
     beside : sequence of callables
         Independent GIL-free work over the same samples (the gyro triad): ``call(a, b)``
-        does samples ``a..b-1``; run as a chain of the axes' time slices beside them on
-        the threads, or once over the chunk after them.
+        does samples ``a..b-1``; run as a chain of slices of ``BESIDE_SLICE_STEPS``
+        beside them on the threads, or once over the chunk after them.
 
     Returns
     -------
@@ -160,5 +166,7 @@ def start_axes(loops, sensed, scale, offset, decimation, counts, flags, workers,
                                  part(scale[i], a, b, False), part(offset[i], a, b, False),
                                  decimation, counts[i, a:b], flags[i, a:b])
                for a, b in bounds] for i, loop in enumerate(loops)]
-    chains += [[functools.partial(call, a, b) for a, b in bounds] for call in beside]
+    size = max(1, BESIDE_SLICE_STEPS // decimation)
+    beside_bounds = [(a, min(a + size, n_samples)) for a in range(0, n_samples, size)]
+    chains += [[functools.partial(call, a, b) for a, b in beside_bounds] for call in beside]
     return start_chains(chains, workers)

@@ -180,6 +180,9 @@ class GyroTriad:
         self.config = config
         self.dt = 1.0 / sample_rate_hz
         unit_stream, white, flicker, walk = rng.spawn(4)
+        # The white noise is three draws a sample, the gyros' largest cost beside the
+        # loops: numpy's SFC64 draws a normal in ~2/3 of PCG64's time, from the same seed.
+        white = np.random.Generator(np.random.SFC64(white.bit_generator.seed_seq))
         self.unit = GyroUnit.draw(config, unit_stream)
         self._white, self._flicker, self._walk = white, flicker, walk
         self._white_std = config.arw / math.sqrt(self.dt)
@@ -243,90 +246,113 @@ class GyroTriad:
         u = self.unit
         c = self.config
 
+        flicker_on = c.bias_instability > 0
+        n_components = len(self._phi)
+
         def call(a, b):
+            # The slow processes' normals for the blocks starting in a..b-1, drawn here
+            # in their kernel order: numba unboxes each Generator argument in ~20 us, as
+            # long as ~3 000 draws, so the kernel gets only the white stream.
+            starts = len(range(self._slow_left, b - a, self._block))
+            shocks = self._flicker.standard_normal((starts if flicker_on else 0, 3,
+                                                    n_components))
+            steps = self._walk.standard_normal((starts if self._walk_std > 0 else 0, 3))
             slow_left = np.array([self._slow_left], dtype=np.int64)
-            _gyro_chunk(self._white, self._flicker, self._walk, self._white_std, self._block,
-                        c.bias_instability > 0, self._phi, self._innovation_std,
-                        self._flicker_state, self._walk_std, self._walk_state, self._slow,
-                        slow_left, rate[a:b], force[a:b], d_t[a:b], self._sensing,
-                        u.scale_factor, u.scale_factor_tc, u.asymmetry, u.bias, u.bias_tc,
-                        u.g_sensitivity, c.quantization, self.dt, c.range,
-                        self._angle_residual, output[a:b], saturated[a:b])
+            _gyro_chunk(self._white, self._white_std, self._block, shocks, self._phi,
+                        self._innovation_std, self._flicker_state, steps, self._walk_std,
+                        self._walk_state, self._slow, slow_left, rate[a:b], force[a:b],
+                        d_t[a:b], self._sensing, u.scale_factor, u.scale_factor_tc,
+                        u.asymmetry, u.bias, u.bias_tc, u.g_sensitivity, c.quantization,
+                        self.dt, c.range, self._angle_residual, output[a:b], saturated[a:b])
             self._slow_left = int(slow_left[0])
 
         return call, output, saturated
 
 
 @njit(cache=True, nogil=True)
-def _gyro_chunk(white, flicker, walk, white_std, block, flicker_on, phi, innovation_std,
-                flicker_state, walk_std, walk_state, slow, slow_left, rate, force, d_t,
-                sensing, sf, sf_tc, asymmetry, bias, bias_tc, g_sens, quantum, dt, limit,
-                residual, out, saturated):
+def _gyro_chunk(white, white_std, block, shocks, phi, innovation_std, flicker_state, steps,
+                walk_std, walk_state, slow, slow_left, rate, force, d_t, sensing, sf, sf_tc,
+                asymmetry, bias, bias_tc, g_sens, quantum, dt, limit, residual, out,
+                saturated):
     """
     Run the noise and the output equation of the module docstring over ``n`` samples.
 
     The slow processes (Gauss-Markov sum ``phi_j b_j + q_j v``, then the rate random
     walk, its steps summed from the chunk's first block and added to the walk's value at
     the chunk's start) advance once per ``block`` samples and hold; ``slow`` (3,) is
-    the value held and ``slow_left[0]`` the samples it still holds. The white noise is
-    ``white_std`` times a standard normal per sample and axis. Each stream draws in a
-    fixed order (Gauss-Markov per block, axis, component; walk per block, axis; white
-    per sample, axis), so the output depends on the seed, not on the chunk lengths.
-    Then the angle is quantized (``residual`` carries the remainder) and clipped.
+    the value held and ``slow_left[0]`` the samples it still holds. Their standard
+    normals come per block that starts in the chunk: ``shocks`` (blocks, 3, components)
+    for the Gauss-Markov sum (none: no bias instability) and ``steps`` (blocks, 3) for
+    the walk (none: no walk). The white noise is ``white_std`` times a standard normal
+    drawn here per sample and axis. Each stream is read in a fixed order, so the output
+    depends on the seed, not on the chunk lengths. Then the angle is quantized
+    (``residual`` carries the remainder) and clipped.
     """
     n = rate.shape[0]
     n_components = phi.shape[0]
     # The output equation without noise first: no draws, no branch, so LLVM can
-    # vectorize it; the noise and the quantization follow sample by sample.
+    # vectorize it (a sgn(w) w = a |w|); the noise and the quantization follow.
     for k in range(n):
         w0, w1, w2 = rate[k, 0], rate[k, 1], rate[k, 2]
         f0, f1, f2 = force[k, 0], force[k, 1], force[k, 2]
         change = d_t[k]
         for i in range(3):
             sensed = sensing[i, 0] * w0 + sensing[i, 1] * w1 + sensing[i, 2] * w2
-            out[k, i] = sensed * (1.0 + sf[i] + sf_tc[i] * change
-                                  + asymmetry[i] * np.sign(sensed)) \
-                + bias[i] + bias_tc[i] * change + g_sens[i, 0] * f0 + g_sens[i, 1] * f1 \
-                + g_sens[i, 2] * f2
+            out[k, i] = sensed * (1.0 + sf[i] + sf_tc[i] * change) \
+                + asymmetry[i] * abs(sensed) + bias[i] + bias_tc[i] * change \
+                + g_sens[i, 0] * f0 + g_sens[i, 1] * f1 + g_sens[i, 2] * f2
     walk_start = walk_state.copy()
-    steps = np.zeros(3)
-    stepped = False
+    walked = np.zeros(3)
+    started = 0  # blocks started in this chunk
     left = slow_left[0]
-    # Multiplications by constants in the per-sample loop (a division costs ~4 of them).
-    per_quantum = 1.0 / quantum if quantum > 0 else 0.0
-    quantum_rate = quantum / dt
     for k in range(n):
         if left == 0:
             for i in range(3):
                 value = 0.0
-                if flicker_on:
+                if shocks.shape[0]:
                     for j in range(n_components):
                         state = phi[j] * flicker_state[i, j] \
-                            + flicker.standard_normal() * innovation_std[j]
+                            + shocks[started, i, j] * innovation_std[j]
                         flicker_state[i, j] = state
                         value += state
                 slow[i] = value
-            if walk_std > 0:
+            if steps.shape[0]:
                 for i in range(3):
-                    step = walk.standard_normal() * walk_std
-                    steps[i] = step if not stepped else steps[i] + step
-                    slow[i] += walk_start[i] + steps[i]
-                stepped = True
+                    step = steps[started, i] * walk_std
+                    walked[i] = step if started == 0 else walked[i] + step
+                    slow[i] += walk_start[i] + walked[i]
+            started += 1
             left = block
         left -= 1
-        for i in range(3):
-            value = out[k, i] + slow[i]
-            if white_std > 0:
-                value += white.standard_normal() * white_std
+        if white_std > 0:
+            for i in range(3):
+                out[k, i] += slow[i] + white.standard_normal() * white_std
+        else:
+            for i in range(3):
+                out[k, i] += slow[i]
+    # Then each axis on its own: whole angle quanta per sample, the remainder carried to
+    # the next (the count of a sample is the change of floor(angle / quantum), the angle
+    # summed from the residual: the running sum is the only chain from sample to sample,
+    # where carrying the remainder itself would chain a floor and four operations);
+    # then the range.
+    per_quantum = 1.0 / quantum if quantum > 0 else 0.0
+    quantum_rate = quantum / dt
+    for i in range(3):
+        angle = residual[i]
+        previous = math.floor(angle * per_quantum)
+        first = previous
+        for k in range(n):
+            value = out[k, i]
             if quantum > 0:
-                # Whole angle quanta per sample; the remainder stays for the next sample.
-                angle = value * dt + residual[i]
+                angle += value * dt
                 counts = math.floor(angle * per_quantum)
-                residual[i] = angle - counts * quantum
-                value = counts * quantum_rate
+                value = (counts - previous) * quantum_rate
+                previous = counts
             saturated[k, i] = abs(value) > limit
             out[k, i] = min(max(value, -limit), limit)
-    if stepped:
+        if quantum > 0:
+            residual[i] = angle - (previous - first) * quantum
+    if steps.shape[0]:
         for i in range(3):
-            walk_state[i] = walk_start[i] + steps[i]
+            walk_state[i] = walk_start[i] + walked[i]
     slow_left[0] = left

@@ -46,6 +46,22 @@ _SIGNAL_SHIFT = 8        # Q8 signal -> count
 
 
 @njit(cache=True, nogil=True)
+def sense(force, misalignment, bias, k2, out):
+    """
+    Write the specific force each axis senses, ``out[i, k]`` [m/s^2].
+
+    ``a = M f_k`` (``misalignment`` M (3, 3), the sensing axes in the body frame, applied
+    to ``force`` f (n, 3) [m/s^2]), then ``out[i, k] = bias_i + a_i + k2_i a_i^2`` with
+    ``bias`` [m/s^2] and ``k2`` [1/(m/s^2)] per axis: the input of :func:`run_axis`.
+    """
+    for k in range(force.shape[0]):
+        f0, f1, f2 = force[k, 0], force[k, 1], force[k, 2]
+        for i in range(3):
+            a = misalignment[i, 0] * f0 + misalignment[i, 1] * f1 + misalignment[i, 2] * f2
+            out[i, k] = bias[i] + a + k2[i] * a * a
+
+
+@njit(cache=True, nogil=True)
 def _round_shift(value, shift):
     # Round to nearest (ties up), as a hardware adder before an arithmetic shift does.
     return (value + (np.int64(1) << (shift - 1))) >> shift

@@ -388,7 +388,7 @@ class QfaTriad:
     def _start_equilibrium(self):
         # Start each loop at rest under the initial input so runs need no warm-up.
         f0 = self.profile.evaluate(np.zeros(1))[0]
-        sensed = self._sensed(f0[None, :], self.time)[0]
+        sensed = self._sensed(f0[None, :], self.time)[:, 0]
         if self.thermal is not None:  # the loop input includes the thermal terms (run)
             sensed = sensed * (1.0 + self.thermal.scale_factor_error(self.temperature)) \
                 + self.thermal.zero_bias(self.temperature)
@@ -400,8 +400,13 @@ class QfaTriad:
             loop.state_i[kernel.T_INTEGRATOR] = command << 28
 
     def _sensed(self, specific_force, time):
-        a = specific_force @ self._misalignment.T
-        return self._bias + self.drift.bias_at(time) + a + self._k2 * a * a
+        # Rows per axis (3, n) of the force each axis senses; compiled, as numpy's
+        # matmul and temporaries cost more than the trajectory means themselves.
+        force = np.ascontiguousarray(specific_force, dtype=float)
+        sensed = np.empty((len(AXES), len(force)))
+        kernel.sense(force, self._misalignment, self._bias + self.drift.bias_at(time),
+                     self._k2, sensed)
+        return sensed
 
     # Motion (trajectory, gyros) -------------------------------------------------------
     def is_at_rest(self):
@@ -492,8 +497,7 @@ class QfaTriad:
                                          specific_force, angular_rate)
         # Rows per axis: one value for the chunk, one per sample or one per loop step.
         chunk = _Chunk(n_samples, truth, rate)
-        chunk.sensed = np.ascontiguousarray(
-            self._sensed(force, start_index * self.sample_period).T)
+        chunk.sensed = self._sensed(force, start_index * self.sample_period)
         if self.thermal is not None:
             terms = self.thermal.run(n_samples, self.sample_period)
             chunk.temperature = terms.sensor_c
