@@ -1,5 +1,6 @@
 """Delivery as a sensor-data subscriber sees it: each sample at its instant, skips announced."""
 
+from pathlib import Path
 import signal
 import struct
 import time
@@ -12,6 +13,8 @@ import pytest
 from rclpy.qos import HistoryPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
+
+from qfa_ros.ros.pacing import BACKGROUND_NICE, CATCH_UP_BURST, CATCH_UP_SPACING_NS
 
 # Batches of 10 samples: published as one burst, half of each would be lost by a keep-last-5
 # subscriber; paced, the node and the subscriber may each be held up for 50 ms without a loss
@@ -102,6 +105,48 @@ def test_sensor_data_subscriber_loses_no_sample(setup):
     assert lost == 0, f'{lost} samples lost by a best-effort depth-5 subscriber ' \
         f'(publication delay max {delay.max():.1f} ms; the subscriber read them up to ' \
         f'{(np.asarray(sensor_data.received) - stamps).max() / 1e6:.1f} ms late)'
+
+
+def test_the_threads_that_work_ahead_yield_the_cpu_to_the_pacer(setup):
+    # The sensor and recording threads run at niceness + BACKGROUND_NICE; the pacer and
+    # the executor (the process's main thread) do not.
+    pid = setup['node'].process.pid
+    setup['client'].spin_until(lambda: len(setup['everything'].stamps) > 10, 60, 'the stream')
+    niceness = {}
+    for task in Path(f'/proc/{pid}/task').iterdir():
+        fields = (task / 'stat').read_text().rsplit(')', 1)[1].split()
+        niceness[int(task.name)] = int(fields[16])
+    assert niceness[pid] == 0
+    assert sorted(niceness.values()).count(BACKGROUND_NICE) >= 2, niceness
+
+
+def test_a_short_stall_is_caught_up_as_a_stream_not_a_burst(setup):
+    # Stopped for 0.3 s (less than the 1 s it always catches up), the node owes ~30
+    # samples at once: back to back, a keep-last-5 subscriber would lose most of them.
+    node, client, everything = setup['node'], setup['client'], setup['everything']
+    client.spin_until(lambda: len(everything.stamps) > 10, 60, 'the stream')
+    everything.clear()
+    node.process.send_signal(signal.SIGSTOP)
+    try:
+        time.sleep(0.3)  # the stall itself
+    finally:
+        node.process.send_signal(signal.SIGCONT)
+    resumed = time.time_ns()
+    client.spin_until(lambda: sum(s >= resumed for s in everything.stamps) > 20, 30,
+                      'samples after the stall')
+    stamps = np.asarray(everything.stamps, dtype=np.int64)
+    published = np.asarray(everything.published, dtype=np.int64)
+    assert np.all(np.diff(stamps) == PERIOD_NS), 'a sample lost across a short stall'
+    late = np.flatnonzero(published - stamps > 20_000_000)
+    assert len(late) >= 10, f'only {len(late)} samples were late: no stall seen'
+    assert np.all(np.diff(late) == 1)
+    # At most CATCH_UP_BURST back to back, then one per CATCH_UP_SPACING_NS at most: any
+    # CATCH_UP_BURST + 2 of them span a spacing (back to back they span microseconds).
+    times = published[late]
+    window = CATCH_UP_BURST + 2
+    spans = times[window - 1:] - times[:len(times) - window + 1]
+    assert spans.min() >= CATCH_UP_SPACING_NS, \
+        f'{window} late samples published within {spans.min() / 1e3:.0f} us'
 
 
 def test_a_stall_that_skips_samples_is_a_warning(setup):

@@ -25,7 +25,7 @@ from sensor_msgs.msg import Temperature
 from qfa_ros.bag.imu_cdr import ImuEncoder
 from qfa_ros.bag.qos import QosProfile
 from qfa_ros.model.triad import AXES, NS_PER_S, SampleGrid
-from qfa_ros.ros.pacing import LATE_NS, Pacer, RecordingQueue
+from qfa_ros.ros.pacing import LATE_NS, lower_thread_priority, Pacer, RecordingQueue
 
 FAST_CHUNK_SAMPLES = 1000
 FAST_SLICE_S = 0.02
@@ -186,6 +186,7 @@ class SampleStream:
     # Sensor thread ----------------------------------------------------------------------
     def _loop(self):
         """Compute a batch every ``stream.batch_s`` until stopped (thread target)."""
+        lower_thread_priority()
         try:
             self._warm_up()
         except Exception as error:
