@@ -160,13 +160,17 @@ def start_axes(loops, sensed, scale, offset, decimation, counts, flags, workers,
             call(0, n_samples)
         return ChainRun(())
     step_input = sensed.shape[1] == n_samples * decimation and decimation > 1
-    size = max(1, SLICE_STEPS // decimation)
-    bounds = [(a, min(a + size, n_samples)) for a in range(0, n_samples, size)]
+
+    def slices(steps):
+        # (first, end) samples of consecutive slices of about ``steps`` loop steps.
+        size = max(1, steps // decimation)
+        return [(a, min(a + size, n_samples)) for a in range(0, n_samples, size)]
+
+    bounds = slices(SLICE_STEPS)
     chains = [[functools.partial(loop.run, part(sensed[i], a, b, step_input),
                                  part(scale[i], a, b, False), part(offset[i], a, b, False),
                                  decimation, counts[i, a:b], flags[i, a:b])
                for a, b in bounds] for i, loop in enumerate(loops)]
-    size = max(1, BESIDE_SLICE_STEPS // decimation)
-    beside_bounds = [(a, min(a + size, n_samples)) for a in range(0, n_samples, size)]
-    chains += [[functools.partial(call, a, b) for a, b in beside_bounds] for call in beside]
+    chains += [[functools.partial(call, a, b) for a, b in slices(BESIDE_SLICE_STEPS)]
+               for call in beside]
     return start_chains(chains, workers)

@@ -319,7 +319,7 @@ def _gyro_chunk(white, white_std, block, shocks, phi, innovation_std, flicker_st
             if steps.shape[0]:
                 for i in range(3):
                     step = steps[started, i] * walk_std
-                    walked[i] = step if started == 0 else walked[i] + step
+                    walked[i] += step
                     slow[i] += walk_start[i] + walked[i]
             started += 1
             left = block

@@ -58,15 +58,15 @@ def lower_thread_priority():
     """
     Lower the calling thread's CPU priority by :data:`BACKGROUND_NICE` (Linux; else no-op).
 
-    Raising one's own niceness needs no privilege. Return None, or why it was not done.
+    Raising one's own niceness needs no privilege; where it is refused the thread keeps
+    its priority, which costs latency, not correctness.
     """
+    thread = threading.get_native_id()
     try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(),
-                       os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-                       + BACKGROUND_NICE)
-    except (AttributeError, OSError) as error:  # not Linux, or refused
-        return f'{type(error).__name__}: {error}'
-    return None
+        os.setpriority(os.PRIO_PROCESS, thread,
+                       os.getpriority(os.PRIO_PROCESS, thread) + BACKGROUND_NICE)
+    except (AttributeError, OSError):  # not Linux, or refused
+        pass
 
 
 class Pacer:
