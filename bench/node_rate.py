@@ -15,6 +15,11 @@ last received), latency (receive time - stamp) p50 / p99 / max, the publisher's 
 its ratio to the floor's CPU at the same rate, and for the node the lateness of the first
 ``--startup-samples`` samples after it starts (receive time - stamp).
 
+Before the cases, a *machine probe* measures what no publisher can help: one bare Python
+thread per CPU (no ROS), pinned to it, sleeps until each instant at the highest rate and
+records how late it woke. A best-effort depth-5 subscriber holds 5 / rate seconds of
+samples (2.5 ms at 2 kHz); one frozen longer than that loses samples whoever publishes.
+
 Run (quiet machine, full length; then a 10-minute soak of the node for its memory):
 ``python bench/node_rate.py --window 60 --soak 600 --out bench/results/node_rate.md``;
 a quick check: ``python bench/node_rate.py --window 5``. ``--param NAME=VALUE`` passes node
@@ -123,6 +128,72 @@ def start_node(domain, directory, rate, recorder, extra):
     return subprocess.Popen([sys.executable, '-m', 'qfa_ros.cli.node', '--ros-args',
                              '--params-file', str(params_file)], env=environment(domain),
                             cwd=ROOT, stdout=subprocess.DEVNULL)
+
+
+# The machine probe: how long a CPU is taken away from a waking thread ---------------------
+PROBE_STALL_NS = 1_500_000
+"""A wake-up later than this starts a stall of the probe [ns] (the pacing's own p99 is ~0.1 ms)."""
+
+
+def run_probe(rate, seconds, cpu, out):
+    """Wake at ``rate`` Hz for ``seconds`` on CPU ``cpu`` (no ROS); save each lateness [ns]."""
+    if hasattr(os, 'sched_setaffinity'):
+        os.sched_setaffinity(0, {cpu})
+    period = NS_PER_S / rate
+    count = int(rate * seconds)
+    start = time.time_ns() + NS_PER_S // 10
+    lateness = np.empty(count, dtype=np.int64)
+    for index in range(count):
+        instant = start + int(index * period)
+        remaining = instant - time.time_ns()
+        if remaining > 0:
+            time.sleep(remaining / 1e9)
+        lateness[index] = time.time_ns() - instant
+    np.save(out, np.stack([start + (np.arange(count) * period).astype(np.int64), lateness]))
+    return 0
+
+
+def probe_machine(rate, seconds):
+    """Run one probe per CPU at once; return a result row per CPU."""
+    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') \
+        else list(range(os.cpu_count()))
+    with tempfile.TemporaryDirectory() as directory:
+        files = [Path(directory) / f'probe{cpu}.npy' for cpu in cpus]
+        processes = [subprocess.Popen([sys.executable, __file__, '--probe', str(rate),
+                                       '--probe-cpu', str(cpu), '--probe-out', str(path),
+                                       '--window', str(seconds)], cwd=ROOT)
+                     for cpu, path in zip(cpus, files)]
+        for process in processes:
+            process.wait()
+        rows = []
+        for cpu, path in zip(cpus, files):
+            instants, lateness = np.load(path)
+            # A stall: the first late wake-up of a run of them (the later ones are its tail).
+            late = lateness > PROBE_STALL_NS
+            starts = np.flatnonzero(late & ~np.r_[False, late[:-1]])
+            long_ones = starts[lateness[starts] > 5 * NS_PER_S / 2000.0]
+            intervals = np.diff(instants[long_ones]) / 1e9
+            rows.append({'cpu': cpu, 'p99': float(np.percentile(lateness, 99)) / 1e6,
+                         'max': float(lateness.max()) / 1e6,
+                         'stalls': {r: int(np.count_nonzero(lateness[starts] > 5 * NS_PER_S / r))
+                                    for r in (1000.0, 2000.0)},
+                         'interval': float(np.median(intervals)) if len(intervals) else None,
+                         'count': len(starts)})
+    return rows
+
+
+def probe_table(rows, rate, seconds):
+    lines = [f'#### Machine probe: a bare thread per CPU waking at {rate:g} Hz '
+             f'for {seconds:g} s\n',
+             '| CPU | wake-up late p99 / max [ms] | stalls > 1.5 ms | of them > 2.5 ms '
+             '(depth 5 at 2 kHz) | > 5 ms (depth 5 at 1 kHz) | '
+             'median interval of those > 2.5 ms [s] |',
+             '|---|---|---|---|---|---|']
+    for row in rows:
+        interval = '' if row['interval'] is None else f'{row["interval"]:.2f}'
+        lines.append(f'| {row["cpu"]} | {row["p99"]:.2f} / {row["max"]:.2f} | {row["count"]} | '
+                     f'{row["stalls"][2000.0]} | {row["stalls"][1000.0]} | {interval} |')
+    return '\n'.join(lines) + '\n'
 
 
 # The subscribers: each in a process of its own ------------------------------------------------
@@ -336,7 +407,11 @@ def main():
     parser.add_argument('--soak', type=float, default=0.0,
                         help='then run the node at the first rate this long [s] (RSS growth)')
     parser.add_argument('--out', type=Path, default=None, help='append the Markdown here')
+    parser.add_argument('--no-probe', action='store_true', help='skip the machine probe')
     parser.add_argument('--floor', type=float, default=None, help=argparse.SUPPRESS)
+    parser.add_argument('--probe', type=float, default=None, help=argparse.SUPPRESS)
+    parser.add_argument('--probe-cpu', type=int, default=0, help=argparse.SUPPRESS)
+    parser.add_argument('--probe-out', type=Path, default=None, help=argparse.SUPPRESS)
     parser.add_argument('--subscriber', choices=list(SUBSCRIBERS), default=None,
                         help=argparse.SUPPRESS)
     parser.add_argument('--subscriber-out', type=Path, default=None, help=argparse.SUPPRESS)
@@ -346,6 +421,10 @@ def main():
         return run_floor(args.floor)
     if args.subscriber is not None:
         return run_subscriber(args.subscriber, args.subscriber_out, args.startup_samples)
+    if args.probe is not None:
+        return run_probe(args.probe, args.window, args.probe_cpu, args.probe_out)
+    probe = '' if args.no_probe else probe_table(
+        probe_machine(max(args.rates), args.window), max(args.rates), args.window)
     results = []
     # QFA_TEST_DOMAINS=LOW-HIGH confines the ROS domains, as for the tests.
     low, high = (int(v) for v in os.environ.get('QFA_TEST_DOMAINS', '1-100').split('-'))
@@ -359,7 +438,7 @@ def main():
     if args.soak:
         results.append(run_case(domain, 'node', args.rates[0], False, args, args.soak))
         results[-1]['soak'] = True
-    text = table(results, args)
+    text = table(results, args) + ('\n' + probe if probe else '')
     print(text)
     if args.out:
         with open(args.out, 'a') as stream:

@@ -656,6 +656,63 @@ def test_flight_recorder_splits_without_losing_messages(tmp_path, limits, seed):
     assert recovered == written
 
 
+@pytest.mark.parametrize('limits', [
+    {'max_bytes': 6000},
+    {'max_duration_ns': 250_000_000},
+    {'max_bytes': 20000, 'max_duration_ns': 400_000_000},
+])
+def test_flight_recorder_record_many_splits_where_record_does(tmp_path, limits):
+    rng = np.random.default_rng(5)
+    messages = []
+    time_ns = T0
+    for _ in range(500):
+        time_ns += int(rng.integers(1, 6_000_000))
+        topic = '/a' if rng.random() < 0.8 else '/b'
+        messages.append((topic, _string_cdr('z' * int(rng.integers(0, 120))), time_ns))
+    # The same messages one by one, and as runs of one topic of random length.
+    runs, start = [], 0
+    while start < len(messages):
+        end = start + 1
+        while (end < len(messages) and end - start < rng.integers(1, 40)
+               and messages[end][0] == messages[start][0]):
+            end += 1
+        runs.append(messages[start:end])
+        start = end
+    assert max(len(run) for run in runs) > 10
+    (tmp_path / 'one').mkdir()
+    (tmp_path / 'many').mkdir()
+    with FlightRecorder(tmp_path / 'one', bag_name='flight', **limits) as single:
+        for topic, data, time_ns in messages:
+            single.record(topic, 'std_msgs/msg/String', data, time_ns)
+    with FlightRecorder(tmp_path / 'many', bag_name='flight', **limits) as batched:
+        for run in runs:
+            batched.record_many(run[0][0], 'std_msgs/msg/String', [m[1] for m in run],
+                                [m[2] for m in run])
+    assert len(single.files) >= 3
+    assert len(batched.files) == len(single.files)
+    for one, many in zip(single.files, batched.files):
+        assert [(m[0], m[2], m[4]) for m in _read_all(many)] == \
+            [(m[0], m[2], m[4]) for m in _read_all(one)]
+        assert many.stat().st_size == one.stat().st_size
+        if 'max_bytes' in limits:
+            assert many.stat().st_size <= limits['max_bytes']
+
+
+def test_flight_recorder_record_many_writes_nothing_of_a_bad_batch(tmp_path):
+    good = [_string_cdr('a'), _string_cdr('b')]
+    with FlightRecorder(tmp_path) as flight:
+        flight.record_many('/c', 'std_msgs/msg/String', good, [T0, T0 + 1])
+        with pytest.raises(ValueError, match='not CDR'):
+            flight.record_many('/c', 'std_msgs/msg/String', [_string_cdr('c'), b'\x01xx'],
+                               [T0 + 2, T0 + 3])
+        with pytest.raises(ValueError, match='2 messages but 1 times'):
+            flight.record_many('/c', 'std_msgs/msg/String', good, [T0 + 4])
+        flight.record_many('/c', 'std_msgs/msg/String', [_string_cdr('d')], [T0 + 5])
+    file, = flight.files
+    assert [(m[2], m[3].data) for m in _read_all(file)] == [(T0, 'a'), (T0 + 1, 'b'),
+                                                             (T0 + 5, 'd')]
+
+
 def test_flight_recorder_rejects_late_writes_and_keeps_sequence(tmp_path):
     with FlightRecorder(tmp_path, max_duration_ns=10) as flight:
         for index in range(5):

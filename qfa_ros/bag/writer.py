@@ -23,6 +23,9 @@ Durability rules (:mod:`qfa_ros.bag.files`):
 
 Times are integer nanoseconds (``int`` or numpy integers; floats are refused so
 that seconds are never mistaken for nanoseconds).
+
+The module is one cohesive thing: one writer class, whose records, durability and size
+accounting (which the flight recorder splits files by) cannot be understood apart.
 """
 
 import dataclasses
@@ -71,7 +74,7 @@ COMPRESSIONS = {
     'none': CompressionType.NONE,
 }
 # Message record framing (31 bytes) plus its message index entry (16 bytes).
-_MESSAGE_OVERHEAD = 47
+MESSAGE_OVERHEAD = 47
 # Header, data end, statistics, summary offsets, footer, metadata index and the
 # topic-independent part of the rosbag2 metadata YAML.
 _BASE_FINISH_OVERHEAD = 1200
@@ -205,7 +208,7 @@ class McapBagWriter:
             Bytes on disk, plus the chunk in progress uncompressed, plus the
             summary, indexes and metadata record ``finish()`` adds.
         """
-        extra = 0 if not extra_message_bytes else extra_message_bytes + _MESSAGE_OVERHEAD
+        extra = 0 if not extra_message_bytes else extra_message_bytes + MESSAGE_OVERHEAD
         chunk_indexes = (self._chunks_flushed + 1) * (100 + 10 * len(self._topics))
         return (self._file.position + self._pending_bytes + extra + chunk_indexes
                 + self._finish_overhead)
@@ -326,6 +329,40 @@ class McapBagWriter:
         entry = self._topic(topic)
         self._write_data(entry, check_cdr(data, topic), log_time_ns, publish_time_ns)
 
+    def write_serialized_many(self, topic, datas, log_times_ns, *, max_bytes=None,
+                              before_ns=None):
+        """Write messages of one topic already serialized to CDR, in order, while they fit.
+
+        The same as ``write_serialized`` for each (publish time = log time),
+        with the checks and the lock paid once per call: a recorder keeping
+        up with a kHz stream spends its time in the MCAP records, not here.
+        Every message is checked before any is written.
+
+        Parameters
+        ----------
+        topic : str
+            A topic registered with ``add_topic``.
+        datas : sequence of bytes-like
+            CDR bytes with encapsulation header, one per message.
+        log_times_ns : sequence of int
+            Receive time of each message [ns].
+        max_bytes : int, optional
+            Stop before a message that would take ``size_estimate`` past this
+            (never before the file's first message).
+        before_ns : int, optional
+            Stop at the first message logged at or after this time [ns].
+
+        Returns
+        -------
+        int
+            How many messages were written, from the first.
+        """
+        if len(datas) != len(log_times_ns):
+            raise ValueError(f'{topic}: {len(datas)} messages but {len(log_times_ns)} times')
+        times = [as_time_ns(t, 'log_time_ns') for t in log_times_ns]
+        return self._add_messages(self._topic(topic), [check_cdr(d, topic) for d in datas],
+                                  times, times, max_bytes, before_ns)
+
     def _topic(self, topic):
         try:
             return self._topics[topic]
@@ -336,24 +373,41 @@ class McapBagWriter:
         log_time_ns = as_time_ns(log_time_ns, 'log_time_ns')
         publish_time_ns = (log_time_ns if publish_time_ns is None
                            else as_time_ns(publish_time_ns, 'publish_time_ns'))
+        self._add_messages(entry, [data], [log_time_ns], [publish_time_ns])
+
+    def _add_messages(self, entry, datas, log_times, publish_times, max_bytes=None,
+                      before_ns=None):
+        """Add checked messages of one channel while they fit; return how many."""
         with self._lock:
             self._check_open()
-            self._guarded(
-                self._writer.add_message,
-                channel_id=entry.channel_id,
-                log_time=log_time_ns,
-                data=data,
-                publish_time=publish_time_ns,
-                sequence=entry.sequence,
-            )
-            self._account(len(data) + _MESSAGE_OVERHEAD)
-            entry.sequence = (entry.sequence + 1) & 0xFFFFFFFF
-            entry.message_count += 1
-            self._message_count += 1
-            if self._first_time_ns is None or log_time_ns < self._first_time_ns:
-                self._first_time_ns = log_time_ns
-            if self._last_time_ns is None or log_time_ns > self._last_time_ns:
-                self._last_time_ns = log_time_ns
+            add_message, channel_id = self._writer.add_message, entry.channel_id
+            sequence, written = entry.sequence, 0
+            try:
+                for data, log_time, publish_time in zip(datas, log_times, publish_times):
+                    if before_ns is not None and log_time >= before_ns:
+                        break
+                    if (max_bytes is not None and self._message_count
+                            and self.size_estimate(len(data)) > max_bytes):
+                        break
+                    add_message(channel_id=channel_id, log_time=log_time, data=data,
+                                publish_time=publish_time, sequence=sequence)
+                    self._account(len(data) + MESSAGE_OVERHEAD)
+                    sequence = (sequence + 1) & 0xFFFFFFFF
+                    written += 1
+                    self._message_count += 1
+            except OSError:
+                self._fail()
+                raise
+            finally:
+                entry.sequence = sequence
+                entry.message_count += written
+                if written:
+                    first, last = min(log_times[:written]), max(log_times[:written])
+                    if self._first_time_ns is None or first < self._first_time_ns:
+                        self._first_time_ns = first
+                    if self._last_time_ns is None or last > self._last_time_ns:
+                        self._last_time_ns = last
+        return written
 
     def _check_open(self, action='write'):
         if self._state != 'open':

@@ -258,19 +258,26 @@ class RecordingQueue:
         """Record every message queued so far (any thread)."""
         queue = self._queue
         topics = {}
-        items = []
+        runs = []
         # Drained under the recording's lock: a restart waits for them to reach the file
         # they were published in.
         with self._recording.lock:
+            previous = None
             while queue:
                 publisher, msgtype, data, time_ns = queue.popleft()
-                # The topic name is looked up here, off the publishing thread.
-                topic = topics.get(publisher)
-                if topic is None:
-                    topic = topics[publisher] = publisher.topic_name
-                items.append((topic, msgtype, data, time_ns))
-            if items:
-                self._recording.record_many(items)
+                if publisher is not previous:
+                    # A run of one topic is written with one call; the topic name is
+                    # looked up here, off the publishing thread.
+                    topic = topics.get(publisher)
+                    if topic is None:
+                        topic = topics[publisher] = publisher.topic_name
+                    datas, times = [], []
+                    runs.append((topic, msgtype, datas, times))
+                    previous = publisher
+                datas.append(data)
+                times.append(time_ns)
+            if runs:
+                self._recording.record_runs(runs)
 
     def _loop(self):
         lower_thread_priority()

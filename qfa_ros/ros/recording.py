@@ -151,19 +151,23 @@ class StreamRecording:
         """Record serialized ``data``; on failure or low free space stop recording and say why."""
         with self.lock:
             if self.recorder is not None:
-                self._record(topic, msgtype, data, now_ns)
+                self._record(topic, msgtype, [data], [now_ns])
 
-    def record_many(self, items):
-        """Record ``(topic, msgtype, data, now_ns)`` items in order, under one lock round."""
+    def record_runs(self, runs):
+        """
+        Record ``(topic, msgtype, datas, times_ns)`` runs in order, under one lock round.
+
+        A run is consecutive messages of one topic; each is written with one call.
+        """
         with self.lock:
-            for topic, msgtype, data, now_ns in items:
+            for topic, msgtype, datas, times_ns in runs:
                 if self.recorder is None:
                     return
-                self._record(topic, msgtype, data, now_ns)
+                self._record(topic, msgtype, datas, times_ns)
 
-    def _record(self, topic, msgtype, data, now_ns):
+    def _record(self, topic, msgtype, datas, times_ns):
         try:
-            self.recorder.record(topic, msgtype, data, now_ns)
+            self.recorder.record_many(topic, msgtype, datas, times_ns)
         except (OSError, ValueError) as error:
             self._stop(f'recording stopped: {error}', DiagnosticStatus.WARN)
             return
