@@ -3,6 +3,7 @@
 from pathlib import Path
 import signal
 import struct
+import threading
 import time
 
 from builtin_interfaces.msg import Time
@@ -14,7 +15,13 @@ from rclpy.qos import HistoryPolicy, qos_profile_sensor_data, QoSProfile, Reliab
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
 
-from qfa_ros.ros.pacing import BACKGROUND_NICE, CATCH_UP_BURST, CATCH_UP_SPACING_NS
+from qfa_ros.ros.pacing import (
+    BACKGROUND_NICE,
+    CATCH_UP_BURST,
+    CATCH_UP_SPACING_NS,
+    PACER_SLICE_NS,
+    request_short_time_slice,
+)
 
 # Batches of 10 samples: published as one burst, half of each would be lost by a keep-last-5
 # subscriber; paced, the node and the subscriber may each be held up for 50 ms without a loss
@@ -118,6 +125,35 @@ def test_the_threads_that_work_ahead_yield_the_cpu_to_the_pacer(setup):
         niceness[int(task.name)] = int(fields[16])
     assert niceness[pid] == 0
     assert sorted(niceness.values()).count(BACKGROUND_NICE) >= 2, niceness
+    # The pacer (niceness 0) asked for the shortest time slice, where the kernel has them.
+    if not kernel_grants_short_slices():
+        pytest.skip('this kernel has no per-thread time slice (Linux < 6.12)')
+    slices = {tid: time_slice_ns(Path(f'/proc/{pid}/task/{tid}')) for tid in niceness}
+    short = [tid for tid, value in slices.items() if value == PACER_SLICE_NS]
+    assert len(short) == 1, slices
+    assert niceness[short[0]] == 0
+
+
+def time_slice_ns(task):
+    """Return ``se.slice`` of a /proc task directory [ns], or None."""
+    for line in (task / 'sched').read_text().splitlines():
+        if line.startswith('se.slice'):
+            return int(line.split(':')[1])
+    return None
+
+
+def kernel_grants_short_slices():
+    """Return True if a thread here gets the slice request_short_time_slice asks for."""
+    seen = []
+
+    def probe():
+        request_short_time_slice()
+        seen.append(time_slice_ns(Path(f'/proc/self/task/{threading.get_native_id()}')))
+
+    thread = threading.Thread(target=probe)
+    thread.start()
+    thread.join()
+    return seen == [PACER_SLICE_NS]
 
 
 def test_a_short_stall_is_caught_up_as_a_stream_not_a_burst(setup):

@@ -10,7 +10,10 @@ compression, fsync) away from the publishing thread.
 """
 
 import collections
+import ctypes
 import os
+import platform
+import struct
 import threading
 import time
 
@@ -52,6 +55,45 @@ The sensor thread computes ``stream.lead_s`` ahead and the recording thread writ
 was published: neither has a deadline within a sample period, the pacer has. On two busy
 cores the scheduler then lets the waking pacer take the core from them at once, instead
 of after their time slice."""
+
+
+PACER_SLICE_NS = 100_000
+"""Time slice the pacer thread asks the scheduler for [ns] (Linux 6.12+ EEVDF; 0.1 ms, the least).
+
+Linux's EEVDF scheduler lets a thread that has the CPU finish its slice (1.4 ms by default
+here) before a thread it woke on the same CPU runs; it pre-empts sooner for a thread that
+asked for a shorter slice. Without it, the sensor thread computing a 0.1 s batch (2.6 ms on
+a shared core, seen with ``perf sched``) kept the woken pacer waiting up to 2.3 ms once a
+batch; with it the 2 kHz latency p99 went from 0.71–0.83 to 0.33–0.37 ms, side by side. A
+thread may shorten its own slice without privilege; older kernels keep the default."""
+
+_SCHED_SETATTR = {'x86_64': 314, 'aarch64': 274}
+"""``sched_setattr`` system call number by machine (glibc has no wrapper)."""
+
+_SCHED_ATTR = struct.Struct('<IIQiIQQQII')
+"""``struct sched_attr`` (size, policy, flags, nice, priority, runtime, deadline, period,
+util_min, util_max): version 1, 56 bytes."""
+
+
+def request_short_time_slice(slice_ns=PACER_SLICE_NS):
+    """
+    Ask the scheduler for a ``slice_ns`` time slice for the calling thread (Linux; else no-op).
+
+    The thread keeps its policy (``SCHED_OTHER``) and niceness; the slice is what a
+    ``SCHED_OTHER`` thread's ``sched_runtime`` means since Linux 6.12. Where the call is
+    missing or refused the thread keeps the default slice, which costs latency only.
+    """
+    number = _SCHED_SETATTR.get(platform.machine()) if platform.system() == 'Linux' else None
+    if number is None:
+        return
+    thread = threading.get_native_id()
+    try:
+        attr = _SCHED_ATTR.pack(_SCHED_ATTR.size, os.SCHED_OTHER, 0,
+                                os.getpriority(os.PRIO_PROCESS, thread), 0, slice_ns,
+                                0, 0, 0, 0)
+        ctypes.CDLL(None, use_errno=True).syscall(number, thread, attr, 0)
+    except (AttributeError, OSError):  # no libc to call through
+        pass
 
 
 def lower_thread_priority():
@@ -139,6 +181,7 @@ class Pacer:
 
     # Pacer thread ------------------------------------------------------------------------
     def _loop(self):
+        request_short_time_slice()
         clock = self._node.get_clock()
         while True:
             with self._condition:
