@@ -42,8 +42,12 @@ subscriber sharing the cores needs that long per message). A 3 ms stall at 2 kHz
 caught up within ~2 ms. Never wider than the messages' stamps are apart: a catch-up is
 never slower than the stream."""
 
-RECORD_PERIOD_S = 0.05
-"""How often the recording thread writes what was published meanwhile [s]."""
+RECORD_PERIOD_S = 0.25
+"""How often the recording thread writes what was published meanwhile [s].
+
+Longer runs cost less per message (1.0 against 1.4 % of a core at 1 kHz, side by side,
+with 0.05 s); nothing waits on them, since a chunk (~2 s at 1 kHz) reaches the disk only
+when it is full, and stopping or restarting the recording writes what is queued first."""
 
 IDLE_PERIOD_S = 1.0
 """How often the recording thread wakes while nothing is recorded [s]."""
