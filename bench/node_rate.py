@@ -19,6 +19,10 @@ Before the cases, a *machine probe* measures what no publisher can help: one bar
 thread per CPU (no ROS), pinned to it, sleeps until each instant at the highest rate and
 records how late it woke. A best-effort depth-5 subscriber holds 5 / rate seconds of
 samples (2.5 ms at 2 kHz); one frozen longer than that loses samples whoever publishes.
+The same probes run beside every case at 500 Hz, and a loss within 5 ms of one of their
+stalls is counted as the machine's ("lost (of them at a machine freeze)"). On the
+development VM the stalls are the kernel's DAMON thread (``kdamond``), which holds one
+CPU for ~4 ms every ~5.1 s (seen with ``perf sched``).
 
 Run (quiet machine, full length; then a 10-minute soak of the node for its memory):
 ``python bench/node_rate.py --window 60 --soak 600 --out bench/results/node_rate.md``;
@@ -131,46 +135,82 @@ def start_node(domain, directory, rate, recorder, extra):
 
 
 # The machine probe: how long a CPU is taken away from a waking thread ---------------------
+PROBE_DURING_HZ = 500.0
+"""Wake-up rate of the probes that run beside each case (cheap, and a 4 ms freeze shows) [Hz]."""
+
+FREEZE_MARGIN_NS = 5_000_000
+"""A loss this close to a probe's stall counts as the machine's [ns]."""
+
 PROBE_STALL_NS = 1_500_000
 """A wake-up later than this starts a stall of the probe [ns] (the pacing's own p99 is ~0.1 ms)."""
 
 
 def run_probe(rate, seconds, cpu, out):
-    """Wake at ``rate`` Hz for ``seconds`` on CPU ``cpu`` (no ROS); save each lateness [ns]."""
+    """
+    Wake at ``rate`` Hz on CPU ``cpu`` (no ROS) for ``seconds`` or until SIGTERM.
+
+    Saves (instants, lateness) [ns] of every wake-up to ``out``.
+    """
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     if hasattr(os, 'sched_setaffinity'):
         os.sched_setaffinity(0, {cpu})
     period = NS_PER_S / rate
-    count = int(rate * seconds)
-    start = time.time_ns() + NS_PER_S // 10
-    lateness = np.empty(count, dtype=np.int64)
-    for index in range(count):
-        instant = start + int(index * period)
+    print('up', flush=True)
+    instants = (time.time_ns() + NS_PER_S // 10
+                + (np.arange(int(rate * seconds)) * period).astype(np.int64))
+    lateness = np.empty(len(instants), dtype=np.int64)
+    count = 0
+    for instant in instants.tolist():
+        if stop.is_set():
+            break
         remaining = instant - time.time_ns()
         if remaining > 0:
             time.sleep(remaining / 1e9)
-        lateness[index] = time.time_ns() - instant
-    np.save(out, np.stack([start + (np.arange(count) * period).astype(np.int64), lateness]))
+        lateness[count] = time.time_ns() - instant
+        count += 1
+    np.save(out, np.stack([instants[:count], lateness[:count]]))
     return 0
+
+
+def probe_cpus():
+    return sorted(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') \
+        else list(range(os.cpu_count()))
+
+
+def start_probes(directory, rate, seconds):
+    """Start one probe process per CPU, wait until each runs; return ``[(process, file)]``."""
+    started = []
+    for cpu in probe_cpus():
+        path = Path(directory) / f'probe{cpu}.npy'
+        started.append((subprocess.Popen(
+            [sys.executable, __file__, '--probe', str(rate), '--probe-cpu', str(cpu),
+             '--probe-out', str(path), '--window', str(seconds)], cwd=ROOT,
+            stdout=subprocess.PIPE, text=True), path))
+    for process, _ in started:
+        # Their start-up (imports) must not fall in the publisher's.
+        if not select.select([process.stdout], [], [], 60.0)[0] or \
+                process.stdout.readline().strip() != 'up':
+            raise RuntimeError('a machine probe did not start within 60 s')
+    return started
+
+
+def stall_starts(lateness):
+    """Return the indices of the wake-ups that start a stall (later than PROBE_STALL_NS)."""
+    late = lateness > PROBE_STALL_NS
+    return np.flatnonzero(late & ~np.r_[False, late[:-1]])
 
 
 def probe_machine(rate, seconds):
     """Run one probe per CPU at once; return a result row per CPU."""
-    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') \
-        else list(range(os.cpu_count()))
     with tempfile.TemporaryDirectory() as directory:
-        files = [Path(directory) / f'probe{cpu}.npy' for cpu in cpus]
-        processes = [subprocess.Popen([sys.executable, __file__, '--probe', str(rate),
-                                       '--probe-cpu', str(cpu), '--probe-out', str(path),
-                                       '--window', str(seconds)], cwd=ROOT)
-                     for cpu, path in zip(cpus, files)]
-        for process in processes:
+        started = start_probes(directory, rate, seconds)
+        for process, _ in started:
             process.wait()
         rows = []
-        for cpu, path in zip(cpus, files):
+        for cpu, (_, path) in zip(probe_cpus(), started):
             instants, lateness = np.load(path)
-            # A stall: the first late wake-up of a run of them (the later ones are its tail).
-            late = lateness > PROBE_STALL_NS
-            starts = np.flatnonzero(late & ~np.r_[False, late[:-1]])
+            starts = stall_starts(lateness)
             long_ones = starts[lateness[starts] > 5 * NS_PER_S / 2000.0]
             intervals = np.diff(instants[long_ones]) / 1e9
             rows.append({'cpu': cpu, 'p99': float(np.percentile(lateness, 99)) / 1e6,
@@ -292,15 +332,27 @@ class Subscribers:
                 process.wait()
 
 
-def delivery(stamps, received, rate):
-    """Return lost samples and latency p50 / p99 / max [ms] of one subscriber's window."""
+def delivery(stamps, received, rate, freezes=()):
+    """
+    Return lost samples and latency p50 / p99 / max [ms] of one subscriber's window.
+
+    ``lost_at_freeze`` counts the lost samples of gaps within FREEZE_MARGIN_NS of one of
+    the ``freezes`` [ns] the probes saw.
+    """
     if len(stamps) < 2:
-        return {'received': len(stamps), 'lost': float('nan'), 'p50': float('nan'),
-                'p99': float('nan'), 'max': float('nan')}
+        return {'received': len(stamps), 'lost': float('nan'), 'lost_at_freeze': 0,
+                'p50': float('nan'), 'p99': float('nan'), 'max': float('nan')}
     unique = np.unique(stamps)
     expected = int(round((unique[-1] - unique[0]) * rate / NS_PER_S)) + 1
+    missing = np.round(np.diff(unique) * rate / NS_PER_S).astype(np.int64) - 1
+    freezes = np.sort(np.asarray(freezes, dtype=np.int64))
+    at_freeze = 0
+    for gap in np.flatnonzero(missing > 0):
+        first = np.searchsorted(freezes, unique[gap] - FREEZE_MARGIN_NS)
+        if first < len(freezes) and freezes[first] <= unique[gap + 1] + FREEZE_MARGIN_NS:
+            at_freeze += int(missing[gap])
     latency = (received - stamps) / 1e6
-    return {'received': len(stamps), 'lost': expected - len(unique),
+    return {'received': len(stamps), 'lost': expected - len(unique), 'lost_at_freeze': at_freeze,
             'p50': float(np.median(latency)), 'p99': float(np.percentile(latency, 99)),
             'max': float(latency.max())}
 
@@ -310,6 +362,8 @@ def run_case(domain, kind, rate, recorder, args, window):
     with tempfile.TemporaryDirectory() as directory:
         # The subscribers exist before the publisher: they see its very first samples.
         subscribers = Subscribers(domain, directory, args.startup_samples)
+        # The probes beside the case: which losses fall on a freeze of the machine.
+        probes = [] if args.no_probe else start_probes(directory, PROBE_DURING_HZ, 3600.0)
         try:
             started = time.time()
             process = start_floor(domain, rate) if kind == 'floor' \
@@ -329,8 +383,18 @@ def run_case(domain, kind, rate, recorder, args, window):
                 process.send_signal(signal.SIGTERM)
                 status = process.wait(30)
             received = subscribers.results()
+            freezes = []
+            for probe, path in probes:
+                probe.send_signal(signal.SIGTERM)
+                probe.wait(30)
+                instants, lateness = np.load(path)
+                freezes += instants[stall_starts(lateness)].tolist()
         finally:
             subscribers.kill()
+            for probe, _ in probes:
+                if probe.poll() is None:
+                    probe.kill()
+                    probe.wait()
     stamps, times = received['reliable, depth 10']
     first_s = times[0] / 1e9 - started
     lateness = (times[:args.startup_samples] - stamps[:args.startup_samples]) / 1e6
@@ -342,7 +406,9 @@ def run_case(domain, kind, rate, recorder, args, window):
             'window': wall, 'rss': rss_end / 1e6, 'rss_change': (rss_end - rss_start) / 1e6,
             'first_s': first_s, 'startup_p99': float(np.percentile(lateness, 99)),
             'startup_max': float(lateness.max()), 'status': status,
-            'delivery': {name: delivery(*window, rate) for name, window in windows.items()}}
+            'freezes': sum(window_start <= f < window_end for f in freezes),
+            'delivery': {name: delivery(*window, rate, freezes)
+                         for name, window in windows.items()}}
 
 
 def parse_param(text):
@@ -368,7 +434,8 @@ def table(results, args):
     settings = ', '.join(f'`{k}: {v}`' for k, v in args.param.items()) or 'defaults'
     lines = [f'### {args.window:g} s windows after {args.warmup:g} s ({datetime.date.today()}, '
              f'{os.cpu_count()} cores, Python {platform.python_version()}; node {settings})\n',
-             '| case | subscriber | received | lost | latency p50 / p99 / max [ms] | '
+             '| case | subscriber | received | lost (of them at a machine freeze) | '
+             'latency p50 / p99 / max [ms] | '
              'p99 − floor p99 [ms] | CPU [% core] | CPU ÷ floor | start-up: first '
              f'{args.startup_samples} late p99 / max [ms] | RSS [MB] (change in window) |',
              '|---|---|---|---|---|---|---|---|---|---|']
@@ -382,11 +449,13 @@ def table(results, args):
                       f'{result["rss"]:.0f} ({result["rss_change"]:+.2f})') \
                 if index == 0 else ' | | | '
             lines.append(f'| {label(result) if index == 0 else ""} | {name} | {d["received"]} '
-                         f'| {d["lost"]} | {d["p50"]:.2f} / {d["p99"]:.2f} / {d["max"]:.2f} | '
+                         f'| {d["lost"]} ({d["lost_at_freeze"]}) | '
+                         f'{d["p50"]:.2f} / {d["p99"]:.2f} / {d["max"]:.2f} | '
                          f'{excess:+.2f} | {common} |')
     lines.append('')
     lines += [f'- {label(r)}: first sample {r["first_s"]:.2f} s after the process started; '
-              f'exit status {r["status"]} after SIGTERM' for r in results]
+              f'exit status {r["status"]} after SIGTERM; the probes saw {r["freezes"]} '
+              f'stall(s) > {PROBE_STALL_NS / 1e6:g} ms in the window' for r in results]
     return '\n'.join(lines) + '\n'
 
 
