@@ -3,8 +3,9 @@
 Four paths: mappings serialized by the recorder (``McapBagWriter.write``), CDR bytes
 serialized beforehand (``write_serialized``), and the flight recorder with the node's
 default split limits, 1 GiB / 600 s, on the bytes of ``qfa_ros.bag.imu_cdr.ImuEncoder``:
-one message per call (``FlightRecorder.record``) and runs of 50 (``record_many``, as the
-node's recording thread writes what 50 ms at 1 kHz published). The messages carry seeded
+one message per call (``FlightRecorder.record``) and runs of 100 (``record_many``: the
+node's recording thread writes each run of one topic with one call, and at 1 kHz 100 Imu
+samples lie between two 10 Hz temperature readings). The messages carry seeded
 noise like a real 1 kHz stream, so compression ratios are realistic. Writes the table to
 ``bench/results/mcap_throughput.md``.
 
@@ -121,7 +122,7 @@ def main():
         node_bytes = ImuEncoder('imu_link', messages[0]['linear_acceleration_covariance']) \
             .encode(START_NS + np.arange(len(messages)) * PERIOD_NS, accel)
         for label, run_length in (('flight recorder, one per call', None),
-                                  ('flight recorder, runs of 50 (node)', 50)):
+                                  ('flight recorder, runs of 100 (node)', 100)):
             seconds, size = min(record(directory, node_bytes, run_length)
                                 for _ in range(args.repeat))
             rows.append((label, 'zstd', len(messages) / seconds, size / len(messages)))

@@ -64,9 +64,9 @@ class ScenarioBag:
         valid = output.valid.all(axis=1)
         stamps = output.stamps_ns[valid]
         rate = output.gyro[valid] if self._imu.has_rate else None
-        for time_ns, data in zip(stamps.tolist(),
-                                 self._imu.encode(stamps, output.accel[valid], rate)):
-            self.bag.write_serialized(IMU_TOPIC, data, time_ns)
+        self.bag.write_serialized_many(IMU_TOPIC,
+                                       self._imu.encode(stamps, output.accel[valid], rate),
+                                       stamps.tolist())
 
     def write_truth(self, stamps_ns, position, orientation, velocity, body_rate):
         """
