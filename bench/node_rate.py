@@ -24,7 +24,7 @@ stalls is counted as the machine's ("lost (of them at a machine freeze)"). On th
 development VM the stalls are the kernel's DAMON thread (``kdamond``), which holds one
 CPU for ~4 ms every ~5.1 s (seen with ``perf sched``).
 
-Run (quiet machine, full length; then a 10-minute soak of the node for its memory):
+Run (quiet machine, full length; then a 10-minute soak of the node, recorder on, for its memory):
 ``python bench/node_rate.py --window 60 --soak 600 --out bench/results/node_rate.md``;
 a quick check: ``python bench/node_rate.py --window 5``. ``--param NAME=VALUE`` passes node
 parameters (e.g. ``stream.batch_s=0.02``). Prints Markdown.
@@ -474,7 +474,8 @@ def main():
     parser.add_argument('--param', type=parse_param, action='append', default=[],
                         metavar='NAME=VALUE', help='node parameter (YAML value; repeatable)')
     parser.add_argument('--soak', type=float, default=0.0,
-                        help='then run the node at the first rate this long [s] (RSS growth)')
+                        help='then run the node at the first rate this long, with the recorder '
+                        'unless --no-recorder [s] (RSS growth)')
     parser.add_argument('--out', type=Path, default=None, help='append the Markdown here')
     parser.add_argument('--no-probe', action='store_true', help='skip the machine probe')
     parser.add_argument('--floor', type=float, default=None, help=argparse.SUPPRESS)
@@ -505,7 +506,9 @@ def main():
             domain = low + (domain + 1 - low) % (high - low + 1)
             print(f'{label(results[-1])}: done', file=sys.stderr)
     if args.soak:
-        results.append(run_case(domain, 'node', args.rates[0], False, args, args.soak))
+        # The heaviest case soaks: the recorder's buffers and splits are what could grow.
+        results.append(run_case(domain, 'node', args.rates[0], not args.no_recorder, args,
+                                args.soak))
         results[-1]['soak'] = True
     text = table(results, args) + ('\n' + probe if probe else '')
     print(text)
