@@ -18,6 +18,8 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from qfa_ros.model.unit import draw_unit
+from qfa_ros.ros.bounds import LARGEST_CHAMBER, LARGEST_FEEDBACK, LARGEST_FORWARD
+from qfa_ros.ros.params import PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES_FILE = ROOT / 'config' / 'fastdds_discovery.xml'
@@ -40,6 +42,26 @@ def unit_output(specific_force, seed=1, temperature_c=25.0, bias_ug=(0.0, 0.0, 0
     sensed = np.asarray(bias_ug) * 9.80665e-6 + a + np.asarray(unit.k2) * a * a
     return sensed * (1.0 + unit.scale_factor_error(temperature_c)) \
         + unit.zero_bias(temperature_c)
+
+
+def largest_schedule_values():
+    """Return the parameters of the largest schedules, from the one place that bounds them."""
+    forward, feedback, chamber = LARGEST_FORWARD, LARGEST_FEEDBACK, LARGEST_CHAMBER
+    values = {spec.name: spec.default for spec in PARAMETERS}
+    values.update({
+        'estimation.forward.points': forward.points, 'estimation.forward.step': forward.step,
+        'estimation.forward.settle_s': forward.settle_s,
+        'estimation.forward.average_s': forward.average_s,
+        'estimation.forward.order': forward.order,
+        'estimation.feedback.cycles': feedback.cycles,
+        'estimation.feedback.settle_s': feedback.settle_s,
+        'estimation.feedback.average_s': feedback.average_s,
+        'estimation.feedback.order': feedback.order,
+        'temperature_calibration.period_s': chamber.period_s,
+        'temperature_calibration.cycles': chamber.cycles,
+        'temperature_calibration.reference_steps': chamber.reference_steps})
+    return values
+
 
 
 def domain_id(tag):

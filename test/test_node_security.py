@@ -8,7 +8,15 @@ import time
 from types import SimpleNamespace
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from node_helpers import Client, domain_id, ImuCollector, node_environment, NodeProcess, ROOT
+from node_helpers import (
+    Client,
+    domain_id,
+    ImuCollector,
+    largest_schedule_values,
+    node_environment,
+    NodeProcess,
+    ROOT,
+)
 import pytest
 from rclpy.logging import get_logger
 from rosbags.highlevel import AnyReader
@@ -37,6 +45,7 @@ SCHEDULES = {'estimation.forward.points': 4, 'estimation.forward.average_s': 0.3
 SERVICES = {'reference': 'capture_reference', 'forward': 'estimate_forward_gain',
             'feedback': 'estimate_feedback_gain', 'self_calibrate': 'self_calibrate',
             'temperature': 'calibrate_temperature'}
+
 
 
 def defaults(**changes):
@@ -270,14 +279,9 @@ def test_schedule_bounds_hold_at_any_loop_rate():
     # loop-step budget at the default 10 kHz loop.
     assert 14000.0 < CHAMBER_WORST_S <= 14400.0
     assert MAX_SCHEDULE_LOOP_STEPS == 14400.0 * 10000.0
-    worst = defaults(**{'estimation.forward.points': 50, 'estimation.forward.settle_s': 0.5,
-                        'estimation.forward.average_s': 2.0,
-                        'estimation.forward.order': 'bidirectional',
-                        'estimation.feedback.cycles': 8, 'estimation.feedback.order': 'chopped',
-                        'estimation.feedback.settle_s': 0.5,
-                        'estimation.feedback.average_s': 20.0,
-                        'temperature_calibration.period_s': 4500.0,
-                        'temperature_calibration.cycles': 1})
+    # The largest schedules, from the one place that bounds them (they run in
+    # test_trust_boundary.py).
+    worst = largest_schedule_values()
     assert check_all(worst) is None
     # A faster loop costs more CPU per sensor second: the loop-step budget then refuses.
     reason = check_all({**worst, 'loop_rate_hz': 100000.0})

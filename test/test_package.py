@@ -28,7 +28,8 @@ ROSDEP_KEYS = {
 # (qfa-fleet) use them, and they come from requirements/base.txt with pip.
 PIP_ONLY = {'dask', 'distributed', 'pyarrow'}
 TEST_KEYS = {'pytest': 'python3-pytest', 'pytest-timeout': 'python3-pytest-timeout',
-             'ruff': 'python3-ruff-pip', 'rosbags': 'python3-rosbags-pip'}
+             'ruff': 'python3-ruff-pip', 'rosbags': 'python3-rosbags-pip',
+             'hypothesis': 'python3-hypothesis'}
 
 
 def imported_modules(paths):

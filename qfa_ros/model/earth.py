@@ -95,10 +95,24 @@ def transport_rate_enu(latitude, height, velocity):
     return np.stack([-v[..., 1] / (r_n + height), east, east * np.tan(latitude)], axis=-1)
 
 
+LOCATION_LIMITS = (('latitude_deg', -89.9, 89.9), ('longitude_deg', -180.0, 360.0),
+                   ('height_m', -12000.0, 100000.0))
+"""Usable range of each geodetic coordinate (the normal-gravity formula's and the poles')."""
+
+
 def check_location(latitude_deg, longitude_deg, height_m):
     """Raise ``ValueError`` naming the parameter unless the location is usable."""
-    for name, value, low, high in (('latitude_deg', latitude_deg, -89.9, 89.9),
-                                   ('longitude_deg', longitude_deg, -180.0, 360.0),
-                                   ('height_m', height_m, -12000.0, 100000.0)):
+    for (name, low, high), value in zip(LOCATION_LIMITS,
+                                        (latitude_deg, longitude_deg, height_m)):
         if not np.isfinite(value) or not low <= value <= high:
             raise ValueError(f'{name} must be in [{low:g}, {high:g}], got {value!r}')
+
+
+def location_usable(latitude_deg, longitude_deg, height_m):
+    """Return, elementwise, whether the locations pass :func:`check_location`."""
+    usable = True
+    for (_, low, high), value in zip(LOCATION_LIMITS,
+                                     (latitude_deg, longitude_deg, height_m)):
+        value = np.asarray(value, dtype=float)
+        usable = usable & np.isfinite(value) & (low <= value) & (value <= high)
+    return usable

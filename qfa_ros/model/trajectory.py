@@ -42,13 +42,19 @@ default pose) never needs it.
 """
 
 import csv
+import io
 import math
+import os
+import warnings
 
 import numpy as np
 
 from qfa_ros.model import earth
+from qfa_ros.model.files import read_regular_file
 from qfa_ros.model.trajectory_means import PiecewiseMeans
 
+MAX_CSV_BYTES = 16 << 20
+"""Largest trajectory file read [bytes]: 16 MiB, about 250 000 poses (7 h at 10 Hz)."""
 CSV_COLUMNS = ('time_s', 'latitude_deg', 'longitude_deg', 'height_m', 'roll_deg',
                'pitch_deg', 'yaw_deg')
 
@@ -515,28 +521,56 @@ def sculling(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0
     return trajectory
 
 
-def load_csv(path):
-    """Return the :class:`Trajectory` of a CSV pose file (see the module docstring)."""
-    with open(path, newline='') as handle:
-        reader = csv.reader(handle)
-        header = [name.strip() for name in next(reader)]
-        if tuple(header) != CSV_COLUMNS:
-            raise ValueError(f'{path}: header must be {",".join(CSV_COLUMNS)}, '
-                             f'got {",".join(header)}')
-        rows = [[float(v) for v in row] for row in reader if row]
-    data = np.asarray(rows, dtype=float)
+def load_csv(path, max_bytes=MAX_CSV_BYTES):
+    """
+    Return the :class:`Trajectory` of a CSV pose file (see the module docstring).
+
+    The file is a stranger's: read by :func:`~qfa_ros.model.files.read_regular_file`
+    (a regular file of at most ``max_bytes``), parsed in bounded memory, and no error
+    quotes its content.
+
+    Raises
+    ------
+    ValueError
+        The file cannot be read or is not a pose file; the message names the path.
+    """
+    return parse_csv(read_regular_file(path, max_bytes), os.fspath(path))
+
+
+def parse_csv(data, name='trajectory'):
+    """Return the :class:`Trajectory` of the bytes of a CSV pose file called ``name``."""
+    try:
+        text = data.decode('utf-8')
+    except UnicodeDecodeError:
+        raise ValueError(f'{name}: not UTF-8 text') from None
+    first, _, body = text.partition('\n')
+    header = tuple(column.strip() for column in first.strip().split(','))
+    if header != CSV_COLUMNS:
+        raise ValueError(f'{name}: the first line must be the header '
+                         f'{",".join(CSV_COLUMNS)}')
+    try:
+        # numpy's parser: memory proportional to the numbers, and its errors (which
+        # quote the offending text) are replaced by one that does not.
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            data = np.loadtxt(io.StringIO(body), delimiter=',', ndmin=2, dtype=float)
+    except ValueError:
+        raise ValueError(f'{name}: every row after the header must be 7 comma-separated '
+                         'numbers') from None
     if data.ndim != 2 or len(data) < 2 or data.shape[1] != 7:
-        raise ValueError(f'{path}: needs at least two rows of 7 numbers')
+        raise ValueError(f'{name}: needs at least two rows of 7 numbers')
     if not np.all(np.isfinite(data)) or np.any(np.diff(data[:, 0]) <= 0):
-        raise ValueError(f'{path}: values must be finite and times strictly increasing')
-    for lat, lon, h in data[:, 1:4]:
-        earth.check_location(lat, lon, h)
+        raise ValueError(f'{name}: values must be finite and times strictly increasing')
+    unusable = np.flatnonzero(~earth.location_usable(*data[:, 1:4].T))
+    if unusable.size:
+        raise ValueError(f'{name}: row {unusable[0] + 1}: latitude, longitude or height out '
+                         'of range (see qfa_ros.model.earth.check_location)')
     channels = np.radians(data[:, 1:])
     channels[:, 2] = data[:, 3]
     channels[:, 3:] = np.unwrap(channels[:, 3:], axis=0)
     from scipy.interpolate import CubicSpline, PPoly
     spline = CubicSpline(data[:, 0], channels, axis=0, bc_type='clamped')
-    return Trajectory(PPoly(spline.c, spline.x, extrapolate=False), f'file {path}')
+    return Trajectory(PPoly(spline.c, spline.x, extrapolate=False), f'file {name}')
 
 
 def save_csv(path, trajectory, rate_hz=100.0):

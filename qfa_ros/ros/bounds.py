@@ -7,11 +7,13 @@ which ``imu/data_raw`` is withheld, and model loop steps, i.e. CPU time), and
 :func:`confined_directory` keeps every runtime-chosen directory under ``output_dir``.
 """
 
+import math
 import os
 from pathlib import Path
 
 from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
+from qfa_ros.model.hardware import AxisHardware, nominal_gains
 from qfa_ros.model.triad import TriadConfig
 
 # Ranges of the schedule parameters. They bound what one service call can cost, whoever
@@ -33,6 +35,51 @@ SETTLE_TIME_S = TriadConfig.settle_time
 """Settling of the re-closed loops that ends every estimation schedule [s]."""
 
 
+FORWARD_HEADROOM = 1.05
+"""Open-loop output margin under the ADC full scale at the forward sweep's top word: the
+chain's thermal and aging gain changes (a few 1000 ppm) and 5 % more do not clip it."""
+
+
+def forward_max_span(hardware, gain_factor=1.0):
+    """
+    Return the largest forward sweep span ``points x step`` [count] ``hardware`` takes.
+
+    The sweep writes up to ``N_FPGA + points step`` to DA1; that word must stay under
+    DA1's full scale and its open-loop output (``open_loop_counts_per_fpga`` per word,
+    times ``gain_factor`` for a known forward drift, times :data:`FORWARD_HEADROOM`)
+    under the ADC's.
+    """
+    counts_per_word = nominal_gains(hardware).open_loop_counts_per_fpga
+    adc_word = 2 ** (hardware.n_ad_bits - 1) / (counts_per_word * gain_factor
+                                                * FORWARD_HEADROOM)
+    top_word = min(2 ** (hardware.n_da1_bits - 1) - 1, math.floor(adc_word))
+    return max(0, top_word - int(hardware.n_fpga))
+
+
+FORWARD_MAX_SPAN = forward_max_span(AxisHardware())
+"""Largest ``estimation.forward.points x step`` of the nominal hardware [count]."""
+
+
+def forward_sweep_problem(settings, hardware, forward_drift_ppm=(0.0,)):
+    """
+    Return why the forward sweep of ``settings`` would leave DA1's or the ADC's range.
+
+    :param settings: :class:`ForwardSettings`.
+    :param hardware: The axes' :class:`~qfa_ros.model.hardware.AxisHardware`.
+    :param forward_drift_ppm: Injected forward-gain drift per axis [ppm]; the largest
+        raises the open-loop output.
+    """
+    gain_factor = 1.0 + max(0.0, max(forward_drift_ppm)) * 1e-6
+    span = forward_max_span(hardware, gain_factor)
+    if settings.points * settings.step <= span:
+        return None
+    return (f'estimation.forward.points x estimation.forward.step = '
+            f'{settings.points} x {settings.step} = {settings.points * settings.step} '
+            f'counts: the sweep would drive DA1 or the ADC out of range; at most {span} '
+            f'(N_FPGA {hardware.n_fpga} + the span stays under the ADC full scale with '
+            f'{FORWARD_HEADROOM - 1:.0%} headroom)')
+
+
 def forward_sensor_time_s(settings, settle_time_s):
     """Return the sensor time of one forward schedule [s] (sweep plus the loops' settling)."""
     return len(settings.sequence()) * (settings.settle_s + settings.average_s) + settle_time_s
@@ -44,18 +91,26 @@ def feedback_sensor_time_s(settings, settle_time_s):
             + settings.settle_s + settle_time_s)
 
 
-FORWARD_WORST_S = forward_sensor_time_s(
-    ForwardSettings(points=FORWARD_MAX_POINTS, settle_s=FORWARD_MAX_SETTLE_S,
-                    average_s=FORWARD_MAX_AVERAGE_S, order='bidirectional'), SETTLE_TIME_S)
-FEEDBACK_WORST_S = feedback_sensor_time_s(
-    FeedbackSettings(cycles=FEEDBACK_MAX_CYCLES, settle_s=FEEDBACK_MAX_SETTLE_S,
-                     average_s=FEEDBACK_MAX_AVERAGE_S, order='chopped'), SETTLE_TIME_S)
+LARGEST_FORWARD = ForwardSettings(points=FORWARD_MAX_POINTS,
+                                  step=FORWARD_MAX_SPAN // FORWARD_MAX_POINTS,
+                                  settle_s=FORWARD_MAX_SETTLE_S,
+                                  average_s=FORWARD_MAX_AVERAGE_S, order='bidirectional')
+"""The longest forward sweep the parameter ranges allow."""
+LARGEST_FEEDBACK = FeedbackSettings(cycles=FEEDBACK_MAX_CYCLES, settle_s=FEEDBACK_MAX_SETTLE_S,
+                                    average_s=FEEDBACK_MAX_AVERAGE_S, order='chopped')
+"""The longest I_ref schedule the parameter ranges allow."""
+LARGEST_CHAMBER = TemperatureSettings(period_s=CHAMBER_MAX_PERIOD_S, cycles=CHAMBER_MAX_CYCLES,
+                                      reference_steps=True)
+"""The longest calibrate_temperature program the parameter ranges allow."""
+FORWARD_WORST_S = forward_sensor_time_s(LARGEST_FORWARD, SETTLE_TIME_S)
+FEEDBACK_WORST_S = feedback_sensor_time_s(LARGEST_FEEDBACK, SETTLE_TIME_S)
 SCHEDULE_WORST_S = FORWARD_WORST_S + FEEDBACK_WORST_S
 """Longest sensor time of an estimation call the ranges allow [s]."""
-CHAMBER_WORST_S = TemperatureSettings(period_s=CHAMBER_MAX_PERIOD_S, cycles=CHAMBER_MAX_CYCLES,
-                                      reference_steps=True).max_sensor_time_s()
+CHAMBER_WORST_S = LARGEST_CHAMBER.max_sensor_time_s()
 """Longest sensor time of a calibrate_temperature call the ranges allow [s]."""
 
+FORWARD_SPAN_BOUND = (
+    f'; points x step at most {FORWARD_MAX_SPAN} counts (DA1 and ADC range of the sweep)')
 ESTIMATION_BOUND = (
     f'; bounded: one call takes at most {SCHEDULE_WORST_S:.0f} s of sensor time '
     f'(capture_reference, self_calibrate; forward alone {FORWARD_WORST_S:.0f} s, feedback '

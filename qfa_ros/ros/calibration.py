@@ -38,10 +38,15 @@ class CalibrationKeeper:
     def load(self):
         """Restore the persisted state; a bad file is set aside and the sensor starts bare."""
         store = self.store
+        removed = store.remove_leftovers()
+        if removed:
+            self._logger.warning(
+                f'removed {len(removed)} temporary state file(s) an interrupted save left: '
+                + ', '.join(path.name for path in removed))
         try:
             state, compensation = store.load()
         except StateFileError as error:
-            where = f'kept as {error.kept_as}' if error.kept_as else 'could not be set aside'
+            where = f'kept as {error.kept_as}' if error.kept_as else 'left in place'
             self.problem = f'{error}; {where}; starting uncalibrated'
             self._logger.error(self.problem)
             return

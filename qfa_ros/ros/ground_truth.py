@@ -25,6 +25,9 @@ class GroundTruthInput:
     Inputs are queued in stamp order; each sample takes the latest input stamped at or
     before it (sample and hold) and is stale once that input is older than
     ``input.timeout_s``. Before the first input the static orientation stands in.
+    Stamps are a stranger's data: one further than ``input.stamp_window_s`` from the
+    node clock (ahead or behind) is refused and counted before it can change anything,
+    so what "in order" means for the next message stays the stream's.
     The caller holds the node lock around every method.
 
     :param values: The node's live parameter values (read, never written).
@@ -35,6 +38,7 @@ class GroundTruthInput:
         self.pending = []
         self.held = None
         self.rejected = 0
+        self.refused_stamps = 0
         self.problem = None
         self._odometry = None  # (time_ns, world velocity) of the previous odometry message
 
@@ -49,29 +53,43 @@ class GroundTruthInput:
         k = motion.kinematics(np.zeros(1))
         return tuple(k['specific_force'][0]), tuple(k['angular_rate'][0])
 
-    def accept(self, time_ns, value, rate=None):
+    def _refused(self, time_ns, now_ns):
+        """Return True (and count it) when ``time_ns`` cannot be taken at ``now_ns``."""
+        window_ns = int(self._values['input.stamp_window_s'] * NS_PER_S)
+        if abs(time_ns - now_ns) > window_ns:
+            self.refused_stamps += 1
+            self.problem = (f'ground-truth input stamped {(time_ns - now_ns) / NS_PER_S:+.3g} s '
+                            f'from the node clock refused (input.stamp_window_s '
+                            f'{self._values["input.stamp_window_s"]:g})')
+            return True
+        if self.pending and time_ns < self.pending[-1][0]:
+            self.rejected += 1
+            self.problem = 'ground-truth input out of order rejected'
+            return True
+        return False
+
+    def accept(self, time_ns, value, rate=None, now_ns=None):
         """
         Queue one input stamped ``time_ns``; refuse bad ones.
 
         ``value``: specific force (m/s^2, x y z); ``rate``: angular rate (rad/s, x y z)
-        or None (the static body's stands in).
+        or None (the static body's stands in); ``now_ns``: the node clock (None: the
+        stamp is not judged against it).
         """
+        if self._refused(time_ns, time_ns if now_ns is None else now_ns):
+            return
         value = tuple(value) + (tuple(rate) if rate is not None else (math.nan,) * 3)
         if not all(math.isfinite(v) for v in value[:3]) or \
                 (rate is not None and not all(math.isfinite(v) for v in value[3:])):
             self.rejected += 1
             self.problem = f'non-finite ground-truth input rejected: {value}'
             return
-        if self.pending and time_ns < self.pending[-1][0]:
-            self.rejected += 1
-            self.problem = 'ground-truth input out of order rejected'
-            return
         self.pending.append((time_ns, value))
         if len(self.pending) > MAX_PENDING_INPUTS:
             # Inputs stamped ahead of the stream (another clock) must not pile up.
             self.held = self.pending.pop(0)
 
-    def accept_odometry(self, time_ns, position, orientation, linear, angular):
+    def accept_odometry(self, time_ns, position, orientation, linear, angular, now_ns=None):
         """
         Queue the specific force and rate implied by one ``nav_msgs/Odometry``.
 
@@ -81,7 +99,10 @@ class GroundTruthInput:
         consecutive messages (zero for the first), so it lags by half a message period;
         ``f^b = C^T (a^w + (0, 0, gamma))`` with WGS-84 normal gravity at the location,
         ``w_ib^b = w + C^T w_ie^n`` (the world frame does not rotate with the Earth).
+        ``now_ns`` as in :meth:`accept`.
         """
+        if self._refused(time_ns, time_ns if now_ns is None else now_ns):
+            return
         values = tuple(position) + tuple(orientation) + tuple(linear) + tuple(angular)
         norm = math.sqrt(sum(q * q for q in orientation))
         if not all(math.isfinite(v) for v in values) or not 0.5 < norm < 1.5:
@@ -99,7 +120,7 @@ class GroundTruthInput:
         gravity = float(earth.normal_gravity(latitude, self._values['height_m']))
         force = dcm.T @ (acceleration + np.array([0.0, 0.0, gravity]))
         rate = np.asarray(angular, dtype=float) + dcm.T @ earth.earth_rate_enu(latitude)
-        self.accept(time_ns, force, rate)
+        self.accept(time_ns, force, rate, now_ns)
 
     def inputs(self, stamps):
         """
@@ -152,7 +173,8 @@ class GroundTruthInput:
     def status(self, now_ns):
         """Return ``(level, message, key values)`` for the ``input`` diagnostic."""
         mode = self._values['input.mode']
-        values = [('mode', mode), ('rejected inputs', self.rejected)]
+        values = [('mode', mode), ('rejected inputs', self.rejected),
+                  ('refused stamps', self.refused_stamps)]
         if mode == 'profile':
             values.append(('profile', self._values['input.profile']))
         if mode != 'topic':
@@ -170,7 +192,7 @@ class GroundTruthInput:
                     f'ground-truth input stale ({age:.3f} s old): imu/data_raw paused'
         if self.problem:
             values.append(('last rejection', self.problem))
-            if level == DiagnosticStatus.OK and self.rejected:
+            if level == DiagnosticStatus.OK and (self.rejected or self.refused_stamps):
                 level, message = DiagnosticStatus.WARN, \
                     f'ground-truth topic; {self.problem} (last value held)'
         return level, message, values

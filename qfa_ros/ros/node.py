@@ -45,6 +45,7 @@ from qfa_ros.ros.params import (
     FORWARD_COMPONENT,
     gyro_bias_settings,
     input_profile,
+    load_trajectory_file,
     LOCATION_PARAMETERS,
     make_triad,
     PARAMETERS,
@@ -98,11 +99,15 @@ class QfaNode(Node):
                 raise ValueError(str(error)) from None
         # The live parameter values, shared (read-only) by every collaborator.
         self._values = {spec.name: self.get_parameter(spec.name).value for spec in PARAMETERS}
-        reason = check_all(self._values)
+        values = self._values
+        # The only file a parameter names that the node reads, read once here, before any
+        # service answers: input.trajectory_file is read-only.
+        self._trajectory_file = load_trajectory_file(values)
+        reason = check_all(values, self._trajectory_file)
         if reason:
             raise ValueError(reason)
-        values = self._values
-        self._triad = make_triad(values, input_profile(values))
+        self._triad = make_triad(values, input_profile(values,
+                                                       trajectory_file=self._trajectory_file))
         self._apply_ambient()
         self._keeper = CalibrationKeeper(self._triad, values['state_file'], self.get_logger())
         self._apply_drift()
@@ -210,7 +215,7 @@ class QfaNode(Node):
             merged = dict(self._values)
             for parameter in parameters:
                 merged[parameter.name] = parameter.value
-            reason = check_all(merged)
+            reason = check_all(merged, self._trajectory_file)
             names = {parameter.name for parameter in parameters}
             if not reason and self._schedules.busy_kind == 'temperature' \
                     and names & THERMAL_RUNTIME_PARAMETERS:
@@ -233,7 +238,8 @@ class QfaNode(Node):
                     self._apply_drift()
                 if any(name.startswith('input.') for name in names) \
                         or names & LOCATION_PARAMETERS:
-                    self._triad.profile = input_profile(self._values, self._triad.time)
+                    self._triad.profile = input_profile(self._values, self._triad.time,
+                                                        self._trajectory_file)
                 if 'frame_id' in names:
                     self._stream.set_frame_id(self._values['frame_id'])
                 if names & THERMAL_RUNTIME_PARAMETERS:
@@ -286,28 +292,31 @@ class QfaNode(Node):
     def input_odometry_callback(self, message):
         """Take the specific force and rate implied by a ground-truth ``nav_msgs/Odometry``."""
         pose, twist = message.pose.pose, message.twist.twist
+        now_ns = self.get_clock().now().nanoseconds
         with self._lock:
             self._ground_truth.accept_odometry(
-                self._input_time_ns(message.header.stamp),
+                self._input_time_ns(message.header.stamp, now_ns),
                 (pose.position.x, pose.position.y, pose.position.z),
                 (pose.orientation.x, pose.orientation.y, pose.orientation.z,
                  pose.orientation.w),
                 (twist.linear.x, twist.linear.y, twist.linear.z),
-                (twist.angular.x, twist.angular.y, twist.angular.z))
+                (twist.angular.x, twist.angular.y, twist.angular.z), now_ns)
         self._stream.input_arrived()
 
     def input_accel_callback(self, message):
         """Take the specific force of a ground-truth ``geometry_msgs/AccelStamped``."""
         self._accept_input(message.header.stamp, message.accel.linear)
 
-    def _input_time_ns(self, stamp):
+    @staticmethod
+    def _input_time_ns(stamp, now_ns):
         time_ns = stamp.sec * NS_PER_S + stamp.nanosec
-        return time_ns if time_ns else self.get_clock().now().nanoseconds
+        return time_ns if time_ns else now_ns
 
     def _accept_input(self, stamp, vector, rate=None):
-        time_ns = self._input_time_ns(stamp)
+        now_ns = self.get_clock().now().nanoseconds
         with self._lock:
-            self._ground_truth.accept(time_ns, (vector.x, vector.y, vector.z), rate)
+            self._ground_truth.accept(self._input_time_ns(stamp, now_ns),
+                                      (vector.x, vector.y, vector.z), rate, now_ns)
         self._stream.input_arrived()
 
     # Services ---------------------------------------------------------------------------

@@ -9,6 +9,7 @@ splitting it would scatter one table over several modules.
 from contextlib import contextmanager
 from dataclasses import dataclass
 import math
+import os
 import sys
 import textwrap
 
@@ -45,6 +46,9 @@ from qfa_ros.ros.bounds import (
     FORWARD_MAX_AVERAGE_S,
     FORWARD_MAX_POINTS,
     FORWARD_MAX_SETTLE_S,
+    FORWARD_MAX_SPAN,
+    FORWARD_SPAN_BOUND,
+    forward_sweep_problem,
 )
 
 INPUT_MODES = ('static', 'profile', 'trajectory', 'topic')
@@ -235,7 +239,10 @@ PARAMETERS = (
                   '(input.trajectory_file); it starts when selected', choices=INPUT_TRAJECTORIES),
     ParameterSpec('input.trajectory_file', '',
                   'CSV pose file of input.trajectory file: time_s, latitude_deg, '
-                  'longitude_deg, height_m, roll_deg, pitch_deg, yaw_deg'),
+                  'longitude_deg, height_m, roll_deg, pitch_deg, yaw_deg. Read once, at '
+                  f'start (a regular file of at most {trajectories.MAX_CSV_BYTES >> 20} MiB, '
+                  '~ expanded); read-only, so no participant can make the node read a file',
+                  True),
     ParameterSpec('input.profile', 'sine', 'Scripted profile of input.mode profile',
                   choices=INPUT_PROFILES),
     ParameterSpec('input.sine.frequency_hz', 5.0, 'Sine vibration frequency [Hz]', False,
@@ -263,6 +270,10 @@ PARAMETERS = (
     ParameterSpec('input.timeout_s', 0.1,
                   'Ground-truth input older than this is stale: imu/data_raw pauses [s]',
                   False, 1.0e-3, 3600.0),
+    ParameterSpec('input.stamp_window_s', 1.0,
+                  'A ground-truth message stamped further than this from the node clock, '
+                  'ahead or behind, is refused and counted (diagnostics input) without '
+                  'changing the input [s]', False, 1.0e-3, 3600.0),
     ParameterSpec('estimation.realtime', True,
                   'true: a schedule takes its sensor time at the node clock; false: as fast '
                   'as the CPU allows'),
@@ -270,7 +281,8 @@ PARAMETERS = (
                   'Forward sweep steps n (N_FPGA + i dN0, i = 0..n)' + ESTIMATION_BOUND,
                   False, 2, FORWARD_MAX_POINTS),
     ParameterSpec('estimation.forward.step', _FORWARD.step,
-                  'Forward sweep increment dN0 [count]', False, 1, 2 ** 14),
+                  'Forward sweep increment dN0 [count]' + FORWARD_SPAN_BOUND, False, 1,
+                  FORWARD_MAX_SPAN // 2),
     ParameterSpec('estimation.forward.settle_s', _FORWARD.settle_s,
                   'Discarded time per forward point [s]' + ESTIMATION_BOUND, False,
                   0.0, FORWARD_MAX_SETTLE_S),
@@ -593,14 +605,36 @@ def static_profile(values):
                                    values['input.pitch'], values['input.yaw'])
 
 
-def trajectory_input(values, start_s=0.0):
-    """Return the trajectory of ``input.trajectory``, starting at sensor time ``start_s``."""
+def load_trajectory_file(values):
+    """
+    Return the :class:`~qfa_ros.model.trajectory.Trajectory` of ``input.trajectory_file``.
+
+    None when the parameter is empty. Read once, at start, with the bounds of
+    :func:`~qfa_ros.model.trajectory.load_csv`.
+
+    :raises ValueError: The file cannot be used; the message names the parameter and
+        never quotes the file.
+    """
+    path = values['input.trajectory_file']
+    if not path:
+        return None
+    with _named('input.trajectory_file'):
+        return trajectories.load_csv(os.path.expanduser(path))
+
+
+def trajectory_input(values, start_s=0.0, trajectory_file=None):
+    """
+    Return the trajectory of ``input.trajectory``, starting at sensor time ``start_s``.
+
+    ``trajectory_file`` is what :func:`load_trajectory_file` read at start.
+    """
     kind = values['input.trajectory']
     with _named(f'input.trajectory {kind}'):
         if kind == 'file':
-            if not values['input.trajectory_file']:
-                raise ValueError('input.trajectory_file is empty')
-            motion = trajectories.load_csv(values['input.trajectory_file'])
+            if trajectory_file is None:
+                raise ValueError('no trajectory file was read at start: input.trajectory_file '
+                                 'is read-only, set it when the node starts')
+            motion = trajectory_file
         else:
             motion = trajectories.SCRIPTS[kind](
                 latitude_deg=values['latitude_deg'], longitude_deg=values['longitude_deg'],
@@ -608,13 +642,14 @@ def trajectory_input(values, start_s=0.0):
     return motion.shifted(start_s)
 
 
-def input_profile(values, start_s=0.0):
+def input_profile(values, start_s=0.0, trajectory_file=None):
     """Return the input of the ``static``, ``profile`` and ``trajectory`` modes.
 
-    A trajectory starts at sensor time ``start_s`` (when it is selected).
+    A trajectory starts at sensor time ``start_s`` (when it is selected);
+    ``trajectory_file`` is what :func:`load_trajectory_file` read at start.
     """
     if values['input.mode'] == 'trajectory':
-        return trajectory_input(values, start_s)
+        return trajectory_input(values, start_s, trajectory_file)
     if values['input.mode'] != 'profile':
         return static_profile(values)
     kind = values['input.profile']
@@ -634,8 +669,12 @@ def input_profile(values, start_s=0.0):
                                                      for k in range(len(times))))
 
 
-def check_all(values):
-    """Return why the parameter set ``values`` is inconsistent, or None."""
+def check_all(values, trajectory_file=None):
+    """
+    Return why the parameter set ``values`` is inconsistent, or None.
+
+    Reads no file: ``trajectory_file`` is what :func:`load_trajectory_file` read at start.
+    """
     for name, value in values.items():
         reason = check_value(name, value)
         if reason:
@@ -644,11 +683,14 @@ def check_all(values):
         return (f'stream.batch_s ({values["stream.batch_s"]:g}) must be shorter than '
                 f'stream.lead_s ({values["stream.lead_s"]:g})')
     try:
-        triad_config(values)
-        forward_settings(values)
+        config = triad_config(values)
+        problem = forward_sweep_problem(forward_settings(values), config.hardware,
+                                        values['drift.forward_ppm'])
+        if problem:
+            return problem
         feedback_settings(values)
         temperature_settings(values)
-        input_profile(values)
+        input_profile(values, trajectory_file=trajectory_file)
         if not values['output_dir']:
             return 'output_dir must not be empty'
         for name in ('trace_dir', 'recorder.directory'):

@@ -2,6 +2,7 @@
 
 from contextlib import suppress
 import datetime
+import glob
 import json
 import os
 from pathlib import Path
@@ -9,6 +10,10 @@ import tempfile
 
 from qfa_ros.bag.files import fsync_directory
 from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.model.files import read_regular_file, UntrustedFileError
+
+MAX_STATE_BYTES = 1 << 20
+"""Largest state file read [bytes]; a real one is a few kB."""
 
 COMPENSATION_KEY = 'compensation_enabled'
 """Extra key of the state file: whether the stored corrections are applied (node-level)."""
@@ -47,9 +52,13 @@ class StateStore:
         if self.path is None or not self.path.exists():
             return None, True
         try:
-            text = self.path.read_text(encoding='utf-8')
-        except (OSError, UnicodeDecodeError) as error:
-            raise StateFileError(f'state file {self.path} unreadable: {error}',
+            text = read_regular_file(self.path, MAX_STATE_BYTES).decode('utf-8')
+        except UntrustedFileError as error:
+            # Not a state file at all (a FIFO, a device, too large, unreadable): it is
+            # left where it is, untouched.
+            raise StateFileError(f'state file {error}') from None
+        except UnicodeDecodeError:
+            raise StateFileError(f'state file {self.path} corrupt: not UTF-8 text',
                                  self.set_aside()) from None
         try:
             data = json.loads(text)
@@ -61,6 +70,23 @@ class StateStore:
             raise StateFileError(f'state file {self.path} corrupt: {error}',
                                  self.set_aside()) from None
         return state, compensation
+
+    def remove_leftovers(self):
+        """
+        Remove the temporary files an interrupted :meth:`save` left; return their paths.
+
+        A save killed between creating its temporary file and the rename leaves
+        ``.<name>.*.tmp`` beside the state file; the state file itself is whole either way.
+        """
+        if self.path is None or not self.path.parent.is_dir():
+            return []
+        removed = []
+        for leftover in sorted(self.path.parent.glob(f'.{glob.escape(self.path.name)}.*.tmp')):
+            with suppress(OSError):
+                if leftover.is_file() and not leftover.is_symlink():
+                    leftover.unlink()
+                    removed.append(leftover)
+        return removed
 
     def set_aside(self):
         """Rename the state file to ``<name>.corrupt-<UTC time>``; return the new path or None."""

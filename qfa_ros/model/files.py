@@ -1,0 +1,82 @@
+"""
+Read a file someone else named: a regular file only, bounded in size, never echoed.
+
+Every file the package reads on a stranger's word (a trajectory CSV, the calibration
+state) goes through :func:`read_regular_file`. It resolves symlinks first, opens without
+blocking on a FIFO (``O_NONBLOCK``), takes regular files only, refuses the kernel's
+pseudo file systems (``/proc``, ``/sys``, ``/dev``: their regular-looking files report
+sizes that mean nothing) and reads at most ``max_bytes``. Its errors name the path and
+the problem, never the content.
+"""
+
+import os
+from pathlib import Path
+import stat
+
+PSEUDO_FILE_SYSTEMS = (Path('/proc'), Path('/sys'), Path('/dev'))
+"""Kernel file systems whose files are interfaces, not data: never read."""
+
+
+class UntrustedFileError(ValueError):
+    """The named file is not one the package reads; the message never quotes its content."""
+
+
+def read_regular_file(path, max_bytes):
+    """
+    Return the bytes of the regular file ``path``, at most ``max_bytes`` of them.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file; ``~`` is not expanded (the caller decides).
+    max_bytes : int
+        Largest size read [bytes]; a larger file is refused, not truncated.
+
+    Raises
+    ------
+    UntrustedFileError
+        Missing, unreadable, not a regular file, on a pseudo file system, or too large.
+    """
+    if max_bytes < 1:
+        raise ValueError(f'max_bytes must be positive, got {max_bytes!r}')
+    name = os.fspath(path)
+    if not name:
+        raise UntrustedFileError('no file named')
+    try:
+        resolved = Path(name).resolve()
+    except (OSError, RuntimeError) as error:
+        raise UntrustedFileError(f'{name}: cannot resolve: {_reason(error)}') from None
+    if any(resolved == base or base in resolved.parents for base in PSEUDO_FILE_SYSTEMS):
+        raise UntrustedFileError(f'{name}: files under /proc, /sys and /dev are not read')
+    try:
+        # O_NONBLOCK: opening a FIFO must not wait for a writer; it is refused below.
+        descriptor = os.open(resolved, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as error:
+        raise UntrustedFileError(f'{name}: cannot open: {_reason(error)}') from None
+    try:
+        info = os.fstat(descriptor)
+        if not stat.S_ISREG(info.st_mode):
+            raise UntrustedFileError(f'{name}: not a regular file')
+        if info.st_size > max_bytes:
+            raise UntrustedFileError(
+                f'{name}: {info.st_size} bytes, more than the {max_bytes} read')
+        chunks, total = [], 0
+        # One byte past the limit tells a file that grew while it was read.
+        while total <= max_bytes:
+            chunk = os.read(descriptor, min(1 << 20, max_bytes + 1 - total))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+        if total > max_bytes:
+            raise UntrustedFileError(f'{name}: grew past the {max_bytes} bytes read')
+        return b''.join(chunks)
+    except OSError as error:
+        raise UntrustedFileError(f'{name}: cannot read: {_reason(error)}') from None
+    finally:
+        os.close(descriptor)
+
+
+def _reason(error):
+    """Return the system's words for ``error`` (never a file's content)."""
+    return error.strerror or type(error).__name__

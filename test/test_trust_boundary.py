@@ -1,0 +1,227 @@
+"""What a stranger sends: files it names, stamps it sends, the largest schedules it may ask."""
+
+import os
+from pathlib import Path
+import re
+import threading
+
+from node_helpers import largest_schedule_values
+import numpy as np
+import pytest
+
+from qfa_ros.calibration.estimation import capture_reference
+from qfa_ros.calibration.schedule import run_schedule
+from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.calibration.temperature import temperature_calibration
+from qfa_ros.model import trajectory as trajectories
+from qfa_ros.model.files import read_regular_file, UntrustedFileError
+from qfa_ros.model.hardware import AxisHardware, nominal_gains
+from qfa_ros.model.triad import NS_PER_S
+from qfa_ros.ros.bounds import (
+    CHAMBER_WORST_S,
+    FEEDBACK_WORST_S,
+    FORWARD_MAX_SPAN,
+    FORWARD_WORST_S,
+    LARGEST_CHAMBER,
+    LARGEST_FEEDBACK,
+    LARGEST_FORWARD,
+    MAX_SCHEDULE_LOOP_STEPS,
+)
+from qfa_ros.ros.ground_truth import GroundTruthInput
+from qfa_ros.ros.params import (
+    check_all,
+    input_profile,
+    load_trajectory_file,
+    make_triad,
+    PARAMETERS,
+)
+from qfa_ros.ros.state_store import StateFileError, StateStore
+
+SECRET = 'SECRET_TOKEN=hunter2-do-not-echo'
+
+
+def defaults(**changes):
+    values = {spec.name: spec.default for spec in PARAMETERS}
+    values.update(changes)
+    return values
+
+
+def refusal(call, *args):
+    """Return the message ``call(*args)`` raises (a ValueError), checked to quote no secret."""
+    with pytest.raises(ValueError) as caught:
+        call(*args)
+    message = str(caught.value)
+    assert SECRET not in message and 'hunter2' not in message, message
+    return message
+
+
+def test_only_bounded_regular_files_are_read(tmp_path):
+    good = tmp_path / 'good.txt'
+    good.write_bytes(b'x' * 100)
+    assert read_regular_file(good, 100) == b'x' * 100
+    assert 'more than the 99' in refusal(read_regular_file, good, 99)
+    fifo = tmp_path / 'fifo'
+    os.mkfifo(fifo)
+    # A FIFO with no writer would block a plain open() for good; this returns at once.
+    done = []
+    worker = threading.Thread(target=lambda: done.append(
+        pytest.raises(UntrustedFileError, read_regular_file, fifo, 100)), daemon=True)
+    worker.start()
+    worker.join(timeout=30.0)
+    assert done and 'not a regular file' in str(done[0].value)
+    assert 'not a regular file' in refusal(read_regular_file, tmp_path, 100)
+    for pseudo in ('/dev/zero', '/proc/self/environ', '/sys/kernel/mm/transparent_hugepage'):
+        assert '/proc, /sys and /dev' in refusal(read_regular_file, pseudo, 1 << 20)
+    # A symlink is followed to what it names, and judged there.
+    (tmp_path / 'environ').symlink_to('/proc/self/environ')
+    assert '/proc, /sys and /dev' in refusal(read_regular_file, tmp_path / 'environ', 100)
+    assert 'cannot open' in refusal(read_regular_file, tmp_path / 'missing', 100)
+    sparse = tmp_path / 'sparse'
+    with open(sparse, 'wb') as stream:
+        stream.truncate(4 << 30)
+    assert 'more than the' in refusal(read_regular_file, sparse, 16 << 20)
+
+
+@pytest.mark.parametrize('content, expected', [
+    (f'{SECRET}\n0,45,0,0,0,0,0\n', 'first line must be the header'),
+    (','.join(trajectories.CSV_COLUMNS) + f'\n0,45,0,0,0,0,0\n1,{SECRET},0,0,0,0\n',
+     '7 comma-separated numbers'),
+    (','.join(trajectories.CSV_COLUMNS) + '\n0,45,0,0,0,0,0\n1,95.123456,0,0,0,0,0\n',
+     'row 2: latitude, longitude or height out of range'),
+    (','.join(trajectories.CSV_COLUMNS) + '\n0,45,0,0,0,0,0\n', 'at least two rows'),
+    (b'\xff\xfe' + SECRET.encode(), 'not UTF-8'),
+])
+def test_a_bad_trajectory_file_is_refused_without_quoting_it(tmp_path, content, expected):
+    path = tmp_path / 'motion.csv'
+    (path.write_bytes if isinstance(content, bytes) else path.write_text)(content)
+    message = refusal(load_trajectory_file, defaults(**{'input.trajectory_file': str(path)}))
+    assert message.startswith('input.trajectory_file: ') and expected in message, message
+    assert '95.12' not in message
+
+
+def test_the_trajectory_file_is_read_once_at_start_and_never_by_a_check(tmp_path):
+    path = tmp_path / 'turn.csv'
+    trajectories.save_csv(path, trajectories.rate_table_turn(turns=1, dwell_s=2.0, ramp_s=2.0),
+                          rate_hz=20.0)
+    values = defaults(**{'input.trajectory_file': str(path), 'input.mode': 'trajectory',
+                         'input.trajectory': 'file'})
+    loaded = load_trajectory_file(values)
+    path.unlink()  # what the checks and the input use is what was read at start
+    assert check_all(values, loaded) is None
+    profile = input_profile(values, 5.0, loaded)
+    assert profile.start == pytest.approx(5.0)
+    reason = check_all({**values, 'input.trajectory_file': ''})
+    assert 'read-only, set it when the node starts' in reason
+    spec = {spec.name: spec for spec in PARAMETERS}['input.trajectory_file']
+    assert spec.read_only
+
+
+def test_stamps_far_from_the_node_clock_are_refused_without_changing_the_order():
+    values = defaults(**{'input.mode': 'topic'})
+    truth = GroundTruthInput(values)
+    now = 1_000 * NS_PER_S
+    truth.accept(now, (0.0, 0.0, 9.8), now_ns=now)
+    for offset_s in (1.0e6, -1.0e6, 1.5, -1.5):
+        truth.accept(now + int(offset_s * NS_PER_S), (1.0, 2.0, 3.0), now_ns=now)
+    assert truth.refused_stamps == 4 and truth.rejected == 0
+    assert 'input.stamp_window_s' in truth.problem
+    # The next valid message is in order: the refused ones left no trace.
+    truth.accept(now + 10_000_000, (0.0, 0.0, 9.7), now_ns=now + 10_000_000)
+    assert [t for t, _ in truth.pending] == [now, now + 10_000_000]
+    force, _, stale = truth.inputs(np.array([now + 20_000_000], dtype=np.int64))
+    np.testing.assert_allclose(force[0], (0.0, 0.0, 9.7))
+    assert not stale.any()
+    # Odometry: a refused stamp does not become the previous message of the difference.
+    truth = GroundTruthInput(values)
+    q = (0.0, 0.0, 0.0, 1.0)
+    truth.accept_odometry(now, (0, 0, 0), q, (1.0, 0, 0), (0, 0, 0), now)
+    truth.accept_odometry(now + 10 ** 15, (0, 0, 0), q, (50.0, 0, 0), (0, 0, 0), now)
+    truth.accept_odometry(now + 100_000_000, (0, 0, 0), q, (1.1, 0, 0), (0, 0, 0), now)
+    force, _, _ = truth.inputs(np.array([now + 100_000_000], dtype=np.int64))
+    assert force[0, 0] == pytest.approx(1.0, abs=1e-9)  # (1.1 - 1.0) / 0.1 s
+    assert truth.refused_stamps == 1
+
+
+def test_leftover_temporary_state_files_are_removed(tmp_path):
+    path = tmp_path / 'state.json'
+    leftovers = [tmp_path / f'.state.json.{tag}.tmp' for tag in ('abc', 'x1')]
+    for leftover in leftovers:
+        leftover.write_text('{')
+    other = tmp_path / '.other.json.abc.tmp'
+    other.write_text('{')
+    store = StateStore(str(path))
+    assert store.remove_leftovers() == leftovers
+    assert not any(p.exists() for p in leftovers) and other.exists()
+    store.save(CalibrationState(), True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['.other.json.abc.tmp', 'state.json']
+
+
+def test_a_state_file_that_is_not_one_is_left_alone(tmp_path):
+    fifo = tmp_path / 'state.json'
+    os.mkfifo(fifo)
+    with pytest.raises(StateFileError, match='not a regular file') as caught:
+        StateStore(str(fifo)).load()
+    assert caught.value.kept_as is None and fifo.exists()
+    big = tmp_path / 'big.json'
+    big.write_text(' ' * (2 << 20))
+    with pytest.raises(StateFileError, match='more than the'):
+        StateStore(str(big)).load()
+    assert big.exists()
+
+
+def test_the_forward_span_bound_is_the_adc_and_da1_range():
+    hardware = AxisHardware()
+    top = hardware.n_fpga + FORWARD_MAX_SPAN
+    counts = top * nominal_gains(hardware).open_loop_counts_per_fpga
+    assert counts * 1.05 <= 2 ** (hardware.n_ad_bits - 1) < (counts + 300) * 1.05
+    assert top < 2 ** (hardware.n_da1_bits - 1)
+    step = FORWARD_MAX_SPAN // 50 + 1
+    reason = check_all(defaults(**{'estimation.forward.points': 50,
+                                   'estimation.forward.step': step}))
+    assert 'estimation.forward.points x estimation.forward.step' in reason
+    # A known forward drift narrows the span: the open-loop output grows with it.
+    values = defaults(**{'estimation.forward.points': 50,
+                         'estimation.forward.step': FORWARD_MAX_SPAN // 50})
+    assert check_all(values) is None
+    assert 'ADC' in check_all({**values, 'drift.forward_ppm': [5.0e4, 0.0, 0.0]})
+
+
+def test_the_largest_schedules_the_ranges_allow_run():
+    values = largest_schedule_values()
+    assert check_all(values) is None
+    # Each bound is at the top of its parameter range.
+    specs = {spec.name: spec for spec in PARAMETERS}
+    for name in ('estimation.forward.points', 'estimation.forward.settle_s',
+                 'estimation.forward.average_s', 'estimation.feedback.cycles',
+                 'estimation.feedback.settle_s', 'estimation.feedback.average_s',
+                 'temperature_calibration.period_s', 'temperature_calibration.cycles'):
+        assert values[name] == specs[name].high, name
+    triad = make_triad(values, input_profile(values))
+    state = CalibrationState()
+    started = triad.time
+    forward, feedback = run_schedule(
+        triad, capture_reference(triad, state, LARGEST_FORWARD, LARGEST_FEEDBACK),
+        chunk_samples=100_000)
+    assert forward.captured and feedback.captured
+    assert triad.time - started == pytest.approx(FORWARD_WORST_S + FEEDBACK_WORST_S, abs=0.01)
+    np.testing.assert_allclose(feedback.measured, -71739.0, rtol=1e-3)
+    started = triad.time
+    chamber, steps = run_schedule(triad, temperature_calibration(triad, state, LARGEST_CHAMBER),
+                                  chunk_samples=100_000)
+    assert chamber.end_ns > chamber.start_ns and steps.kind == 'reference_tc'
+    # The bound is the program, the soaks at their longest and the I_ref steps.
+    assert LARGEST_CHAMBER.period_s < triad.time - started <= CHAMBER_WORST_S
+    assert CHAMBER_WORST_S * values['loop_rate_hz'] <= MAX_SCHEDULE_LOOP_STEPS
+
+
+def test_documented_bounds_are_the_computed_ones():
+    # A stated worst case near a computed one but not equal to it is a stale copy.
+    root = Path(__file__).resolve().parents[1]
+    for path in [root / 'README.md', *sorted((root / 'docs').rglob('*.md'))]:
+        text = path.read_text()
+        for match in re.finditer(r'(?<![\d.])(\d{1,3}(?:[ \u202f]\d{3})+|\d+) ?s\b', text):
+            stated = int(re.sub(r'\D', '', match.group(1)))
+            for bound in (CHAMBER_WORST_S, FORWARD_WORST_S + FEEDBACK_WORST_S):
+                if 0.9 * bound <= stated <= 1.1 * bound:
+                    assert stated == round(bound), \
+                        f'{path.name}: {match.group(0)!r} where the bound is {bound:.0f} s'
