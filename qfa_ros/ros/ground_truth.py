@@ -11,6 +11,10 @@ from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.params import static_profile
 
 MAX_PENDING_INPUTS = 10000
+MAX_SPECIFIC_FORCE = 1.0e4
+"""Largest ground-truth specific force taken [m/s^2] (1000 g; the sensor saturates at 50 g)."""
+MAX_ANGULAR_RATE = 1.0e3
+"""Largest ground-truth angular rate taken [rad/s]."""
 
 
 class GroundTruthInput:
@@ -79,10 +83,12 @@ class GroundTruthInput:
         if self._refused(time_ns, time_ns if now_ns is None else now_ns):
             return
         value = tuple(value) + (tuple(rate) if rate is not None else (math.nan,) * 3)
-        if not all(math.isfinite(v) for v in value[:3]) or \
-                (rate is not None and not all(math.isfinite(v) for v in value[3:])):
+        if not all(math.isfinite(v) and abs(v) <= MAX_SPECIFIC_FORCE for v in value[:3]) or \
+                (rate is not None and not all(math.isfinite(v) and abs(v) <= MAX_ANGULAR_RATE
+                                              for v in value[3:])):
             self.rejected += 1
-            self.problem = f'non-finite ground-truth input rejected: {value}'
+            self.problem = (f'ground-truth input not finite or beyond {MAX_SPECIFIC_FORCE:g} '
+                            f'm/s^2 / {MAX_ANGULAR_RATE:g} rad/s rejected: {value}')
             return
         self.pending.append((time_ns, value))
         if len(self.pending) > MAX_PENDING_INPUTS:

@@ -8,6 +8,7 @@ splitting it would scatter one table over several modules.
 
 from contextlib import contextmanager
 from dataclasses import dataclass
+import functools
 import math
 import os
 import sys
@@ -59,6 +60,11 @@ INPUT_PROFILES = ('sine', 'tumble', 'steps')
 INPUT_TOPIC_TYPES = ('imu', 'accel', 'odometry')
 AMBIENT_PROFILES = ('constant', 'ramp', 'cycle', 'room')
 THERMAL_BIAS_MODELS = ('double_exp', 'none')
+
+MAX_STRING_LENGTH = 4096
+"""Longest string parameter [characters] (PATH_MAX): a stranger's megabyte is refused."""
+MAX_FRAME_ID_LENGTH = 256
+"""Longest ``frame_id`` [characters]: it rides on every published message."""
 
 FORWARD_COMPONENT = 'k_amp'
 """Drift component behind ``drift.forward_ppm``: the in-amp gain resistor (seed 1 §IV)."""
@@ -460,6 +466,14 @@ def check_value(name, value):
         return f'{name} must be in [{spec.low:g}, {spec.high:g}], got {value!r}'
     if spec.choices is not None and value not in spec.choices:
         return f'{name} must be one of {", ".join(spec.choices)}, got {value!r}'
+    if isinstance(spec.default, str):
+        if not isinstance(value, str):
+            return f'{name} must be a string'
+        limit = MAX_FRAME_ID_LENGTH if name == 'frame_id' else MAX_STRING_LENGTH
+        if len(value) > limit:
+            return f'{name} must be at most {limit} characters, got {len(value)}'
+        if not value.isprintable():
+            return f'{name} must be printable text (no control characters)'
     if name == 'frame_id' and not value:
         return 'frame_id must not be empty'
     return None
@@ -636,10 +650,20 @@ def trajectory_input(values, start_s=0.0, trajectory_file=None):
                                  'is read-only, set it when the node starts')
             motion = trajectory_file
         else:
-            motion = trajectories.SCRIPTS[kind](
-                latitude_deg=values['latitude_deg'], longitude_deg=values['longitude_deg'],
-                height_m=values['height_m'], yaw=values['input.yaw'])
+            motion = _script_trajectory(kind, values['latitude_deg'], values['longitude_deg'],
+                                        values['height_m'], values['input.yaw'])
     return motion.shifted(start_s)
+
+
+@functools.lru_cache(maxsize=4)
+def _script_trajectory(kind, latitude_deg, longitude_deg, height_m, yaw):
+    """
+    Return a built-in motion script, cached.
+
+    The drive takes 0.5 s to build, and every parameter check rebuilds the input.
+    """
+    return trajectories.SCRIPTS[kind](latitude_deg=latitude_deg, longitude_deg=longitude_deg,
+                                      height_m=height_m, yaw=yaw)
 
 
 def input_profile(values, start_s=0.0, trajectory_file=None):
