@@ -105,7 +105,17 @@ def cases(root):
         lambda spec: st.tuples(st.just(spec.name),
                                near(spec) if spec in writable and spec.name != 'input.mode'
                                else st.one_of(near(spec), junk(root))))
-    changes = st.lists(change, min_size=1, max_size=3, unique_by=lambda c: c[0])
+    random_changes = st.lists(change, min_size=1, max_size=3, unique_by=lambda c: c[0])
+    # One case in ten names a file and selects it as the input, in a random order: the
+    # sequence that made the node read (and quote) any file.
+    string = Parameter.Type.STRING
+    attack = st.tuples(st.sampled_from(path_values(root)), st.permutations([
+        'input.trajectory_file', 'input.trajectory', 'input.mode'])).map(
+        lambda case: [(name, (string, {'input.trajectory_file': case[0],
+                                       'input.trajectory': 'file',
+                                       'input.mode': 'trajectory'}[name]))
+                      for name in case[1]])
+    changes = st.integers(0, 9).flatmap(lambda k: attack if k == 0 else random_changes)
     now = int(time.time())
     seconds = st.one_of(st.integers(now - 2, now + 2), st.integers(0, 2 ** 31 - 1),
                         st.integers(-2 ** 31, -1))
@@ -202,6 +212,21 @@ def test_a_strangers_parameters_and_messages_break_nothing(tmp_path):
             return False
 
         client.spin_until(at_rate, 60.0, '500 consecutive samples at 1 kHz')
+        # Ground truth from the topic: one message stamped far ahead, then valid ones
+        # (200 Hz, stamped now): the stream follows the valid ones at its rate.
+        assert client.set_parameters({'input.mode': 'topic'})[0].successful
+        far = int(time.time()) + 1_000_000
+        truth.publish(imu_message(far, 0, (0.0, 0.0, 9.8, 0.0, 0.0, 0.0), -1.0))
+
+        def publish_now():
+            stamp_ns = time.time_ns()
+            truth.publish(imu_message(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000,
+                                      (0.0, 0.0, 9.8, 0.0, 0.0, 0.0), -1.0))
+
+        timer = client.node.create_timer(0.005, publish_now)
+        received['stamps'].clear()
+        client.spin_until(at_rate, 60.0, '500 consecutive samples at 1 kHz from the topic')
+        client.node.destroy_timer(timer)
         assert received['non_finite'] == 0
         growth = rss_bytes(node.pid) - rss_start
         assert growth < RSS_GROWTH_LIMIT, f'RSS grew {growth >> 20} MiB'
