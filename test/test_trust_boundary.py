@@ -5,7 +5,7 @@ from pathlib import Path
 import re
 import threading
 
-from node_helpers import largest_schedule_values
+from node_helpers import domain_id, largest_schedule_values, NodeProcess
 import numpy as np
 import pytest
 
@@ -225,3 +225,21 @@ def test_documented_bounds_are_the_computed_ones():
                 if 0.9 * bound <= stated <= 1.1 * bound:
                     assert stated == round(bound), \
                         f'{path.name}: {match.group(0)!r} where the bound is {bound:.0f} s'
+
+
+def test_a_node_named_a_hostile_trajectory_file_refuses_to_start_without_quoting_it(tmp_path):
+    secret = tmp_path / 'secret.csv'
+    secret.write_text(f'{SECRET}\n')
+    os.mkfifo(tmp_path / 'fifo')
+    # Started side by side: each must end by itself, with one line naming the parameter.
+    nodes = {path: NodeProcess(domain_id(f'hostile file {path}'), tmp_path / f'run{index}', {
+        'input.trajectory_file': str(path), 'output_dir': str(tmp_path / 'out'),
+        'state_file': ''}, name=f'qfa_hostile_{index}')
+        for index, path in enumerate((secret, tmp_path / 'fifo', '/dev/zero'))}
+    for path, node in nodes.items():
+        status = node.wait(120)
+        log = node.log()
+        assert status == 2, log
+        fatal = [line for line in log.splitlines() if '[FATAL]' in line]
+        assert len(fatal) == 1 and 'input.trajectory_file' in fatal[0], log
+        assert SECRET not in log and 'hunter2' not in log, log
