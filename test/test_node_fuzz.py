@@ -143,8 +143,11 @@ def test_a_strangers_parameters_and_messages_break_nothing(tmp_path):
     out = root / 'out'
     out.mkdir()
     (out / 'link_out').symlink_to(root / 'elsewhere', target_is_directory=True)
+    # What a save killed mid-write leaves; the node removes it at start and says so.
+    leftover = out / '.state.json.k1ll3d.tmp'
+    leftover.write_text('{"half": ')
     (root / 'link_out').symlink_to(root / 'elsewhere', target_is_directory=True)
-    before = set(root.rglob('*'))
+    before = set(root.rglob('*')) - {leftover}
     domain = domain_id('fuzz')
     node = NodeProcess(domain, root / 'run', {
         'output_dir': str(out), 'state_file': str(out / 'state.json'),
@@ -168,6 +171,9 @@ def test_a_strangers_parameters_and_messages_break_nothing(tmp_path):
             Imu, 'input/imu', QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
         client.spin_until(lambda: received['count'] > 100, 60.0, 'the first samples')
         rss_start = rss_bytes(node.pid)
+        assert not leftover.exists()
+        assert 'removed 1 temporary state file(s) an interrupted save left: ' \
+            '.state.json.k1ll3d.tmp' in node.log()
 
         @settings(max_examples=CASES, deadline=None, database=None, phases=[Phase.generate],
                   suppress_health_check=list(HealthCheck), print_blob=True)
