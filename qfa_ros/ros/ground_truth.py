@@ -87,8 +87,8 @@ class GroundTruthInput:
                 (rate is not None and not all(math.isfinite(v) and abs(v) <= MAX_ANGULAR_RATE
                                               for v in value[3:])):
             self.rejected += 1
-            self.problem = (f'ground-truth input not finite or beyond {MAX_SPECIFIC_FORCE:g} '
-                            f'm/s^2 / {MAX_ANGULAR_RATE:g} rad/s rejected: {value}')
+            self.problem = (f'non-finite or out-of-range ground-truth input rejected (limits '
+                            f'{MAX_SPECIFIC_FORCE:g} m/s^2, {MAX_ANGULAR_RATE:g} rad/s): {value}')
             return
         self.pending.append((time_ns, value))
         if len(self.pending) > MAX_PENDING_INPUTS:
