@@ -4,6 +4,7 @@ import json
 import math
 from pathlib import Path
 
+from node_helpers import domain_id
 import pytest
 from rclpy.parameter import Parameter
 import yaml
@@ -15,9 +16,11 @@ from qfa_ros.ros.params import (
     check_value,
     config_yaml,
     descriptor,
+    EFFECT_OF,
     make_triad,
     parameter_table,
     PARAMETERS,
+    RUNTIME_EFFECTS,
     SPECS,
 )
 from qfa_ros.ros.state_store import StateFileError, StateStore
@@ -165,3 +168,71 @@ def test_array_descriptors_show_length_and_element_range():
         assert f'[{spec.low:g}, {spec.high:g}]' in result.additional_constraints
         assert check_value(spec.name, [spec.high * 2] * len(spec.default)) is not None
         assert check_value(spec.name, spec.default) is None
+
+
+def test_every_writable_parameter_has_one_runtime_effect():
+    writable = {spec.name for spec in PARAMETERS if not spec.read_only}
+    listed = [name for names in RUNTIME_EFFECTS.values() for name in names]
+    assert sorted(listed) == sorted(writable), 'each writable parameter exactly once'
+    # A live parameter is read where it is used: its name appears beyond its declaration.
+    sources = '\n'.join(path.read_text() for path in (ROOT / 'qfa_ros').rglob('*.py'))
+    for name in RUNTIME_EFFECTS['live']:
+        assert sources.count(f"'{name}'") >= 3, f'{name}: declared and listed, never read'
+
+
+def changed_value(spec):
+    """Return a valid value of ``spec`` other than its default."""
+    default = spec.default
+    if isinstance(default, bool):
+        return not default
+    if spec.choices:
+        return next(choice for choice in spec.choices if choice != default)
+    if isinstance(default, str):
+        return default + '_changed'
+    if isinstance(default, list):
+        low = -1.0 if spec.low is None else max(spec.low, -1.0)
+        return [low if v != low else low / 2 for v in default]
+    if isinstance(default, int):
+        return default + 1 if spec.high is None or default + 1 <= spec.high else default - 1
+    low, high = spec.low, spec.high
+    return (low + high) / 2 if low is not None and (low + high) / 2 != default \
+        else default * 0.9 + 0.01
+
+
+def test_every_writable_parameter_takes_effect_or_is_refused(tmp_path):
+    import rclpy
+    from rclpy.context import Context
+
+    from qfa_ros.ros.node import QfaNode
+
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id('runtime effects'))
+    node = QfaNode(context=context, parameter_overrides=[
+        Parameter('output_dir', value=str(tmp_path)), Parameter('state_file', value=''),
+        Parameter('estimation.realtime', value=False)])
+    try:
+        assert set(node.runtime_effects) == set(RUNTIME_EFFECTS)
+        outcomes = {}
+        for spec in PARAMETERS:
+            if spec.read_only:
+                continue
+            value = changed_value(spec)
+            before = dict(node.applied_effects)
+            result, = node.set_parameters([Parameter(spec.name, value=value)])
+            if result.successful:
+                assert node.get_parameter(spec.name).value == value, spec.name
+                effect = EFFECT_OF[spec.name]
+                assert node.applied_effects[effect] == before.get(effect, 0) + 1, spec.name
+                assert sum(node.applied_effects.values()) == sum(before.values()) + 1
+                outcomes[spec.name] = 'applied'
+            else:
+                assert result.reason, spec.name
+                outcomes[spec.name] = result.reason
+            # Back to the default, so that each change is judged on its own.
+            assert node.set_parameters([Parameter(spec.name, value=spec.default)])[0].successful
+        applied = [name for name, outcome in outcomes.items() if outcome == 'applied']
+        assert len(applied) > 0.8 * len(outcomes), outcomes
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)

@@ -6,6 +6,7 @@ Run it with ``qfa_node`` (``ros2 run qfa_ros qfa_node``) or
 described in ``docs/node.md``.
 """
 
+import collections
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -41,25 +42,23 @@ from qfa_ros.ros.params import (
     as_declared_type,
     check_all,
     descriptor,
+    EFFECT_OF,
     FEEDBACK_COMPONENT,
     FORWARD_COMPONENT,
     gyro_bias_settings,
     input_profile,
     load_trajectory_file,
-    LOCATION_PARAMETERS,
     make_triad,
     PARAMETERS,
+    RUNTIME_EFFECTS,
     temperature_settings,
     THERMAL_RUNTIME_PARAMETERS,
 )
-from qfa_ros.ros.recording import RECORDER_PARAMETERS, StreamRecording
+from qfa_ros.ros.recording import StreamRecording
 from qfa_ros.ros.schedules import ScheduleService
 from qfa_ros.ros.stream import offered_qos, SampleStream
 
 PPM = 1e-6
-DRIFT_PARAMETERS = frozenset({'drift.forward_ppm', 'drift.feedback_ppm',
-                              'drift.aging_forward_ppm_per_year',
-                              'drift.aging_feedback_ppm_per_year', 'drift.time_acceleration'})
 
 
 class QfaNode(Node):
@@ -100,6 +99,8 @@ class QfaNode(Node):
         # The live parameter values, shared (read-only) by every collaborator.
         self._values = {spec.name: self.get_parameter(spec.name).value for spec in PARAMETERS}
         values = self._values
+        # How often each runtime effect was applied (read by the tests; under _lock).
+        self.applied_effects = collections.Counter()
         # The only file a parameter names that the node reads, read once here, before any
         # service answers: input.trajectory_file is read-only.
         self._trajectory_file = load_trajectory_file(values)
@@ -230,28 +231,36 @@ class QfaNode(Node):
     def parameters_set_callback(self, parameters):
         """Apply accepted parameter changes to the running sensor at once."""
         names = {parameter.name for parameter in parameters}
+        # One step per effect, each once, in the order of params.RUNTIME_EFFECTS.
+        wanted = {EFFECT_OF[name] for name in names}
+        effects = [effect for effect in RUNTIME_EFFECTS if effect in wanted]
         with self._lock:
             for parameter in parameters:
                 self._values[parameter.name] = parameter.value
             try:
-                if names & DRIFT_PARAMETERS:
-                    self._apply_drift()
-                if any(name.startswith('input.') for name in names) \
-                        or names & LOCATION_PARAMETERS:
-                    self._triad.profile = input_profile(self._values, self._triad.time,
-                                                        self._trajectory_file)
-                if 'frame_id' in names:
-                    self._stream.set_frame_id(self._values['frame_id'])
-                if names & THERMAL_RUNTIME_PARAMETERS:
-                    self._apply_ambient()
-                if names & RECORDER_PARAMETERS:
-                    # What was published before the change goes to the recording it was in.
-                    with self._recording.lock:
-                        self._stream.flush_recording()
-                        self._recording.restart()
+                for effect in effects:
+                    self.runtime_effects[effect]()
+                    self.applied_effects[effect] += 1
             except (ValueError, OSError) as error:
                 self._schedules.last_error = f'applying {", ".join(sorted(names))}: {error}'
                 self.get_logger().error(self._schedules.last_error)
+
+    @property
+    def runtime_effects(self):
+        """Return the step that applies each runtime effect of ``params.RUNTIME_EFFECTS``."""
+        return {'live': lambda: None, 'drift': self._apply_drift, 'input': self._apply_input,
+                'frame': lambda: self._stream.set_frame_id(self._values['frame_id']),
+                'ambient': self._apply_ambient, 'recorder': self._restart_recording}
+
+    def _apply_input(self):
+        self._triad.profile = input_profile(self._values, self._triad.time,
+                                            self._trajectory_file)
+
+    def _restart_recording(self):
+        # What was published before the change goes to the recording it was in.
+        with self._recording.lock:
+            self._stream.flush_recording()
+            self._recording.restart()
 
     def _apply_drift(self):
         values = self._values

@@ -54,8 +54,6 @@ from qfa_ros.ros.bounds import (
 
 INPUT_MODES = ('static', 'profile', 'trajectory', 'topic')
 INPUT_TRAJECTORIES = tuple(sorted(trajectories.SCRIPTS)) + ('file',)
-LOCATION_PARAMETERS = frozenset({'latitude_deg', 'longitude_deg', 'height_m'})
-"""Parameters that move the sensor on the Earth (the input is rebuilt)."""
 INPUT_PROFILES = ('sine', 'tumble', 'steps')
 INPUT_TOPIC_TYPES = ('imu', 'accel', 'odometry')
 AMBIENT_PROFILES = ('constant', 'ramp', 'cycle', 'room')
@@ -377,11 +375,50 @@ PARAMETERS = (
 
 SPECS = {spec.name: spec for spec in PARAMETERS}
 
-THERMAL_RUNTIME_PARAMETERS = frozenset({'temperature_c', 'thermal.ambient_profile',
-                                        'thermal.ramp_rate_c_per_s', 'thermal.cycle_low_c',
-                                        'thermal.cycle_high_c', 'thermal.cycle_period_s',
-                                        'thermal.room_amplitude_c',
-                                        'thermal.room_correlation_s'})
+RUNTIME_EFFECTS = {
+    'frame': ('frame_id',),
+    'ambient': ('temperature_c', 'thermal.ambient_profile', 'thermal.ramp_rate_c_per_s',
+                'thermal.cycle_low_c', 'thermal.cycle_high_c', 'thermal.cycle_period_s',
+                'thermal.room_amplitude_c', 'thermal.room_correlation_s'),
+    'drift': ('drift.forward_ppm', 'drift.feedback_ppm', 'drift.aging_forward_ppm_per_year',
+              'drift.aging_feedback_ppm_per_year', 'drift.time_acceleration'),
+    'input': ('latitude_deg', 'longitude_deg', 'height_m', 'input.mode', 'input.roll',
+              'input.pitch', 'input.yaw', 'input.trajectory', 'input.profile',
+              'input.sine.frequency_hz', 'input.sine.amplitude', 'input.sine.offset',
+              'input.tumble.dwell_s', 'input.steps.times_s', 'input.steps.levels'),
+    'recorder': ('recorder.enabled', 'recorder.directory', 'recorder.max_bytes',
+                 'recorder.max_duration_s'),
+    'live': ('input.timeout_s', 'input.stamp_window_s', 'estimation.realtime',
+             'estimation.forward.points', 'estimation.forward.step',
+             'estimation.forward.settle_s', 'estimation.forward.average_s',
+             'estimation.forward.order', 'estimation.feedback.cycles',
+             'estimation.feedback.settle_s', 'estimation.feedback.average_s',
+             'estimation.feedback.order', 'estimation.feedback.motion_limit_ug',
+             'estimation.feedback.temperature_correction', 'gyro_bias.duration_s',
+             'gyro_bias.motion_limit_deg_per_hr', 'gyro_bias.motion_limit_ug',
+             'temperature_calibration.low_c', 'temperature_calibration.high_c',
+             'temperature_calibration.period_s', 'temperature_calibration.cycles',
+             'temperature_calibration.reference_steps', 'temperature_calibration.m_bits',
+             'trace_dir'),
+}
+"""
+What a runtime change of each writable parameter does to the running sensor.
+
+``live`` parameters are read from the live values where they are used (a schedule's
+settings when it is called, the input's timeout at every sample); every other effect
+is a step the node runs when one of its parameters changes (its handler in
+``QfaNode``). Every writable parameter is in exactly one entry and no read-only one
+is (test_node_params.py), so a new writable parameter cannot be accepted and ignored.
+"""
+EFFECT_OF = {name: effect for effect, names in RUNTIME_EFFECTS.items() for name in names}
+"""The runtime effect of each writable parameter (see :data:`RUNTIME_EFFECTS`)."""
+_UNMAPPED = {spec.name for spec in PARAMETERS if not spec.read_only} ^ set(EFFECT_OF)
+if _UNMAPPED:
+    # A programming error, caught at import by every test: a writable parameter without
+    # a runtime effect would be accepted and do nothing.
+    raise RuntimeError(f'RUNTIME_EFFECTS must list every writable parameter exactly once: '
+                       f'{sorted(_UNMAPPED)}')
+THERMAL_RUNTIME_PARAMETERS = frozenset(RUNTIME_EFFECTS['ambient'])
 """Parameters that change the ambient of the running thermal model."""
 
 

@@ -12,9 +12,6 @@ from qfa_ros.bag.flight_recorder import FlightRecorder
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.bounds import confined_directory
 
-RECORDER_PARAMETERS = frozenset({'recorder.enabled', 'recorder.directory', 'recorder.max_bytes',
-                                 'recorder.max_duration_s'})
-
 FREE_SPACE_CHECK_S = 1.0
 """Wall time between two free-space checks of a running recording [s]."""
 
