@@ -10,11 +10,14 @@ results depend only on the study and the unit's seed, so the table is identical
 whatever the number of workers.
 """
 
+from contextlib import contextmanager
 import hashlib
 import json
 import logging
 import os
 from pathlib import Path
+import signal
+import threading
 import time
 
 import pyarrow as pa
@@ -84,6 +87,24 @@ def _prepare(study, parts, code):
             if not _part_path(parts, start, stop).exists()]
 
 
+@contextmanager
+def workers_ignore_sigint():
+    """
+    Start worker processes that ignore SIGINT (an ignored signal stays ignored in a child).
+
+    Ctrl-C reaches the whole process group: the workers would each print a traceback,
+    while the client, which gets it too, stops the cluster itself.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def batch_table(study, start, stop):
     """Simulate units ``start`` to ``stop - 1`` and return them as an Arrow table."""
     return pa.Table.from_pylist(simulate_batch(study, start, stop))
@@ -136,9 +157,10 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
         elif own_client:
             # One single-threaded process per core: the model holds the GIL per task. Port
             # 0: a second study beside a running one must not fight over the default port.
-            cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1,
-                                   processes=True, dashboard_address=':0',
-                                   silence_logs=logging.ERROR)
+            with workers_ignore_sigint():
+                cluster = LocalCluster(n_workers=workers or os.cpu_count(),
+                                       threads_per_worker=1, processes=True,
+                                       dashboard_address=':0', silence_logs=logging.ERROR)
             client = Client(cluster)
         try:
             futures = [client.submit(batch_table, study, start, stop, pure=False,
