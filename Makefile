@@ -8,7 +8,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.qfa-installed
 DURATION ?= 10
 
-.PHONY: setup run sim test lint bench reproducibility bags figures clean
+.PHONY: setup run sim test lint docs bench reproducibility bags figures clean
 
 BAGS := bags/static_10s.mcap bags/paper_2019.mcap bags/temperature_cycle.mcap
 
@@ -28,8 +28,9 @@ $(STAMP): requirements/ros.txt requirements/base.txt requirements/test.txt setup
 	touch $@
 
 # The emulated sensor on DDS until Ctrl-C (the node finds config/fastdds_discovery.xml).
+# More ROS arguments: make run ARGS='-p state.fresh:=true'
 run: $(STAMP)
-	$(VENV)/bin/qfa_node --ros-args --params-file config/qfa.yaml
+	$(VENV)/bin/qfa_node --ros-args --params-file config/qfa.yaml $(ARGS)
 
 # The offline simulator, no DDS: a static run summarized with its Allan deviation.
 sim: $(STAMP)
@@ -41,11 +42,16 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
+# The documentation site (Sphinx, MyST Markdown, API from the docstrings); warnings are errors.
+docs: $(STAMP)
+	$(PY) -m sphinx -W --keep-going -b html docs docs/_build/html
+	@echo 'open docs/_build/html/index.html'
+
 bench: $(STAMP)
 	$(PY) bench/loop_throughput.py
 	$(PY) bench/sim_limit.py
 
-# The reproducibility contract's tolerances, measured (README, Reproducibility; ~6 min).
+# The reproducibility contract's tolerances, measured (docs/reproducibility.md; ~6 min).
 reproducibility: $(STAMP)
 	$(PY) bench/reproducibility.py
 
@@ -57,10 +63,10 @@ bags: $(STAMP)
 	$(VENV)/bin/qfa-sim temperature-cycle --duration 3600 --seed 0 \
 	  --out bags/temperature_cycle.mcap
 
-# README figures, drawn from the example bags.
+# The docs' figures, drawn from the example bags.
 figures: $(STAMP)
 	$(VENV)/bin/qfa-report bags/paper_2019.mcap --out docs/figures
 	$(VENV)/bin/qfa-report bags/temperature_cycle.mcap --out docs/figures
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache docs/_build

@@ -1,5 +1,5 @@
 """
-CPU cost of the longest schedule call the parameter ranges allow (README "Security model").
+CPU cost of the longest schedule call the parameter ranges allow (docs/security.md).
 
 Runs the default sensor's temperature schedule and a fast self-calibration offline (the
 generators the node drives), measures CPU time per second of sensor time and per model

@@ -1,10 +1,10 @@
-"""The README's session, run against the node on its default parameters.
+"""The README's service session, run against the node on its default parameters.
 
 Run: ``.venv/bin/python bench/session.py``. Starts ``qfa_node`` in its own process (every
 parameter at its default but ``output_dir`` and ``state_file``, which go to a scratch
 directory), then through rclpy clients, as the README's ``ros2`` commands do: the static
 output, ``capture_reference``, a drift, ``self_calibrate``, ``calibrate_temperature``,
-each followed by the static output. Prints what the README quotes. Static outputs are
+each followed by the static output. Prints what docs/getting_started.md quotes. Static outputs are
 2 s means minus the default unit's expected level output in gravity at latitude 45 deg.
 """
 

@@ -1,6 +1,6 @@
 """Whole-process ``qfa-sim static`` against the limit of the loop with its noise, side by side.
 
-Run (quiet machine, the figures in the README)::
+Run (quiet machine, the figures in docs/performance.md)::
 
     .venv/bin/python bench/sim_limit.py --duration 3600 --repeat 5
 

@@ -1,6 +1,6 @@
 """The example bags' commands and the reproducibility contract they are compared under.
 
-The contract (README, *Reproducibility*):
+The contract (docs/reproducibility.md):
 
 - same seed, same machine: identical bytes;
 - another CPU (other SIMD paths in numpy, other OpenBLAS kernels, another libm, numba

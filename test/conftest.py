@@ -1,5 +1,8 @@
 """Suite-wide options: ``--busy-cores N`` keeps N cores busy for the whole session.
 
+The header also names the ROS domain range of the node tests (``QFA_TEST_DOMAINS``,
+default 1-100; ``node_helpers.domain_id``).
+
 A shared CI machine is often busy. ``--busy-cores 1`` (or ``QFA_TEST_BUSY_CORES=1``)
 starts one pure-Python busy loop per core in its own process before the first test and
 kills it at the end of the session, so that the timing and DDS tests can be checked
@@ -9,6 +12,8 @@ under that load on any machine.
 import os
 import subprocess
 import sys
+
+import pytest
 
 _BUSY_LOOPS = []
 
@@ -31,6 +36,14 @@ def busy_cores(config):
 
 
 def pytest_configure(config):
+    text = os.environ.get('QFA_TEST_DOMAINS', '1-100')
+    try:
+        low, high = (int(part) for part in text.split('-'))
+    except ValueError:
+        low, high = 1, 0
+    if not 0 <= low <= high <= 232:
+        raise pytest.UsageError(f'QFA_TEST_DOMAINS must be LOW-HIGH with 0 <= LOW <= HIGH '
+                                f'<= 232 (ROS domain ids), not {text!r}')
     for _ in range(busy_cores(config)):
         _BUSY_LOOPS.append(subprocess.Popen(
             [sys.executable, '-c', 'while True: pass'],
@@ -38,10 +51,13 @@ def pytest_configure(config):
 
 
 def pytest_report_header(config):
+    # The node tests' domains (node_helpers.domain_id): two runs on one host need two ranges.
+    lines = [f'ROS domains: {os.environ.get("QFA_TEST_DOMAINS", "1-100")} '
+             '(QFA_TEST_DOMAINS=LOW-HIGH; give each concurrent test run its own range)']
     if _BUSY_LOOPS:
         pids = ', '.join(str(p.pid) for p in _BUSY_LOOPS)
-        return f'busy cores: {len(_BUSY_LOOPS)} (busy-loop processes {pids})'
-    return None
+        lines.append(f'busy cores: {len(_BUSY_LOOPS)} (busy-loop processes {pids})')
+    return lines
 
 
 def pytest_unconfigure(config):

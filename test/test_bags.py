@@ -1,6 +1,6 @@
 """The example bags decode with an independent reader and are reproduced by ``make bags``.
 
-Reproduced under the contract of ``bag_helpers`` (README, *Reproducibility*).
+Reproduced under the contract of ``bag_helpers`` (docs/reproducibility.md).
 """
 
 import hashlib

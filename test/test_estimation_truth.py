@@ -1,5 +1,5 @@
 """
-Test that estimators see no truth, and the claims of the README's estimation sections.
+Test that estimators see no truth, and the claims of docs/calibration.md.
 
 The I_ref coefficient, the paper distribution and the residual scale error (issue 13).
 Reduced sizes; tolerances from the quantities' own standard errors.
@@ -176,8 +176,8 @@ def test_measure_scale_sees_an_injected_feedback_drift():
 
 
 def test_improved_schedule_meets_the_acceptance_on_paper_size_drifts():
-    # README: improved schedule, no oracle, +-200 ppm, thermal on with room wander, k_t
-    # stable: residual <= 5 ppm mean, <= 10 ppm p95. 8 draws x 3 axes here.
+    # docs/calibration.md: improved schedule, no oracle, +-200 ppm, thermal on with room
+    # wander, k_t stable: residual <= 5 ppm mean, <= 10 ppm p95. 8 draws x 3 axes here.
     # The same fleet study path as bench/estimation_accuracy.py and qfa-fleet.
     study = Study.one_calibration('improved', 200.0, torquer_drift=False, units=8, seed=11)
     rows = simulate_batch(study, 0, study.units)
@@ -189,7 +189,7 @@ def test_improved_schedule_meets_the_acceptance_on_paper_size_drifts():
 
 
 def test_paper_experiment_is_a_distribution_near_the_paper():
-    # README: 50 seeds. Here 10: mean forward estimate within 3 standard errors of the
+    # docs/calibration.md: 50 seeds. Here 10: mean forward estimate within 3 standard errors of the
     # paper's -180.5 ppm; its scatter from the physics, within a factor 2 (plus the
     # sampling error of a 10-sample sigma) of the paper's 3.9 ppm; feedback near +218.
     trials = paper_experiment(seed=0, trials=10, static_s=2.0)

@@ -15,6 +15,7 @@ import pytest
 from qfa_ros.cli.fleet import main as fleet_main
 from qfa_ros.fleet.runner import code_digest, parts_directory, run_study
 from qfa_ros.fleet.study import Study, StudyError
+from qfa_ros.fleet.summary import format_summary
 from qfa_ros.fleet.unit import simulate_unit
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,6 +70,12 @@ def test_one_and_two_workers_give_identical_tables(tmp_path):
     assert one.num_rows == study.units * study.calibrations
     assert one.equals(two)
     assert pq.read_table(tmp_path / 'one.parquet').equals(pq.read_table(tmp_path / 'two.parquet'))
+    # The summary's rows say what they compare: the estimate rows are not the accuracy.
+    summary = format_summary(one)
+    assert '| scale-factor error after (known input): the accuracy [ppm] |' in summary
+    feedback = next(line for line in summary.splitlines() if 'feedback estimate -' in line)
+    assert 'k_VI k_DA drift alone' in feedback and 'not an error' in feedback
+    assert 'temperature change since the reference' in feedback
     # A unit's rows depend on its own seed only, not on the batch it ran in.
     alone = simulate_unit(study, 2)
     assert one.slice(2, 1).to_pylist() == alone
@@ -130,3 +137,47 @@ def test_results_of_other_model_code_are_not_mixed_in(tmp_path):
     with pytest.raises(StudyError, match='other model code'):
         run_study(study, out, workers=1, progress=False)
     assert code_digest() == code_digest() and len(code_digest()) == 16
+
+
+@pytest.mark.parametrize('when', ['starting', 'running'])
+def test_ctrl_c_stops_a_study_with_one_line_and_keeps_its_batches(tmp_path, when):
+    study_file = write_study(tmp_path / 'study.yaml', {**CHEAP, 'units': 4})
+    parts = parts_directory(tmp_path / 'study.parquet')
+    # 'starting': the parts directory is prepared and the cluster starts (its workers
+    # ignore SIGINT meanwhile, the command must not); 'running': a batch is done.
+    ready = ((lambda: (parts / 'study.json').exists()) if when == 'starting'
+             else (lambda: bool(list(parts.glob('batch-*.parquet')))))
+    env = {**os.environ, 'PYTHONPATH': str(ROOT)}
+    # Ctrl-C signals the terminal's whole process group: the command and its workers.
+    process = subprocess.Popen(
+        [sys.executable, '-m', 'qfa_ros.cli.fleet', str(study_file), '--workers', '1',
+         '--no-progress'], cwd=tmp_path, env=env, start_new_session=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 240
+    try:
+        while time.monotonic() < deadline and not ready():
+            assert process.poll() is None, process.communicate()
+            time.sleep(0.05)
+        os.killpg(process.pid, signal.SIGINT)
+        out, err = process.communicate(timeout=60)
+    except BaseException:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=30)
+        raise
+    assert process.returncode == 130, err
+    assert 'Traceback' not in err and 'KeyboardInterrupt' not in err, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    kept = len(list(parts.glob('batch-*.parquet')))
+    assert (when == 'starting' or kept >= 1) and kept < 4
+    assert lines[0] == (f'qfa-fleet: interrupted; {kept} of 4 batches kept in '
+                        f'{parts}: the same command resumes')
+    # No worker outlives the command.
+    deadline = time.monotonic() + 30
+    while True:
+        try:
+            os.killpg(process.pid, 0)
+        except ProcessLookupError:
+            break
+        assert time.monotonic() < deadline, 'a worker process outlived qfa-fleet'
+        time.sleep(0.1)

@@ -50,7 +50,7 @@ def test_two_units_launch_starts_two_namespaced_units_with_their_own_identity():
 
 def test_launch_descriptions_load_with_ros2_launch():
     pytest.importorskip('launch_ros', reason='launch_ros is not installed (no Kilted wheel); '
-                        'README lists how the launch files were run instead')
+                        'docs/getting_started.md lists how the launch files were run instead')
     from launch.launch_description_sources import PythonLaunchDescriptionSource
     for name, entities in (('qfa.launch.py', ['DeclareLaunchArgument'] * 3 + ['Node']),
                            ('two_units.launch.py', ['Node', 'Node'])):

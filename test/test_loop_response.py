@@ -18,7 +18,7 @@ from qfa_ros.model.loop_response import design_step, measure_loop, measure_step,
 from qfa_ros.model.triad import QfaTriad, TriadConfig
 
 ROOT = Path(__file__).resolve().parents[1]
-# Measured figures docs/model.md and the README quote (bench/loop_response.py).
+# Measured figures docs/model.md and the README's table quote (bench/loop_response.py).
 DOCUMENTED = {'crossover_hz': 300.0, 'phase_margin_deg': 58.86, 'gain_margin_db': 12.24,
               'bandwidth_hz': 600.0, 'overshoot': 0.1105, 'rise_time_s': 0.53e-3,
               'settling_time_s': 8.8e-3}

@@ -178,3 +178,73 @@ def test_a_hung_middleware_teardown_ends_in_a_hard_exit_after_the_writes(
     assert words in completed.stderr
     assert 'returned' not in completed.stdout
     assert Path(marker).read_text() == 'closed'
+
+
+def start_line(node, client):
+    """Return the node's one start-up line about its calibration state, once logged."""
+    def logged():
+        return [line for line in node.log().splitlines() if 'calibration state ' in line
+                and 'to start fresh' in line]
+    client.spin_until(logged, 60, 'the start-up line')
+    return logged()
+
+
+def test_start_up_says_which_state_it_loaded_and_state_fresh_ignores_it(tmp_path):
+    from std_msgs.msg import Bool
+
+    state_file = tmp_path / 'calibration.json'
+    parameters = {'state_file': str(state_file), 'output_dir': str(tmp_path),
+                  'estimation.realtime': False}
+
+    def session(name, extra):
+        domain = domain_id(f'start-line-{name}')
+        node = NodeProcess(domain, tmp_path / name, {**parameters, **extra})
+        client = Client(domain)
+        flags = []
+        client.subscribe(Bool, f'{NODE}/is_calibrated', flags.append, latched=True)
+        return node, client, flags
+
+    # A new user's first session: nothing stored, then a calibration.
+    node, client, flags = session('first', {})
+    try:
+        lines = start_line(node, client)
+        assert len(lines) == 1, node.log()
+        assert f'fresh (no state file at {state_file})' in lines[0]
+        assert 'compensation off' in lines[0] and 'unit drawn, seed 1' in lines[0]
+        for service in ('capture_reference', 'self_calibrate'):
+            response = client.call(Trigger, f'{NODE}/{service}', Trigger.Request(), 120)
+            assert response.success, response.message
+        client.spin_until(lambda: flags and flags[-1].data, 30, 'is_calibrated true')
+    finally:
+        client.close()
+        assert node.stop(signal.SIGINT) == 0, node.log()
+    stored = state_file.read_text()
+
+    # The next start (make run again) is compensated, and says so in one line.
+    node, client, flags = session('second', {})
+    try:
+        lines = start_line(node, client)
+        assert len(lines) == 1, node.log()
+        assert f'calibration state loaded from {state_file}: compensation on' in lines[0]
+        assert 'state.fresh:=true' in lines[0]
+        client.spin_until(lambda: flags, 30, 'is_calibrated')
+        assert flags[-1].data is True
+    finally:
+        client.close()
+        assert node.stop(signal.SIGINT) == 0, node.log()
+
+    # state.fresh: the stored file is neither loaded nor touched; the sensor is bare.
+    node, client, flags = session('fresh', {'state.fresh': True})
+    try:
+        lines = start_line(node, client)
+        assert len(lines) == 1, node.log()
+        assert f'fresh (state.fresh: {state_file} not loaded)' in lines[0]
+        assert 'compensation off (nothing stored)' in lines[0]
+        client.spin_until(lambda: flags, 30, 'is_calibrated')
+        assert flags[-1].data is False
+        response = client.call(Trigger, f'{NODE}/estimate_feedback_gain', Trigger.Request())
+        assert not response.success and 'reference' in response.message
+    finally:
+        client.close()
+        assert node.stop(signal.SIGINT) == 0, node.log()
+    assert state_file.read_text() == stored

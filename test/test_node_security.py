@@ -273,7 +273,7 @@ def test_paths_are_confined_to_the_output_directory(tmp_path):
 
 
 def test_schedule_bounds_hold_at_any_loop_rate():
-    # The worst case the ranges allow, stated in the descriptions and the README.
+    # The worst case the ranges allow, stated in the descriptions and docs/security.md.
     assert SCHEDULE_WORST_S == pytest.approx(911.6)
     # The chamber program with its soaks (at the extremes, back to the start) fits the
     # loop-step budget at the default 10 kHz loop.

@@ -23,7 +23,7 @@ G = float(normal_gravity(math.radians(45.0)))  # the default latitude_deg
 FORWARD_PPM = [-200.0, 300.0, 500.0]
 FEEDBACK_PPM = [1000.0, -800.0, 1200.0]
 # The default feedback schedule (10 s segments) estimates within about +-10 ppm (1 sigma,
-# README); 60 ppm of g is 6 sigma of its scatter plus the 10 ms output noise.
+# docs/getting_started.md); 60 ppm of g is 6 sigma of its scatter plus the 10 ms output noise.
 ACCURACY = 60e-6 * G
 FAST = {'estimation.realtime': False}
 

@@ -5,6 +5,7 @@ import signal
 import sys
 
 from qfa_ros.bag.reader import BagError
+from qfa_ros.cli.interrupt import stops_quietly
 from qfa_ros.ros.fastdds import use_shipped_fastdds_profile
 from qfa_ros.ros.replay import BagReplayer, EXIT_NO_SUBSCRIBERS, ReplaySummary
 
@@ -36,6 +37,7 @@ def build_parser():
     return parser
 
 
+@stops_quietly('qfa-replay')
 def main(argv=None):
     """Run the replay command line; return the exit status."""
     args = build_parser().parse_args(argv)

@@ -4,9 +4,11 @@ import argparse
 from pathlib import Path
 import sys
 
+from qfa_ros.cli.interrupt import stops_quietly
 from qfa_ros.report.figures import report
 
 
+@stops_quietly('qfa-report')
 def main(argv=None):
     """Run the report command line; return the exit status."""
     parser = argparse.ArgumentParser(

@@ -23,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from qfa_ros.calibration.schedule import sensor_time_ns
+from qfa_ros.cli.interrupt import stops_quietly
 from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
@@ -382,6 +383,7 @@ def parse_start_time(text):
     return (delta.days * 86_400 + delta.seconds) * 1_000_000_000 + delta.microseconds * 1000
 
 
+@stops_quietly('qfa-sim')
 def main(argv=None):
     """Run the simulator command line."""
     args = build_parser().parse_args(argv)

@@ -10,11 +10,14 @@ results depend only on the study and the unit's seed, so the table is identical
 whatever the number of workers.
 """
 
+from contextlib import contextmanager
 import hashlib
 import json
 import logging
 import os
 from pathlib import Path
+import signal
+import threading
 import time
 
 import pyarrow as pa
@@ -84,6 +87,37 @@ def _prepare(study, parts, code):
             if not _part_path(parts, start, stop).exists()]
 
 
+@contextmanager
+def workers_shielded_from_sigint():
+    """
+    Start worker processes that ignore SIGINT; a Ctrl-C meanwhile is raised afterwards.
+
+    Ctrl-C reaches the terminal's whole process group: the workers would each print a
+    traceback, while the client, which gets it too, stops the cluster itself. An ignored
+    signal stays ignored in a child, so the workers started here never see it. Here
+    SIGINT is blocked as well: Linux queues a blocked signal even while it is ignored,
+    so a Ctrl-C during the start stays pending and is raised as
+    :class:`KeyboardInterrupt` once the handler is back and the signal unblocked. That
+    holds if no other thread takes the signal meanwhile (and drops it, ignored): start
+    them with SIGINT blocked, as ``qfa-fleet`` does before its imports.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    if signal.SIGINT in signal.sigpending():
+        # Ignoring it would discard a Ctrl-C that came while it was blocked (POSIX).
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        raise KeyboardInterrupt
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def batch_table(study, start, stop):
     """Simulate units ``start`` to ``stop - 1`` and return them as an Arrow table."""
     return pa.Table.from_pylist(simulate_batch(study, start, stop))
@@ -131,16 +165,18 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
     if pending:
         own_client = client is None
         cluster = None
-        if scheduler and own_client:
-            client = Client(scheduler)
-        elif own_client:
-            # One single-threaded process per core: the model holds the GIL per task. Port
-            # 0: a second study beside a running one must not fight over the default port.
-            cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1,
-                                   processes=True, dashboard_address=':0',
-                                   silence_logs=logging.ERROR)
-            client = Client(cluster)
         try:
+            if scheduler and own_client:
+                client = Client(scheduler)
+            elif own_client:
+                # One single-threaded process per core: the model holds the GIL per task.
+                # Port 0: a second study beside a running one must not fight over the port.
+                with workers_shielded_from_sigint():
+                    cluster = LocalCluster(n_workers=workers or os.cpu_count(),
+                                           threads_per_worker=1, processes=True,
+                                           dashboard_address=':0',
+                                           silence_logs=logging.ERROR)
+                client = Client(cluster)
             futures = [client.submit(batch_table, study, start, stop, pure=False,
                                      key=f'qfa-fleet-{study.digest()}-{start}-{stop}')
                        for start, stop in pending]
@@ -154,8 +190,12 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
                     _write_atomically(future.result(), _part_path(parts, start, stop))
                     bar.update(stop - start)
                     future.release()
+        except KeyboardInterrupt:
+            # Stopped mid-start, the cluster may log broken connections: asked for, not news.
+            logging.getLogger('distributed').setLevel(logging.CRITICAL)
+            raise
         finally:
-            if own_client:
+            if own_client and client is not None:
                 client.close()
             if cluster is not None:
                 cluster.close()

@@ -29,20 +29,34 @@ class CalibrationKeeper:
         self.compensation = True
         self.problem = None
         self.unsaved = False
+        self.loaded = 'not loaded yet'
+        """Where the state came from at start (:meth:`load`), for the start-up line."""
 
     @property
     def is_calibrated(self):
         """Return True when references exist and the stored corrections are applied."""
         return self.state.has_reference and self.compensation
 
-    def load(self):
-        """Restore the persisted state; a bad file is set aside and the sensor starts bare."""
+    def load(self, fresh=False):
+        """
+        Restore the persisted state; a bad file is set aside and the sensor starts bare.
+
+        :param fresh: Do not read the state file at all (``state.fresh``): start on the
+            nominal words, uncompensated; the next save replaces the file.
+        """
         store = self.store
+        if store.path is None:
+            self.loaded = 'fresh (state_file empty: kept in memory only)'
+            return
         removed = store.remove_leftovers()
         if removed:
             self._logger.warning(
                 f'removed {len(removed)} temporary state file(s) an interrupted save left: '
                 + ', '.join(path.name for path in removed))
+        if fresh:
+            self.loaded = f'fresh (state.fresh: {store.path} not loaded)'
+            return
+        self.loaded = f'fresh (no state file at {store.path})'
         try:
             state, compensation = store.load()
         except StateFileError as error:
@@ -65,8 +79,19 @@ class CalibrationKeeper:
             return
         self.state = state
         self.compensation = compensation
-        self._logger.info(f'calibration state loaded from {store.path} '
-                          f'(compensation {"on" if compensation else "off"})')
+        self.loaded = f'loaded from {store.path}'
+
+    def startup_summary(self):
+        """Return what :meth:`load` left: the state's origin and the compensation switch."""
+        state = self.state
+        stored = [name for name, present in (
+            ('references', state.has_reference),
+            ('gain corrections', state.controller_gain or state.n_vref),
+            ('temperature ROM', state.temperature), ('gyro bias', state.gyro_bias))
+            if present]
+        applied = self.compensation and any(name != 'references' for name in stored)
+        return (f'calibration state {self.loaded}: compensation {"on" if applied else "off"} '
+                f'({", ".join(stored) or "nothing"} stored)')
 
     def save(self):
         """Persist the calibration state; return a problem description or None."""

@@ -118,7 +118,7 @@ class QfaNode(Node):
         # calibration state and the counters of the collaborators; _lock makes each
         # tick and each callback's use of them atomic.
         self._lock = threading.Lock()
-        self._keeper.load()
+        self._keeper.load(fresh=values['state.fresh'])
 
         # REP-2003: a sensor driver offers the system-default (reliable) QoS; a depth of
         # 100 lets a reliable subscriber be briefly late. Users override it the ROS way:
@@ -208,6 +208,11 @@ class QfaNode(Node):
             f'{values["thermal.ambient_profile"] if thermal else "off"}, '
             f'calibration state {self._keeper.store.path or "in memory only"}, files only '
             f'under {output_directory(values)}')
+        unit = values['unit.seed'] if values['unit.seed'] >= 0 else values['seed']
+        self.get_logger().info(
+            f'{self._keeper.startup_summary()}; unit '
+            f'{f"drawn, seed {unit}" if values["unit.draw"] else "nominal"}; to start fresh '
+            f'(uncompensated): -p state.fresh:=true')
 
     # Parameters ------------------------------------------------------------------------
     def validate_parameters_callback(self, parameters):

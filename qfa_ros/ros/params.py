@@ -360,6 +360,10 @@ PARAMETERS = (
                   'expanded)'),
     ParameterSpec('state_file', '~/.ros/qfa_ros/calibration.json',
                   'Persisted calibration state (JSON); empty: keep it in memory only', True),
+    ParameterSpec('state.fresh', False,
+                  'Start fresh: ignore state_file at start (not loaded: nominal words, no '
+                  'compensation, no references); the next saved calibration replaces it',
+                  True),
     ParameterSpec('recorder.enabled', False,
                   'Record imu/data_raw, imu/temperature and /diagnostics to MCAP'),
     ParameterSpec('recorder.directory', 'recordings',
