@@ -259,9 +259,7 @@ class ScheduleService:
         if run.fast:
             stream.finish_fast_schedule()
         else:
-            stream.end_schedule()
-            if stream.on_schedule_end is not None:
-                stream.on_schedule_end()
+            stream.schedule_ended()
         return True, f'{run.kind} schedule cancelled; sensor restored, stream resuming'
 
     def _failed(self, response, kind, error, before):

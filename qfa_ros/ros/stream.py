@@ -303,7 +303,7 @@ class SampleStream:
             self.computed += chunk
             count -= chunk
             if run is not None and run.feed(output):
-                self._schedule_ended()
+                self.schedule_ended()
 
     def _run_fast_slice(self, run):
         """Drive a fast schedule for up to ``FAST_SLICE_S`` of CPU time."""
@@ -328,9 +328,10 @@ class SampleStream:
             due = self.grid.due(self._now_ns())
             self.withheld += max(0, due - self.grid.next_index)
             self.grid.next_index = max(self.grid.next_index, due)
-        self._schedule_ended()
+        self.schedule_ended()
 
-    def _schedule_ended(self):
+    def schedule_ended(self):
+        """Forget the running schedule and wake whoever awaits its end; the stream resumes."""
         self.end_schedule()
         if self.on_schedule_end is not None:
             self.on_schedule_end()
