@@ -1,8 +1,10 @@
 """Fleet studies: validation before work, identical results whatever the workers, resume."""
 
+import importlib.util
 import json
 import os
 from pathlib import Path
+import shutil
 import signal
 import subprocess
 import sys
@@ -129,4 +131,34 @@ def test_results_of_other_model_code_are_not_mixed_in(tmp_path):
         {'digest': study.digest(), 'code': 'an-older-model'}))
     with pytest.raises(StudyError, match='other model code'):
         run_study(study, out, workers=1, progress=False)
-    assert code_digest() == code_digest() and len(code_digest()) == 16
+
+
+def _digest_of_copy(tmp_path, edit=None):
+    """Return ``code_digest()`` of a copy of qfa_ros/ after ``edit(copy)``."""
+    copy = tmp_path / f'copy{len(list(tmp_path.glob("copy*")))}' / 'qfa_ros'
+    shutil.copytree(ROOT / 'qfa_ros', copy, ignore=shutil.ignore_patterns('__pycache__'))
+    if edit:
+        edit(copy)
+    spec = importlib.util.spec_from_file_location(f'runner_{copy.parent.name}',
+                                                  copy / 'fleet' / 'runner.py')
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.code_digest()
+
+
+def _append(relative, text):
+    def edit(copy):
+        path = copy / relative
+        path.write_text((path.read_text() if path.exists() else '') + text)
+    return edit
+
+
+def test_code_digest_follows_the_simulating_code_only(tmp_path):
+    digest = code_digest()
+    assert len(digest) == 16
+    assert _digest_of_copy(tmp_path) == digest, 'the same sources give the same digest'
+    # One changed constant in the model changes the digest; so does a new module there.
+    assert _digest_of_copy(tmp_path, _append('model/design.py', '\nEXTRA = 1\n')) != digest
+    assert _digest_of_copy(tmp_path, _append('calibration/new_stage.py', 'X = 1\n')) != digest
+    # The node and the recorder do not compute a unit's rows.
+    assert _digest_of_copy(tmp_path, _append('ros/node.py', '\n# note\n')) == digest

@@ -1,9 +1,12 @@
 """The architecture as a contract: layers, ROS only where it belongs, no circles."""
 
 import ast
+import importlib
+import inspect
 from pathlib import Path
 import subprocess
 import sys
+import textwrap
 
 import grimp
 import pytest
@@ -66,6 +69,108 @@ def test_no_private_name_imported_across_modules():
                 offences += [f'{path.relative_to(ROOT)}: {alias.name} from {node.module}'
                              for alias in node.names if alias.name.startswith('_')]
     assert not offences
+
+
+# Documented public API that happens to start with an underscore.
+PUBLIC_UNDERSCORE_NAMES = {
+    '_fields_',  # ctypes.Structure field list (ctypes documentation)
+    '_replace', '_asdict', '_fields', '_make',  # collections.namedtuple methods
+    '_exit',  # os._exit (documented: exit without cleanup, as after fork)
+}
+"""Names allowed as attributes of other packages' objects: their documentation makes them public.
+
+Everything else a name in qfa_ros/ reaches with a leading underscore must be defined in
+qfa_ros/ itself (the allow-list of private dependency attributes is empty)."""
+
+
+def _private(name):
+    return name.startswith('_') and not (name.startswith('__') and name.endswith('__'))
+
+
+def _project_private_names(trees):
+    """Return every private name qfa_ros/ defines: functions, classes, attributes, variables."""
+    names = set()
+    for tree in trees:
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                names.add(node.name)
+            elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+                names.add(node.attr)
+            elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+                names.add(node.id)
+            elif isinstance(node, ast.arg):
+                names.add(node.arg)
+            elif isinstance(node, ast.keyword) and node.arg:
+                names.add(node.arg)  # dataclass fields built with keywords
+            elif isinstance(node, ast.alias):
+                names.add(node.asname or node.name.split('.')[0])
+    return {name for name in names if _private(name)}
+
+
+def _dependency_private_names(tree):
+    """Return the private attributes the dependency base classes of a module's classes use.
+
+    A class of qfa_ros/ that derives from another package's class (``rclpy.node.Node``)
+    must neither read nor overwrite that class's private state (``self._parameter_overrides``).
+    """
+    imported = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and \
+                not node.module.startswith('qfa_ros'):
+            imported.update({alias.asname or alias.name: (node.module, alias.name)
+                             for alias in node.names})
+    found = {}
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.ClassDef):
+            continue
+        names = set()
+        for base in node.bases:
+            if isinstance(base, ast.Name) and base.id in imported:
+                module, name = imported[base.id]
+                cls = getattr(importlib.import_module(module), name)
+                for ancestor in inspect.getmro(cls) if inspect.isclass(cls) else ():
+                    try:
+                        source = textwrap.dedent(inspect.getsource(ancestor))
+                    except (OSError, TypeError):  # built in (ctypes.Structure, object)
+                        continue
+                    names |= {a.attr for a in ast.walk(ast.parse(source))
+                              if isinstance(a, ast.Attribute) and _private(a.attr)}
+        found[node.name] = names
+    return found
+
+
+def private_dependency_uses(sources):
+    """Return ``file:line: what`` for each private name of another package qfa_ros/ touches."""
+    trees = {path: ast.parse(path.read_text()) for path in sources}
+    own = _project_private_names(trees.values())
+    offences = []
+    for path, tree in trees.items():
+        where = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                modules = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                modules = [node.module] + [f'{node.module}.{a.name}' for a in node.names]
+            else:
+                modules = []
+            offences += [f'{where}:{node.lineno}: imports {module}' for module in modules
+                         if not module.startswith('qfa_ros')
+                         and any(_private(part) for part in module.split('.'))]
+            if isinstance(node, ast.Attribute) and _private(node.attr) and \
+                    node.attr not in own | PUBLIC_UNDERSCORE_NAMES:
+                offences.append(f'{where}:{node.lineno}: .{node.attr}')
+        for cls in (n for n in ast.walk(tree) if isinstance(n, ast.ClassDef)):
+            inherited = _dependency_private_names(tree).get(cls.name, set())
+            offences += [f'{where}:{node.lineno}: {cls.name} touches inherited .{node.attr}'
+                         for node in ast.walk(cls)
+                         if isinstance(node, ast.Attribute) and node.attr in inherited
+                         and isinstance(node.value, ast.Name) and node.value.id == 'self']
+    return sorted(set(offences))
+
+
+def test_no_private_attribute_of_a_dependency_is_used():
+    offences = private_dependency_uses(sorted(PACKAGE.rglob('*.py')))
+    assert not offences, 'private names of other packages:\n' + '\n'.join(offences)
 
 
 @pytest.mark.parametrize('path', [p for p, _ in _modules()], ids=lambda p: p.stem)

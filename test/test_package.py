@@ -22,14 +22,13 @@ ROSDEP_KEYS = {
     'matplotlib': 'python3-matplotlib', 'numba': 'python3-numba',
     'mcap': 'mcap-ros2-support', 'mcap_ros2': 'mcap-ros2-support',
     'launch': 'launch', 'launch_ros': 'launch_ros', 'tqdm': 'python3-tqdm',
-    'nav_msgs': 'nav_msgs',
+    'nav_msgs': 'nav_msgs', 'rosbags': 'python3-rosbags-pip',
 }
 # No rosdep key exists for these (checked in rosdep/python.yaml): only the fleet studies
 # (qfa-fleet) use them, and they come from requirements/base.txt with pip.
 PIP_ONLY = {'dask', 'distributed', 'pyarrow'}
 TEST_KEYS = {'pytest': 'python3-pytest', 'pytest-timeout': 'python3-pytest-timeout',
-             'ruff': 'python3-ruff-pip', 'rosbags': 'python3-rosbags-pip',
-             'hypothesis': 'python3-hypothesis'}
+             'ruff': 'python3-ruff-pip', 'hypothesis': 'python3-hypothesis'}
 
 
 def imported_modules(paths):
