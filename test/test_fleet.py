@@ -76,25 +76,57 @@ def test_one_and_two_workers_give_identical_tables(tmp_path):
     assert one.slice(2, 1).to_pylist() == alone
 
 
+FIRST_TWO_BATCHES_ONLY = """
+import sys
+import threading
+
+from qfa_ros.cli import fleet
+from qfa_ros.fleet import runner
+
+original = runner.batch_table
+
+
+def first_two_batches_only(study, start, stop):
+    if start >= 2:
+        threading.Event().wait()  # never finishes: the run is killed meanwhile
+    return original(study, start, stop)
+
+
+runner.batch_table = first_two_batches_only
+sys.exit(fleet.main(sys.argv[1:]))
+"""
+"""``qfa-fleet`` whose batches from unit 2 on never finish (a run killed half way)."""
+
+
 def test_killed_study_restarts_with_only_the_missing_units(tmp_path):
     study_file = write_study(tmp_path / 'study.yaml', {**CHEAP, 'units': 4})
     out = tmp_path / 'study.parquet'
     env = {**os.environ, 'PYTHONPATH': str(ROOT)}
+    # Units 2 and 3 never finish in this run: the kill always finds two batches written
+    # and two running, however fast or slow the machine.
+    log = open(tmp_path / 'fleet.log', 'w')
     process = subprocess.Popen(
-        [sys.executable, '-m', 'qfa_ros.cli.fleet', str(study_file), '--workers', '1',
+        [sys.executable, '-c', FIRST_TWO_BATCHES_ONLY, str(study_file), '--workers', '1',
          '--no-progress'], cwd=tmp_path, env=env, start_new_session=True,
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        stdout=subprocess.DEVNULL, stderr=log)
     parts = parts_directory(out)
     deadline = time.monotonic() + 240
     try:
-        while time.monotonic() < deadline and len(list(parts.glob('batch-*.parquet'))) < 2:
-            assert process.poll() is None, 'the study ended before it could be killed'
-            time.sleep(0.05)
+        # Each batch appears by an atomic rename: a file seen is a finished batch.
+        while len(list(parts.glob('batch-*.parquet'))) < 2:
+            assert time.monotonic() < deadline, 'two batches not written in 240 s'
+            try:
+                process.wait(timeout=0.05)
+            except subprocess.TimeoutExpired:
+                continue
+            pytest.fail('the study ended before it was killed: '
+                        + (tmp_path / 'fleet.log').read_text())
     finally:
         os.killpg(process.pid, signal.SIGKILL)
         process.wait(timeout=30)
+        log.close()
     kept = {path.name: path.stat().st_mtime_ns for path in parts.glob('batch-*.parquet')}
-    assert 2 <= len(kept) < 4, kept
+    assert sorted(kept) == ['batch-0000000-0000001.parquet', 'batch-0000001-0000002.parquet']
     lines = []
     table = run_study(Study.load(study_file), out, workers=1, progress=False,
                       log=lines.append)

@@ -9,7 +9,6 @@ import sys
 import textwrap
 
 import grimp
-import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / 'qfa_ros'
@@ -173,11 +172,38 @@ def test_no_private_attribute_of_a_dependency_is_used():
     assert not offences, 'private names of other packages:\n' + '\n'.join(offences)
 
 
-@pytest.mark.parametrize('path', [p for p, _ in _modules()], ids=lambda p: p.stem)
-def test_long_modules_say_why(path):
-    lines = len(path.read_text().splitlines())
-    if lines <= LONG_MODULE_LINES:
-        return
-    doc = ast.get_docstring(ast.parse(path.read_text())) or ''
-    assert 'one cohesive' in doc.lower(), \
-        f'{path.relative_to(ROOT)} has {lines} lines: split it or say why it is one cohesive thing'
+LONG_MODULES = {
+    'bag/writer.py': (650, 'one writer class: its records, durability and size accounting'),
+    'calibration/estimation.py': (850, 'the three schedules share the sensor port and checks'),
+    'calibration/tempfit.py': (950, 'the fits, their comparison and the compensator'),
+    'model/trajectory.py': (700, 'the pose, its exact kinematics and the scripts'),
+    'model/trajectory_means.py': (650, 'the fits, their integrals and the mean polynomials'),
+    'model/triad.py': (750, 'the assembly every run advances together'),
+    'report/figures.py': (700, 'every figure reads the same loaded bag contents'),
+    'ros/params.py': (900, 'the parameter table and what is derived from it'),
+}
+"""Modules allowed over LONG_MODULE_LINES: path -> (line budget, why it stays one module).
+
+Growing past the budget, or a new module past LONG_MODULE_LINES, fails until a reviewer
+either splits the module or raises its budget here (a visible decision in the diff)."""
+
+
+def long_module_offences(package=PACKAGE, limit=LONG_MODULE_LINES, allowed=LONG_MODULES):
+    """Return why each module of ``package`` breaks its line budget (empty when none does)."""
+    offences = []
+    for path in sorted(package.rglob('*.py')):
+        name = path.relative_to(package).as_posix()
+        lines = len(path.read_text().splitlines())
+        budget = allowed.get(name, (limit, None))[0]
+        if lines > budget:
+            offences.append(f'{name}: {lines} lines > {budget}: split it, or raise its budget '
+                            'in LONG_MODULES with the reason')
+    offences += [f'{name}: in LONG_MODULES but missing or no longer long: drop the entry'
+                 for name in allowed if not (package / name).is_file()
+                 or len((package / name).read_text().splitlines()) <= limit]
+    return offences
+
+
+def test_long_modules_are_the_reviewed_few():
+    offences = long_module_offences()
+    assert not offences, '\n'.join(offences)
