@@ -3,7 +3,7 @@ Message types the bag writer knows: definitions, type hashes, encoders, times.
 
 Every standard type this project records is registered from :mod:`qfa_ros.bag.msgdefs`;
 :func:`register_message_definition` adds more. Messages given as mappings are checked
-against their definition and encoded to CDR with mcap-ros2-support.
+against their definition and encoded to CDR with the public type store of rosbags.
 """
 
 import ast
