@@ -122,6 +122,13 @@ def test_integers_typed_for_doubles_at_start_are_stored_as_doubles(tmp_path):
     assert status == 0, node.log()
 
 
+def test_other_types_typed_for_doubles_at_start_are_refused(tmp_path):
+    node = NodeProcess(domain_id('typed'), tmp_path, {'sample_rate_hz': 'fast',
+                                                      'output_dir': str(tmp_path)})
+    assert node.wait(timeout=60.0) != 0
+    assert "'sample_rate_hz' to 'fast' of type 'STRING', expecting type 'DOUBLE'" in node.log()
+
+
 def test_sigterm_during_a_realtime_schedule_stops_within_seconds(tmp_path):
     domain = domain_id('stop-schedule')
     node = NodeProcess(domain, tmp_path, {

@@ -94,10 +94,13 @@ class QfaNode(Node):
                 try:
                     self.declare_parameter(spec.name, spec.default, descriptor(spec))
                 except InvalidParameterTypeException:
-                    # Read the start value untyped, then declare the double it means.
-                    typed = as_declared_type(self.declare_parameter(
-                        spec.name, spec.default, ParameterDescriptor(dynamic_typing=True)))
+                    # Read the start value untyped; declare the double it means, if any.
+                    given = self.declare_parameter(spec.name, spec.default,
+                                                   ParameterDescriptor(dynamic_typing=True))
+                    typed = as_declared_type(given)
                     self.undeclare_parameter(spec.name)
+                    if typed is given:
+                        raise
                     self.declare_parameter(spec.name, typed.value, descriptor(spec),
                                            ignore_override=True)
             except ParameterException as error:
