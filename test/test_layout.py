@@ -107,10 +107,11 @@ def _project_private_names(trees):
 
 
 def _dependency_private_names(tree):
-    """Return the private attributes the dependency base classes of a module's classes use.
+    """Return, per class of a module, the private names its other-package base classes use.
 
-    A class of qfa_ros/ that derives from another package's class (``rclpy.node.Node``)
-    must neither read nor overwrite that class's private state (``self._parameter_overrides``).
+    A class of qfa_ros/ that derives from another package's class (``rclpy.node.Node``,
+    ``threading.Thread``) must neither read nor overwrite that class's private state
+    (``self._parameter_overrides``) or methods (``Thread._stop``).
     """
     imported = {}
     for node in ast.walk(tree):
@@ -118,22 +119,36 @@ def _dependency_private_names(tree):
                 not node.module.startswith('qfa_ros'):
             imported.update({alias.asname or alias.name: (node.module, alias.name)
                              for alias in node.names})
+        elif isinstance(node, ast.Import):
+            imported.update({alias.asname or alias.name.split('.')[0]:
+                             (alias.name if alias.asname else alias.name.split('.')[0], None)
+                             for alias in node.names if not alias.name.startswith('qfa_ros')})
     found = {}
     for node in ast.walk(tree):
         if not isinstance(node, ast.ClassDef):
             continue
         names = set()
         for base in node.bases:
-            if isinstance(base, ast.Name) and base.id in imported:
-                module, name = imported[base.id]
-                cls = getattr(importlib.import_module(module), name)
-                for ancestor in inspect.getmro(cls) if inspect.isclass(cls) else ():
-                    try:
-                        source = textwrap.dedent(inspect.getsource(ancestor))
-                    except (OSError, TypeError):  # built in (ctypes.Structure, object)
-                        continue
-                    names |= {a.attr for a in ast.walk(ast.parse(source))
-                              if isinstance(a, ast.Attribute) and _private(a.attr)}
+            chain = []
+            while isinstance(base, ast.Attribute):
+                chain.insert(0, base.attr)
+                base = base.value
+            if not isinstance(base, ast.Name) or base.id not in imported:
+                continue
+            module, name = imported[base.id]
+            cls = importlib.import_module(module)
+            for part in ([name] if name else []) + chain:
+                cls = getattr(cls, part)
+            for ancestor in inspect.getmro(cls) if inspect.isclass(cls) else ():
+                try:
+                    source = textwrap.dedent(inspect.getsource(ancestor))
+                except (OSError, TypeError):  # built in (ctypes.Structure, object)
+                    continue
+                for item in ast.walk(ast.parse(source)):
+                    if isinstance(item, ast.Attribute) and _private(item.attr):
+                        names.add(item.attr)
+                    elif isinstance(item, ast.FunctionDef) and _private(item.name):
+                        names.add(item.name)
         found[node.name] = names
     return found
 
