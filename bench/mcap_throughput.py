@@ -138,7 +138,7 @@ def main():
         f'chunk size {DEFAULT_CHUNK_SIZE // 1024} KiB, chunk CRCs on, one topic.',
         '',
         f'CDR payload {len(serialized[0])} bytes per message; serializing a mapping alone '
-        f'(recorder field check + mcap-ros2-support encoder) runs at {encode_rate:,.0f} msg/s.',
+        f'(recorder field check + rosbags type-store encoder) runs at {encode_rate:,.0f} msg/s.',
         'Times include opening, the summary, fsync and the atomic rename.',
         '',
         '| path | compression | messages/s | file bytes/message |',

@@ -205,7 +205,15 @@ def test_still_sensor_is_not_refused_for_motion():
         triad = QfaTriad(TriadConfig(), rng=seed)
         state = CalibrationState()
         triad.run_for(0.1)
-        run_schedule(triad, feedback_schedule(triad, state, chosen.feedback, capture=True))
+        result = run_schedule(
+            triad, feedback_schedule(triad, state, chosen.feedback, capture=True))
+        # Refused, it would raise; here it ran every switching segment (the check between
+        # segments needs four or more) and captured a step on each axis.
+        assert result.kind == 'feedback' and result.captured, seed
+        on = np.asarray(result.points['reference_on'], dtype=bool)
+        assert len(np.unique(result.points['segment'])) >= 4 and on.any() and (~on).any()
+        assert np.all(np.isfinite(result.measured)) and np.all(result.measured != 0.0), seed
+        assert [ref.feedback_step for ref in state.references] == result.measured.tolist()
 
 
 def test_schedule_refuses_to_start_while_a_loop_is_open():

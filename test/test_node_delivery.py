@@ -1,5 +1,6 @@
 """Delivery as a sensor-data subscriber sees it: each sample at its instant, skips announced."""
 
+import ctypes
 from pathlib import Path
 import signal
 import struct
@@ -21,6 +22,9 @@ from qfa_ros.ros.pacing import (
     CATCH_UP_SPACING_NS,
     PACER_SLICE_NS,
     request_short_time_slice,
+    SCHED_ATTR_SIZE_VER1,
+    sched_setattr,
+    SchedAttr,
 )
 
 # Batches of 10 samples: published as one burst, half of each would be lost by a keep-last-5
@@ -142,6 +146,25 @@ def time_slice_ns(task):
     return None
 
 
+def test_sched_attr_has_the_kernel_abi_layout():
+    # include/uapi/linux/sched/types.h, struct sched_attr, SCHED_ATTR_SIZE_VER1.
+    offsets = {'size': 0, 'sched_policy': 4, 'sched_flags': 8, 'sched_nice': 16,
+               'sched_priority': 20, 'sched_runtime': 24, 'sched_deadline': 32,
+               'sched_period': 40, 'sched_util_min': 48, 'sched_util_max': 52}
+    assert ctypes.sizeof(SchedAttr) == SCHED_ATTR_SIZE_VER1 == 56
+    assert {name: getattr(SchedAttr, name).offset for name in offsets} == offsets
+
+
+def test_sched_setattr_is_a_no_op_where_unsupported_and_reports_a_refusal(monkeypatch):
+    called = []
+    monkeypatch.setattr(ctypes, 'CDLL', lambda *args, **kwargs: called.append(args))
+    assert sched_setattr(0, SchedAttr(size=SCHED_ATTR_SIZE_VER1), machine='sparc64') is False
+    assert called == [], 'no system call without a known number'
+    monkeypatch.undo()
+    # A size the kernel does not know is refused (E2BIG/EINVAL): False, not an exception.
+    assert sched_setattr(0, SchedAttr(size=1)) is False
+
+
 def kernel_grants_short_slices():
     """Return True if a thread here gets the slice request_short_time_slice asks for."""
     seen = []
@@ -156,17 +179,37 @@ def kernel_grants_short_slices():
     return seen == [PACER_SLICE_NS]
 
 
+def process_state(pid):
+    """Return the state letter of process ``pid`` (``T`` stopped, ``S`` sleeping, ...)."""
+    text = Path(f'/proc/{pid}/stat').read_text()
+    return text[text.rindex(')') + 2]
+
+
+def stall(node, client, owed):
+    """
+    Stop the node (SIGSTOP) until it owes ``owed`` samples, then let it go on (SIGCONT).
+
+    Waits for events, not for a fixed time: the process seen stopped, the clock ``owed``
+    sample periods past that (it published nothing since), the process seen running again.
+    """
+    node.process.send_signal(signal.SIGSTOP)
+    try:
+        client.spin_until(lambda: process_state(node.pid) in 'Tt', 10, 'the node stopped')
+        stopped = time.time_ns()
+        client.spin_until(lambda: time.time_ns() >= stopped + owed * PERIOD_NS, 30,
+                          f'{owed} samples owed')
+    finally:
+        node.process.send_signal(signal.SIGCONT)
+    client.spin_until(lambda: process_state(node.pid) not in 'Tt', 10, 'the node running')
+
+
 def test_a_short_stall_is_caught_up_as_a_stream_not_a_burst(setup):
     # Stopped for 0.3 s (less than the 1 s it always catches up), the node owes ~30
     # samples at once: back to back, a keep-last-5 subscriber would lose most of them.
     node, client, everything = setup['node'], setup['client'], setup['everything']
     client.spin_until(lambda: len(everything.stamps) > 10, 60, 'the stream')
     everything.clear()
-    node.process.send_signal(signal.SIGSTOP)
-    try:
-        time.sleep(0.3)  # the stall itself
-    finally:
-        node.process.send_signal(signal.SIGCONT)
+    stall(node, client, owed=30)
     resumed = time.time_ns()
     client.spin_until(lambda: sum(s >= resumed for s in everything.stamps) > 20, 30,
                       'samples after the stall')
@@ -191,11 +234,8 @@ def test_a_stall_that_skips_samples_is_a_warning(setup):
     everything.clear()
     client.spin_until(lambda: len(everything.stamps) > 10 and diagnostics, 60, 'the stream')
     assert stream_status(diagnostics).level == DiagnosticStatus.OK
-    node.process.send_signal(signal.SIGSTOP)
-    try:
-        time.sleep(2.0)  # the stall itself: longer than the 1 s the node ever catches up
-    finally:
-        node.process.send_signal(signal.SIGCONT)
+    # The stall itself: longer than the 1 s the node ever catches up.
+    stall(node, client, owed=int(2 * RATE))
     everything.clear()
     diagnostics.clear()
     client.spin_until(lambda: diagnostics and 'skipped' in stream_status(diagnostics).message,

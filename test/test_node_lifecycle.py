@@ -104,6 +104,31 @@ def test_node_answers_and_streams_after_hundreds_of_participants(tmp_path, busy_
     assert 'calibration state and recording closed' in node.log()
 
 
+def test_integers_typed_for_doubles_at_start_are_stored_as_doubles(tmp_path):
+    # The parameters file is JSON: 1000 and [1, 2, 3] reach rclpy as integers.
+    domain = domain_id('typed')
+    node = NodeProcess(domain, tmp_path, {'sample_rate_hz': 1000, 'diagnostics_rate_hz': 2,
+                                          'drift.feedback_ppm': [1, 2, 3],
+                                          'output_dir': str(tmp_path)})
+    client = Client(domain)
+    try:
+        values = client.get_parameters(
+            ['sample_rate_hz', 'diagnostics_rate_hz', 'drift.feedback_ppm'], timeout=60.0)
+    finally:
+        client.close()
+        status = node.stop(signal.SIGINT)
+    assert values[:2] == [1000.0, 2.0] and all(type(v) is float for v in values[:2])
+    assert list(values[2]) == [1.0, 2.0, 3.0] and all(type(v) is float for v in values[2])
+    assert status == 0, node.log()
+
+
+def test_other_types_typed_for_doubles_at_start_are_refused(tmp_path):
+    node = NodeProcess(domain_id('typed'), tmp_path, {'sample_rate_hz': 'fast',
+                                                      'output_dir': str(tmp_path)})
+    assert node.wait(timeout=60.0) != 0
+    assert "'sample_rate_hz' to 'fast' of type 'STRING', expecting type 'DOUBLE'" in node.log()
+
+
 def test_sigterm_during_a_realtime_schedule_stops_within_seconds(tmp_path):
     domain = domain_id('stop-schedule')
     node = NodeProcess(domain, tmp_path, {

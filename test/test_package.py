@@ -1,10 +1,17 @@
 """The package layout the foundation issue asks for (ament_python, one-command setup)."""
 
 import ast
+import configparser
+from glob import glob
+import importlib
+import os
 from pathlib import Path
+import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
+
+from packaging.requirements import Requirement
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -22,14 +29,13 @@ ROSDEP_KEYS = {
     'matplotlib': 'python3-matplotlib', 'numba': 'python3-numba',
     'mcap': 'mcap-ros2-support', 'mcap_ros2': 'mcap-ros2-support',
     'launch': 'launch', 'launch_ros': 'launch_ros', 'tqdm': 'python3-tqdm',
-    'nav_msgs': 'nav_msgs',
+    'nav_msgs': 'nav_msgs', 'rosbags': 'python3-rosbags-pip',
 }
 # No rosdep key exists for these (checked in rosdep/python.yaml): only the fleet studies
 # (qfa-fleet) use them, and they come from requirements/base.txt with pip.
 PIP_ONLY = {'dask', 'distributed', 'pyarrow'}
 TEST_KEYS = {'pytest': 'python3-pytest', 'pytest-timeout': 'python3-pytest-timeout',
-             'ruff': 'python3-ruff-pip', 'rosbags': 'python3-rosbags-pip',
-             'hypothesis': 'python3-hypothesis'}
+             'ruff': 'python3-ruff-pip', 'hypothesis': 'python3-hypothesis'}
 
 
 def imported_modules(paths):
@@ -66,14 +72,30 @@ def test_package_xml_declares_every_import_by_an_existing_rosdep_key():
     assert not {'python3-numba-pip', 'python3-mcap-pip'} & exec_depends
 
 
+def modules_run_with_dash_m(paths):
+    """Return the modules the files in ``paths`` run as ``[..., '-m', 'module', ...]``."""
+    names = set()
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.List):
+                items = [e.value if isinstance(e, ast.Constant) else None for e in node.elts]
+                names.update(item for previous, item in zip(items, items[1:])
+                             if previous == '-m' and isinstance(item, str))
+    return names
+
+
 def test_test_dependencies_are_declared_as_the_tests_use_them():
     root = ET.parse(ROOT / 'package.xml').getroot()
     test_depends = {e.text for e in root.findall('test_depend')}
     assert set(TEST_KEYS.values()) <= test_depends
     assert not {'ament_flake8', 'ament_pep257'} & test_depends, 'declared but not used'
-    assert 'timeout' in (ROOT / 'pytest.ini').read_text()  # pytest-timeout
-    assert 'ruff' in (ROOT / 'test' / 'test_lint.py').read_text()
-    assert 'rosbags' in imported_modules((ROOT / 'test').glob('test_*.py'))
+    tests = sorted((ROOT / 'test').glob('*.py'))
+    used = imported_modules(tests) | modules_run_with_dash_m(tests)
+    ini = configparser.ConfigParser()
+    ini.read(ROOT / 'pytest.ini')
+    if int(ini['pytest'].get('timeout', '0')) > 0:
+        used.add('pytest-timeout')  # the plugin enforces pytest.ini's timeout
+    assert set(TEST_KEYS) <= used, f'declared, not used: {set(TEST_KEYS) - used}'
 
 
 def test_card_top_level_exists():
@@ -83,37 +105,99 @@ def test_card_top_level_exists():
     assert (ROOT / 'resource' / 'qfa_ros').is_file()
 
 
+def setup_keywords():
+    """Return the keyword arguments of ``setup()`` in setup.py as AST nodes."""
+    call = next(node for node in ast.walk(ast.parse((ROOT / 'setup.py').read_text()))
+                if isinstance(node, ast.Call) and getattr(node.func, 'id', None) == 'setup')
+    return {keyword.arg: keyword.value for keyword in call.keywords}
+
+
 def test_console_scripts_install_where_ros2_run_finds_them():
-    cfg = (ROOT / 'setup.cfg').read_text()
-    assert 'script_dir=$base/lib/qfa_ros' in cfg
-    assert 'install_scripts=$base/lib/qfa_ros' in cfg
-    tree = ast.parse((ROOT / 'setup.py').read_text())
-    entry_points = [ast.literal_eval(keyword.value) for node in ast.walk(tree)
-                    if isinstance(node, ast.Call) for keyword in node.keywords
-                    if keyword.arg == 'entry_points']
-    assert len(entry_points) == 1
-    scripts = entry_points[0]['console_scripts']
-    names = {entry.split('=')[0].strip() for entry in scripts}
-    assert names == {'qfa-sim', 'qfa_node', 'qfa-replay', 'qfa-report', 'qfa-fleet'}
-    targets = [entry.split('=')[1].strip() for entry in scripts]
-    assert len(set(targets)) == len(targets), 'one executable name per program'
-    assert 'qfa-sim = qfa_ros.cli.sim:main' in scripts
-    assert 'qfa_node = qfa_ros.cli.node:main' in scripts
-    assert "glob('launch/*.launch.py')" in (ROOT / 'setup.py').read_text()
-    assert '/launch' in (ROOT / 'setup.py').read_text()
+    cfg = configparser.ConfigParser()
+    cfg.read(ROOT / 'setup.cfg')
+    assert cfg['develop']['script_dir'] == '$base/lib/qfa_ros'
+    assert cfg['install']['install_scripts'] == '$base/lib/qfa_ros'
+    keywords = setup_keywords()
+    scripts = ast.literal_eval(keywords['entry_points'])['console_scripts']
+    targets = dict((part.strip() for part in entry.split('=')) for entry in scripts)
+    assert set(targets) == {'qfa-sim', 'qfa_node', 'qfa-replay', 'qfa-report', 'qfa-fleet'}
+    assert len(set(targets.values())) == len(targets), 'one executable name per program'
+    assert targets['qfa-sim'] == 'qfa_ros.cli.sim:main'
+    assert targets['qfa_node'] == 'qfa_ros.cli.node:main'
+    for target in targets.values():
+        module, function = target.split(':')
+        assert callable(getattr(importlib.import_module(module), function)), target
+    # data_files as setup() gets them: the launch files go to share/qfa_ros/launch.
+    data_files = dict(eval(compile(ast.Expression(keywords['data_files']), 'setup.py', 'eval'),
+                           {'glob': lambda pattern: sorted(glob(str(ROOT / pattern))),
+                            'package_name': 'qfa_ros'}))
+    launch_files = sorted(str(p) for p in (ROOT / 'launch').glob('*.launch.py'))
+    assert launch_files and data_files['share/qfa_ros/launch'] == launch_files
 
 
-def test_make_targets_and_ci_entry_point():
-    makefile = (ROOT / 'Makefile').read_text()
-    for target in ('run:', 'test:'):
-        assert f'\n{target}' in makefile
-    # Both set up .venv from the pinned requirements; ROS wheels only without rclpy.
-    assert 'requirements/ros.txt' in makefile and 'import rclpy' in makefile
-    assert 'make test' in (ROOT / '.ci' / 'run').read_text()
+FAKE_PYTHON = """#!/bin/sh
+echo "$*" >> "$FAKE_LOG"
+if [ "$1" = -c ]; then exit "$FAKE_RCLPY"; fi
+if [ "$1 $2" = "-m venv" ]; then
+  shift 2; [ "$1" = --system-site-packages ] && shift
+  mkdir -p "$1/bin" "$1/lib/qfa_ros"; cp "$0" "$1/bin/python"
+fi
+exit 0
+"""
+"""A python that logs its arguments, answers ``import rclpy`` with $FAKE_RCLPY, makes venvs."""
+
+
+def make_setup(tmp_path, rclpy_status):
+    """Run ``make setup`` on a copy of the project with a fake python; return its calls."""
+    project = tmp_path / f'project{rclpy_status}'
+    project.mkdir()
+    for name in ('Makefile', 'setup.py', 'requirements'):
+        (shutil.copytree if (ROOT / name).is_dir() else shutil.copy)(ROOT / name, project / name)
+    python = tmp_path / 'python'
+    python.write_text(FAKE_PYTHON)
+    python.chmod(0o755)
+    log = project / 'calls.log'
+    subprocess.run(['make', '-s', 'setup', f'PYTHON={python}'], cwd=project, check=True,
+                   capture_output=True, timeout=60,
+                   env={**os.environ, 'FAKE_LOG': str(log), 'FAKE_RCLPY': str(rclpy_status)})
+    return log.read_text().splitlines()
+
+
+def test_make_setup_installs_the_ros_wheels_only_without_rclpy(tmp_path):
+    for rclpy_status, system, ros in ((1, False, True), (0, True, False)):
+        calls = make_setup(tmp_path, rclpy_status)
+        venv = next(call for call in calls if call.startswith('-m venv'))
+        assert ('--system-site-packages' in venv.split()) == system, calls
+        pip = next(call.split() for call in calls if call.startswith('-m pip install')
+                   and '-r' in call.split())
+        files = {pip[i + 1] for i, word in enumerate(pip) if word == '-r'}
+        assert files == {'requirements/base.txt', 'requirements/test.txt'} | (
+            {'requirements/ros.txt'} if ros else set()), calls
+        assert any(call.startswith('-m pip install') and call.endswith('-e .')
+                   for call in calls), calls
+
+
+def test_make_test_runs_pytest_and_ci_runs_make_test(tmp_path):
+    dry = subprocess.run(['make', '-n', '-o', '.venv/.qfa-installed', 'test'], cwd=ROOT,
+                         capture_output=True, text=True, check=True, timeout=60)
+    assert dry.stdout.split() == ['.venv/bin/python', '-m', 'pytest']
+    fake_make = tmp_path / 'make'
+    fake_make.write_text('#!/bin/sh\necho "$*" > "$FAKE_LOG"\n')
+    fake_make.chmod(0o755)
+    subprocess.run(['bash', str(ROOT / '.ci' / 'run')], check=True, timeout=60,
+                   env={**os.environ, 'PATH': f'{tmp_path}:{os.environ["PATH"]}',
+                        'FAKE_LOG': str(tmp_path / 'make.log')})
+    assert (tmp_path / 'make.log').read_text().split() == ['test']
+
+
+def test_requirements_are_pinned():
     for requirement in (ROOT / 'requirements').glob('*.txt'):
         for line in requirement.read_text().splitlines():
             line = line.split('#')[0].strip()
-            assert not line or '==' in line, f'{requirement.name}: unpinned {line!r}'
+            if line:
+                specifiers = list(Requirement(line).specifier)
+                assert [s.operator for s in specifiers] == ['=='], \
+                    f'{requirement.name}: unpinned {line!r}'
 
 
 ROS_FREE_LAYERS = ('model', 'calibration', 'bag', 'report', 'fleet')

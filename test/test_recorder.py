@@ -28,7 +28,7 @@ from qfa_ros.bag.msgdefs import MESSAGE_DEFINITIONS, TYPE_HASHES
 from qfa_ros.bag.qos import offered_qos_yaml, QOS_LATCHED, QOS_SENSOR_DATA, QosProfile
 from qfa_ros.bag.trace import key_values_to_dict, TraceWriter
 from qfa_ros.bag.traces import trace_path, write_estimation_trace
-from qfa_ros.bag.types import stamp
+from qfa_ros.bag.types import encode_message, stamp
 from qfa_ros.bag.writer import McapBagWriter
 from qfa_ros.calibration.estimation import (
     capture_reference,
@@ -233,6 +233,34 @@ def test_serialized_path_matches_rclpy_serialization(tmp_path):
     # And the dict path produces bytes rclpy itself decodes.
     decoded = serialization.deserialize_message(raw2, msg_module.Imu)
     assert decoded.linear_acceleration.x == 0.125 and decoded.header.stamp.sec == 18
+
+
+def test_mappings_encode_to_the_bytes_rclpy_serializes():
+    # Missing fields take the ROS defaults (Quaternion w = 1), numpy arrays and bytes work,
+    # and a byte field given as rclpy spells it (b'\x02') or as an integer is one octet.
+    serialization = pytest.importorskip('rclpy.serialization')
+    sensor_msgs = pytest.importorskip('sensor_msgs.msg')
+    diagnostic_msgs = pytest.importorskip('diagnostic_msgs.msg')
+    imu = sensor_msgs.Imu()
+    imu.header.frame_id = 'imu_link'
+    imu.angular_velocity_covariance[0] = -1.0
+    mapping = {'header': {'frame_id': 'imu_link'},
+               'angular_velocity_covariance': np.array([-1.0] + [0.0] * 8)}
+    assert encode_message(mapping, 'sensor_msgs/msg/Imu') == \
+        bytes(serialization.serialize_message(imu))
+    status = diagnostic_msgs.DiagnosticStatus(level=b'\x02', name='qfa', message='warm',
+                                              hardware_id='unit')
+    status.values = [diagnostic_msgs.KeyValue(key='t', value='25')]
+    array = diagnostic_msgs.DiagnosticArray(status=[status])
+    for level in (b'\x02', 2):  # rclpy leaves its padding bytes unset: compare messages
+        data = encode_message({'status': [{'level': level, 'name': 'qfa', 'message': 'warm',
+                                           'hardware_id': 'unit',
+                                           'values': [{'key': 't', 'value': '25'}]}]},
+                              'diagnostic_msgs/msg/DiagnosticArray')
+        assert serialization.deserialize_message(data, diagnostic_msgs.DiagnosticArray) == array
+    with pytest.raises(ValueError, match='exactly 9 elements, got 3'):
+        encode_message({'linear_acceleration_covariance': [1.0, 2.0, 3.0]},
+                       'sensor_msgs/msg/Imu')
 
 
 def test_embedded_definitions_match_installed_interfaces():

@@ -3,17 +3,20 @@ Message types the bag writer knows: definitions, type hashes, encoders, times.
 
 Every standard type this project records is registered from :mod:`qfa_ros.bag.msgdefs`;
 :func:`register_message_definition` adds more. Messages given as mappings are checked
-against their definition and encoded to CDR with mcap-ros2-support.
+against their definition and encoded to CDR with the public type store of rosbags.
 """
 
+import ast
 from collections.abc import Mapping
 import operator
 import re
 import threading
 
-from mcap_ros2._dynamic import serialize_dynamic
+import numpy as np
+from rosbags.interfaces import Nodetype
+from rosbags.typesys import get_types_from_msg, get_typestore, Stores
 
-from qfa_ros.bag.msgdefs import MESSAGE_DEFINITIONS, PRIMITIVE_TYPES, TYPE_HASHES
+from qfa_ros.bag.msgdefs import MESSAGE_DEFINITIONS, TYPE_HASHES
 
 
 def stamp(time_ns):
@@ -31,13 +34,6 @@ def stamp(time_ns):
     """
     sec, nanosec = divmod(as_time_ns(time_ns, 'time_ns'), 1_000_000_000)
     return {'sec': sec, 'nanosec': nanosec}
-
-
-def stamp_to_ns(time_msg):
-    """Convert a ``builtin_interfaces/Time`` (mapping or object) to integer nanoseconds."""
-    if isinstance(time_msg, Mapping):
-        return int(time_msg['sec']) * 1_000_000_000 + int(time_msg['nanosec'])
-    return int(time_msg.sec) * 1_000_000_000 + int(time_msg.nanosec)
 
 
 def as_time_ns(value, what):
@@ -66,7 +62,6 @@ def canonical_type(msgtype):
 _DEFINITIONS = dict(MESSAGE_DEFINITIONS)
 _HASHES = dict(TYPE_HASHES)
 _ENCODERS = {}
-_FIELDS = {}
 _CACHE_LOCK = threading.Lock()
 
 
@@ -93,7 +88,6 @@ def register_message_definition(msgtype, definition, type_hash=''):
         _DEFINITIONS[msgtype] = definition
         _HASHES[msgtype] = type_hash
         _ENCODERS.pop(msgtype, None)
-        _FIELDS.pop(msgtype, None)
 
 
 def definition_of(msgtype):
@@ -111,17 +105,148 @@ def _encoder(msgtype):
     encoder = _ENCODERS.get(msgtype)
     if encoder is None:
         with _CACHE_LOCK:
-            encoder = serialize_dynamic(msgtype, definition_of(msgtype))[msgtype]
+            encoder = _Encoder(msgtype, definition_of(msgtype))
             _ENCODERS[msgtype] = encoder
-            _FIELDS[msgtype] = _parse_fields(msgtype, definition_of(msgtype))
     return encoder
 
 
-def _parse_fields(root_type, definition):
-    """Map each type in a concatenated definition to ``{field: (nested type or None, is_array)}``.
+# numpy element type of each primitive in an array field (rosbags packs arrays as raw bytes).
+_ARRAY_DTYPES = {
+    'bool': np.bool_, 'byte': np.uint8, 'char': np.uint8, 'int8': np.int8, 'uint8': np.uint8,
+    'int16': np.int16, 'uint16': np.uint16, 'int32': np.int32, 'uint32': np.uint32,
+    'int64': np.int64, 'uint64': np.uint64, 'float32': np.float32, 'float64': np.float64,
+}
 
-    Only field names and nesting are needed (to reject misspelt keys, which the
-    CDR encoder would otherwise silently encode as zeros).
+
+def _scalar(primitive):
+    """Return ``(convert, default)`` for one primitive field, coercing as mcap-ros2-support did."""
+    if primitive in ('string', 'wstring'):
+        return str, ''
+    if primitive.startswith('float'):
+        return float, 0.0
+    if primitive == 'bool':
+        return bool, False
+    if primitive == 'byte':
+        # ROS 2 spells byte fields (DiagnosticStatus.level) as b'\x00'; CDR writes one
+        # octet, which rosbags packs signed.
+        def byte(value):
+            value = value[0] if isinstance(value, bytes) and len(value) == 1 else int(value)
+            return value - 256 if value > 127 else value
+        return byte, 0
+    return int, 0
+
+
+class _Encoder:
+    """Encode mappings of one message type to CDR with the public rosbags type store.
+
+    Each type of the definition gets a builder that checks the field names (a misspelt
+    key would otherwise be encoded as a zero), fills missing fields with their ROS
+    defaults, coerces values and returns the rosbags message object that
+    ``Typestore.serialize_cdr`` encodes.
+    """
+
+    def __init__(self, msgtype, definition):
+        self._msgtype = msgtype
+        self._store = get_typestore(Stores.EMPTY)
+        self._store.register(get_types_from_msg(definition, msgtype))
+        self._builders = {}
+        self._defaults = _definition_defaults(msgtype, definition)
+        self._build = self._builder(msgtype)
+
+    def __call__(self, message):
+        if not isinstance(message, Mapping):
+            raise TypeError(
+                f'{self._msgtype} message must be a mapping, got {type(message).__name__}')
+        return bytes(self._store.serialize_cdr(self._build(message, self._msgtype),
+                                               self._msgtype))
+
+    def _builder(self, typename):
+        if typename in self._builders:
+            return self._builders[typename]
+        cls = self._store.types[typename]
+        short = _short_type(typename)
+        defaults = self._defaults.get(short, {})
+        fields = [(name, *self._field(desc, defaults.get(name)))
+                  for name, desc in self._store.fielddefs[typename][1]]
+        names = frozenset(name for name, _, _ in fields)
+
+        def build(value, where):
+            if value is None:
+                return cls(*[default() for _, _, default in fields])
+            if isinstance(value, Mapping):
+                unknown = value.keys() - names
+                if unknown:
+                    raise KeyError(
+                        f'{where}: {short} has no field {sorted(unknown)[0]!r} '
+                        f'(fields: {", ".join(name for name, _, _ in fields)})')
+                get = value.get
+            else:  # attribute-style objects such as rclpy messages
+                def get(name):
+                    return getattr(value, name, None)
+            arguments = []
+            for name, convert, default in fields:
+                item = get(name)
+                arguments.append(default() if item is None else convert(item, f'{where}.{name}'))
+            return cls(*arguments)
+
+        self._builders[typename] = build
+        return build
+
+    def _field(self, desc, default=None):
+        """Return ``(convert(value, where), default())`` for a field description."""
+        convert, make_default = self._converter(desc)
+        if default is None:
+            return convert, make_default
+        value = convert(default, 'default')
+        return convert, lambda: value.copy() if hasattr(value, 'copy') else value
+
+    def _converter(self, desc):
+        kind, detail = desc
+        if kind == Nodetype.NAME:
+            build = self._builder(detail)
+            return build, lambda: build(None, '')
+        if kind == Nodetype.BASE:
+            convert, zero = _scalar(detail[0])
+            return (lambda value, where: convert(value)), lambda: zero
+        (element_kind, element), bound = detail
+        fixed = bound if kind == Nodetype.ARRAY else None
+        upper = bound if kind == Nodetype.SEQUENCE else 0
+
+        def check(count, where):
+            if (fixed is not None and count != fixed) or (upper and count > upper):
+                expected = 'exactly' if fixed is not None else 'at most'
+                raise ValueError(f'{where}: expected {expected} {bound} elements, got {count}')
+
+        if element_kind == Nodetype.BASE and element[0] in _ARRAY_DTYPES:
+            dtype = _ARRAY_DTYPES[element[0]]
+
+            def array(value, where):
+                if isinstance(value, (bytes, bytearray)):
+                    value = np.frombuffer(value, dtype=np.uint8)
+                value = np.ascontiguousarray(value, dtype=dtype)
+                check(value.size, where)
+                return value.reshape(-1)
+            return array, lambda: np.zeros(fixed or 0, dtype=dtype)
+        if element_kind == Nodetype.BASE:
+            convert, zero = _scalar(element[0])
+
+            def convert_each(value, where):
+                check(len(value), where)
+                return [convert(item) for item in value]
+            return convert_each, lambda: [zero] * (fixed or 0)
+        build = self._builder(element)
+
+        def build_each(value, where):
+            check(len(value), where)
+            return [build(item, f'{where}[]') for item in value]
+        return build_each, lambda: [build(None, '') for _ in range(fixed or 0)]
+
+
+def _definition_defaults(root_type, definition):
+    """Map each type of a concatenated definition to ``{field: default}`` (``float64 w 1``).
+
+    rosbags keeps no default values, so they are read from the text; a missing field
+    takes its default (``geometry_msgs/Quaternion`` is the identity, ``w`` = 1).
     """
     tables = {}
     current = _short_type(root_type)
@@ -130,64 +255,26 @@ def _parse_fields(root_type, definition):
         if lines and lines[0].startswith('MSG:'):
             current = _short_type(lines[0].split()[1])
             lines = lines[1:]
-        package = current.split('/')[0]
-        fields = {}
+        defaults = {}
         for raw_line in lines:
-            line = raw_line.split('#', 1)[0].strip()
-            if not line:
-                continue
-            tokens = line.split()
-            if len(tokens) < 2 or '=' in tokens[1] or (len(tokens) > 2 and tokens[2][0] == '='):
-                continue  # constant, not a field
-            base = re.sub(r'\[.*\]$', '', tokens[0])
-            is_array = base != tokens[0]
-            base = base.split('<=')[0]
-            if base in PRIMITIVE_TYPES:
-                fields[tokens[1]] = (None, is_array)
-            else:
-                nested = base if '/' in base else f'{package}/{base}'
-                fields[tokens[1]] = (_short_type(nested), is_array)
-        tables[current] = fields
+            tokens = raw_line.split('#', 1)[0].split(maxsplit=2)
+            if len(tokens) == 3 and '=' not in tokens[1] and not tokens[2].startswith('='):
+                defaults[tokens[1]] = _literal(tokens[2].strip())
+        tables[current] = defaults
     return tables
+
+
+def _literal(text):
+    """Return the Python value of a ros2msg default (number, bool, string or array)."""
+    try:
+        return ast.literal_eval(re.sub(r'\b(true|false)\b', lambda m: m[0].title(), text))
+    except (ValueError, SyntaxError):
+        return text  # an unquoted string
 
 
 def _short_type(msgtype):
     parts = msgtype.split('/')
     return f'{parts[0]}/{parts[-1]}'
-
-
-def _normalized(message, msgtype):
-    """Return a copy of ``message`` checked against its definition, numpy arrays as lists."""
-    tables = _FIELDS[msgtype]
-    builtin_time = {'sec': (None, False), 'nanosec': (None, False)}
-
-    def walk(value, short_type, where):
-        if not isinstance(value, Mapping):
-            return value  # attribute-style objects are encoded as given
-        fields = tables.get(short_type, builtin_time if short_type.startswith(
-            'builtin_interfaces/') else None)
-        out = {}
-        for key, item in value.items():
-            if key not in fields:
-                raise KeyError(
-                    f'{where}: {short_type} has no field {key!r} (fields: {", ".join(fields)})'
-                )
-            nested, is_array = fields[key]
-            if hasattr(item, 'tolist') and not isinstance(item, (str, bytes)):
-                item = item.tolist()
-            if nested is None and not is_array and isinstance(item, bytes) and len(item) == 1:
-                item = item[0]  # rclpy spells byte fields (DiagnosticStatus.level) as b'\x00'
-            elif nested is not None:
-                if is_array:
-                    item = [walk(element, nested, f'{where}.{key}[]') for element in item]
-                else:
-                    item = walk(item, nested, f'{where}.{key}')
-            out[key] = item
-        return out
-
-    if not isinstance(message, Mapping):
-        raise TypeError(f'{msgtype} message must be a mapping, got {type(message).__name__}')
-    return walk(message, _short_type(msgtype), msgtype)
 
 
 def check_cdr(data, topic):
@@ -206,4 +293,4 @@ def type_hash_of(msgtype):
 
 def encode_message(message, msgtype):
     """Return the CDR bytes of ``message`` (a mapping or message object) of ``msgtype``."""
-    return _encoder(msgtype)(_normalized(message, msgtype))
+    return _encoder(msgtype)(message)

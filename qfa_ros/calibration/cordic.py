@@ -195,11 +195,6 @@ class CordicExp:
         budget = (2 ** self.n_bits * math.log(2) / 2 + 3 * len(self.shift_indices) + 4)
         return math.expm1(budget * 2.0 ** -self.work_bits)
 
-    @property
-    def input_range(self):
-        """Return the accepted real input interval ``(-2^N, 2^N - 2^-M)``, both included."""
-        return self.z_min_q / self.scale, self.z_max_q / self.scale
-
     # -- scalar path (Python integers) ---------------------------------------------------
 
     def _check_input(self, z_q):

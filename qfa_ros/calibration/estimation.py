@@ -248,12 +248,6 @@ def _require_closed(port):
         raise EstimationError('a loop is open: another schedule is running')
 
 
-def _record_words(port, state):
-    state.controller_gain = [port.controller_gain(axis) for axis in range(port.n_axes)]
-    state.n_vref = [port.n_vref(axis) for axis in range(port.n_axes)]
-    state.updated_at_ns = port.sensor_time_ns()
-
-
 def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capture=False):
     """
     Run the forward-gain schedule as a generator (see :func:`run_schedule`).
@@ -325,7 +319,7 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
             port.set_controller_gain(axis, gains_before[axis] / ratio[axis])
         applied = True
     gains_after = np.array([port.controller_gain(axis) for axis in axes])
-    _record_words(port, state)
+    state.record_words(port)
     if not capture:
         state.last_estimates['forward'] = estimate.tolist()
     return EstimationResult('forward', asdict(settings), estimate, std_error, points, residuals,
@@ -483,7 +477,7 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
             port.set_n_vref(axis, int(round(words_before[axis] / ratio[axis])))
         applied = True
     words_after = np.array([port.n_vref(axis) for axis in range(port.n_axes)], dtype=float)
-    _record_words(port, state)
+    state.record_words(port)
     if not capture:
         state.last_estimates['feedback'] = estimate.tolist()
     return EstimationResult('feedback', asdict(settings), estimate, std_error, points,

@@ -135,10 +135,11 @@ class CalibrationState:
         """Store the on-board temperature reading [degC] of the feedback reference."""
         self.references[axis].temperature = reading_c
 
-    def record_words(self, triad):
-        """Store the words currently in ``triad``."""
-        self.controller_gain = [loop.controller.gain for loop in triad.axes]
-        self.n_vref = [loop.n_vref for loop in triad.axes]
+    def record_words(self, port):
+        """Store the gain and reference words now in the sensor behind ``port``, and when."""
+        self.controller_gain = [port.controller_gain(axis) for axis in range(port.n_axes)]
+        self.n_vref = [port.n_vref(axis) for axis in range(port.n_axes)]
+        self.updated_at_ns = port.sensor_time_ns()
 
 
 def install_compensation(triad, temperature_state):

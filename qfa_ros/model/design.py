@@ -14,10 +14,6 @@ GAIN_FRAC_BITS = 32
 COEF_FRAC_BITS = 20
 """Fraction bits of the lead and integrator coefficients."""
 
-SIGNAL_FRAC_BITS = 8
-"""Fraction bits carried through the controller signals."""
-
-
 @dataclass(frozen=True)
 class ControllerDesign:
     r"""

@@ -18,12 +18,9 @@ EARTH_RATE = 7.292115e-5
 """WGS-84 omega_ie [rad/s]."""
 GM = 3.986004418e14
 """WGS-84 gravitational constant GM [m^3/s^2]."""
-SEMI_MINOR_AXIS = SEMI_MAJOR_AXIS * (1.0 - FLATTENING)
 ECCENTRICITY_SQUARED = FLATTENING * (2.0 - FLATTENING)
 GAMMA_EQUATOR = 9.7803253359
 """Normal gravity at the equator [m/s^2] (TR8350.2 table 3.4)."""
-GAMMA_POLE = 9.8321849378
-"""Normal gravity at the poles [m/s^2]."""
 SOMIGLIANA_K = 0.00193185265241
 """Somigliana constant k = b gamma_p / (a gamma_e) - 1 (TR8350.2 table 3.4)."""
 GRAVITY_RATIO_M = 0.00344978650684

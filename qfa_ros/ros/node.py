@@ -12,9 +12,9 @@ import threading
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import AccelStamped
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import InvalidParameterTypeException, ParameterException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -84,16 +84,24 @@ class QfaNode(Node):
 
     def __init__(self, node_name='qfa_node', **kwargs):
         super().__init__(node_name, **kwargs)
-        # Integers typed for doubles ([1, 2, 3], 2000) become doubles: in the start-up
-        # overrides here (declaration runs no pre-set callback) and in every later change.
-        overrides = self._parameter_overrides
-        for name, parameter in list(overrides.items()):
-            overrides[name] = as_declared_type(parameter)
+        # Integers typed for doubles ([1, 2, 3], 2000) become doubles: in every change
+        # (pre-set callback) and at start, where declaration runs no pre-set callback.
         self.add_pre_set_parameters_callback(
             lambda parameters: [as_declared_type(p) for p in parameters])
         for spec in PARAMETERS:
             try:
-                self.declare_parameter(spec.name, spec.default, descriptor(spec))
+                try:
+                    self.declare_parameter(spec.name, spec.default, descriptor(spec))
+                except InvalidParameterTypeException:
+                    # Read the start value untyped; declare the double it means, if any.
+                    given = self.declare_parameter(spec.name, spec.default,
+                                                   ParameterDescriptor(dynamic_typing=True))
+                    typed = as_declared_type(given)
+                    self.undeclare_parameter(spec.name)
+                    if typed is given:
+                        raise
+                    self.declare_parameter(spec.name, typed.value, descriptor(spec),
+                                           ignore_override=True)
             except ParameterException as error:
                 raise ValueError(str(error)) from None
         # The live parameter values, shared (read-only) by every collaborator.

@@ -13,7 +13,6 @@ import collections
 import ctypes
 import os
 import platform
-import struct
 import threading
 import time
 
@@ -71,12 +70,61 @@ a shared core, seen with ``perf sched``) kept the woken pacer waiting up to 2.3 
 batch; with it the 2 kHz latency p99 went from 0.71–0.83 to 0.33–0.37 ms, side by side. A
 thread may shorten its own slice without privilege; older kernels keep the default."""
 
-_SCHED_SETATTR = {'x86_64': 314, 'aarch64': 274}
-"""``sched_setattr`` system call number by machine (glibc has no wrapper)."""
+# --- sched_setattr(2) -----------------------------------------------------------------------
+# Python's os module wraps sched_setscheduler and sched_setparam but not sched_setattr, the
+# only call that sets a SCHED_OTHER thread's time slice, and glibc has no wrapper either: it
+# is called through libc's syscall(). The two facts it needs, kept here and checked against
+# the kernel ABI by test/test_node_delivery.py, are the call's number and its struct.
 
-_SCHED_ATTR = struct.Struct('<IIQiIQQQII')
-"""``struct sched_attr`` (size, policy, flags, nice, priority, runtime, deadline, period,
-util_min, util_max): version 1, 56 bytes."""
+SCHED_SETATTR_NUMBERS = {
+    'x86_64': 314,  # arch/x86/entry/syscalls/syscall_64.tbl
+    'aarch64': 274,  # include/uapi/asm-generic/unistd.h (__NR_sched_setattr)
+}
+"""``sched_setattr`` system call number by ``platform.machine()``; elsewhere it is a no-op."""
+
+SCHED_ATTR_SIZE_VER1 = 56
+"""Size of version 1 of ``struct sched_attr`` (include/uapi/linux/sched.h) [bytes]."""
+
+
+class SchedAttr(ctypes.Structure):
+    """``struct sched_attr`` of include/uapi/linux/sched/types.h, version 1.
+
+    Every field is naturally aligned, so the layout (and 56 bytes) is the same on every
+    architecture, in the machine's byte order.
+    """
+
+    _fields_ = [
+        ('size', ctypes.c_uint32),
+        ('sched_policy', ctypes.c_uint32),
+        ('sched_flags', ctypes.c_uint64),
+        ('sched_nice', ctypes.c_int32),
+        ('sched_priority', ctypes.c_uint32),
+        ('sched_runtime', ctypes.c_uint64),
+        ('sched_deadline', ctypes.c_uint64),
+        ('sched_period', ctypes.c_uint64),
+        ('sched_util_min', ctypes.c_uint32),
+        ('sched_util_max', ctypes.c_uint32),
+    ]
+
+
+def sched_setattr(thread, attr, machine=None):
+    """
+    Call ``sched_setattr(thread, attr, 0)``; return True if the kernel accepted it.
+
+    :param thread: Native thread id (0 is the calling thread).
+    :param attr: A :class:`SchedAttr`.
+    :param machine: ``platform.machine()`` by default; an architecture without a known
+        call number (or a system other than Linux) makes this a no-op returning False.
+    """
+    machine = platform.machine() if machine is None else machine
+    number = SCHED_SETATTR_NUMBERS.get(machine) if platform.system() == 'Linux' else None
+    if number is None:
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+    except OSError:  # no libc to call through
+        return False
+    return libc.syscall(number, thread, ctypes.byref(attr), 0) == 0
 
 
 def request_short_time_slice(slice_ns=PACER_SLICE_NS):
@@ -86,18 +134,16 @@ def request_short_time_slice(slice_ns=PACER_SLICE_NS):
     The thread keeps its policy (``SCHED_OTHER``) and niceness; the slice is what a
     ``SCHED_OTHER`` thread's ``sched_runtime`` means since Linux 6.12. Where the call is
     missing or refused the thread keeps the default slice, which costs latency only.
+    Return True if the kernel accepted the request.
     """
-    number = _SCHED_SETATTR.get(platform.machine()) if platform.system() == 'Linux' else None
-    if number is None:
-        return
     thread = threading.get_native_id()
     try:
-        attr = _SCHED_ATTR.pack(_SCHED_ATTR.size, os.SCHED_OTHER, 0,
-                                os.getpriority(os.PRIO_PROCESS, thread), 0, slice_ns,
-                                0, 0, 0, 0)
-        ctypes.CDLL(None, use_errno=True).syscall(number, thread, attr, 0)
-    except (AttributeError, OSError):  # no libc to call through
-        pass
+        attr = SchedAttr(size=SCHED_ATTR_SIZE_VER1, sched_policy=os.SCHED_OTHER,
+                         sched_nice=os.getpriority(os.PRIO_PROCESS, thread),
+                         sched_runtime=slice_ns)
+    except (AttributeError, OSError):  # not a POSIX system
+        return False
+    return sched_setattr(thread, attr)
 
 
 def lower_thread_priority():
