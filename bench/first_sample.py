@@ -16,12 +16,14 @@ Alternately, it starts
 * a bare rclpy publisher of ``sensor_msgs/Imu`` at 1 kHz (the script at the end of this
   file) with the same interpreter, environment and publisher QoS as the node's;
 
-and measures the wall time from ``subprocess.Popen`` to the first message received; each
-process is then stopped (SIGINT, SIGKILL after 10 s) before the next one starts. ``--tree
-DIR`` adds the node of another source tree (e.g. an export of an earlier commit) to the
-rotation, so that a before/after comparison shares the machine's conditions. One start
-of each command runs untimed first (numba's cache written after a source change, the
-page cache). ``--busy`` keeps one core busy (``while True: pass``) for the whole run.
+and measures the wall time from ``subprocess.Popen`` to the first message received, and
+the CPU time (user + system) the process had used by then (robust on a shared machine,
+where the wall time is not); each process is then stopped (SIGINT, SIGKILL after 10 s)
+before the next one starts. ``--tree LABEL=DIR`` adds the node of another source tree
+(e.g. an export of an earlier commit) to the rotation, so that a before/after comparison
+shares the machine's conditions. One start of each command runs untimed first (numba's
+cache written after a source change, the page cache). ``--busy`` keeps one core busy
+(``while True: pass``) for the whole run.
 """
 
 import argparse
@@ -152,15 +154,27 @@ def node_command(tree, directory):
             str(tree), {'PYTHONPATH': str(tree)})
 
 
+def cpu_seconds(pid):
+    """Return the user + system CPU time process ``pid`` has used so far [s]."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
 def time_start(subscriber, argv, cwd, env, timeout_s):
-    """Return the seconds from Popen to the first sample (None: none within timeout_s)."""
+    """
+    Start ``argv``; return ``(wall s, CPU s)`` to its first sample (None: none in time).
+
+    The CPU time (user + system of the process, read as soon as the sample is seen) does
+    not depend on what else the machine runs, as the wall time does.
+    """
     subscriber.arm()
     with open(os.devnull, 'w') as sink:
         started = time.perf_counter()
         process = subprocess.Popen(argv, cwd=cwd, env=env, stdout=sink, stderr=sink)
         arrival = subscriber.wait(timeout_s)
+        cpu = cpu_seconds(process.pid) if arrival is not None else None
         stop(process)
-    return None if arrival is None else arrival - started
+    return (None, None) if arrival is None else (arrival - started, cpu)
 
 
 def summary(values):
@@ -206,19 +220,20 @@ def main():
             commands.append((f'node ({label})', lambda n, tree=tree: node_command(
                 tree, Path(scratch) / f'node_{n}')))
         times = {label: [] for label, _ in commands}
+        cpu = {label: [] for label, _ in commands}
         first = {}
         try:
             for n in range(args.starts + 1):
                 for label, make in commands:
                     argv, cwd, extra = make(f'{len(times[label])}_{n}_{label[:4]}')
-                    elapsed = time_start(subscriber, argv, cwd, {**env, **extra},
-                                         args.timeout)
+                    elapsed, used = time_start(subscriber, argv, cwd, {**env, **extra},
+                                               args.timeout)
                     if n == 0:
                         first[label] = elapsed
                     else:
                         times[label].append(elapsed)
-                    print(f'{label}: {elapsed if elapsed is None else round(elapsed, 3)} s',
-                          flush=True)
+                        cpu[label].append(used)
+                    print(f'{label}: {elapsed} s, {used} CPU s', flush=True)
         finally:
             subscriber.close()
             if busy is not None:
@@ -234,16 +249,17 @@ def main():
         f'`{command}` ({os.cpu_count()} cores; load average before the run '
         f'{load:.2f})',
         '',
-        '| Process | Starts | p50 [s] | max [s] | p50 / bare p50 | no sample '
+        '| Process | Starts | p50 [s] | max [s] | p50 / bare p50 | CPU p50 [s] | no sample '
         '| untimed first start [s] |',
-        '|---|---:|---:|---:|---:|---:|---:|',
+        '|---|---:|---:|---:|---:|---:|---:|---:|',
     ]
     for label, values in times.items():
         p50, worst, missing = summary(values)
         ratio = '' if p50 == 'none' else f'{float(p50) / bare_p50:.2f}'
+        cpu_p50 = summary(cpu[label])[0]
         untimed = first.get(label)
-        lines.append(f'| {label} | {len(values)} | {p50} | {worst} | {ratio} | {missing} | '
-                     f'{"none" if untimed is None else f"{untimed:.2f}"} |')
+        lines.append(f'| {label} | {len(values)} | {p50} | {worst} | {ratio} | {cpu_p50} | '
+                     f'{missing} | {"none" if untimed is None else f"{untimed:.2f}"} |')
     text = '\n'.join(lines) + '\n'
     print(text)
     out = Path(args.out)
