@@ -144,7 +144,6 @@ class SampleStream:
 
     def start(self):
         """Start the sensor, pacer and recording threads."""
-        sys.setswitchinterval(SWITCH_INTERVAL_S)
         self.recording_queue.start()
         self.pacer.start()
         self._thread.start()
@@ -195,7 +194,10 @@ class SampleStream:
     # Sensor thread ----------------------------------------------------------------------
     def _loop(self):
         """Compute a batch every ``stream.batch_s`` until stopped (thread target)."""
-        lower_thread_priority()
+        # The warm-up and the first batch run at the process's priority and with Python's
+        # default switch interval: the first sample waits for them, and the pacer has
+        # nothing to publish yet. From then on this thread yields to the pacer.
+        yielding = False
         try:
             self._warm_up()
         except Exception as error:
@@ -211,6 +213,11 @@ class SampleStream:
                     self.sensor_error = f'{type(error).__name__}: {error}'
                     self._node.get_logger().error(f'sensor thread: {self.sensor_error}',
                                                   throttle_duration_sec=5.0)
+            if not yielding:
+                # Before the first sample's instant (the margin of the first batch).
+                sys.setswitchinterval(SWITCH_INTERVAL_S)
+                lower_thread_priority()
+                yielding = True
             if fast:
                 # Let the executor thread take the lock between slices of a fast schedule.
                 self._stop.wait(0.001)
