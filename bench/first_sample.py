@@ -23,11 +23,13 @@ before the next one starts. ``--tree LABEL=DIR`` adds the node of another source
 (e.g. an export of an earlier commit) to the rotation, so that a before/after comparison
 shares the machine's conditions. One start of each command runs untimed first (numba's
 cache written after a source change, the page cache). ``--busy`` keeps one core busy
-(``while True: pass``) for the whole run.
+(``while True: pass``) for the whole run. ``--phases`` instead times when each phase of the
+node's start ends (imports, model, warm-up, first publication), tree after tree.
 """
 
 import argparse
 import datetime
+import json
 import os
 from pathlib import Path
 import signal
@@ -66,6 +68,117 @@ try:
 except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
     pass
 """
+
+
+PHASE_PROBE = """
+import json
+import os
+import sys
+import time
+
+T0 = float(os.environ['FIRST_SAMPLE_T0'])
+marks = {}
+
+
+def mark(name):
+    marks.setdefault(name, time.time() - T0)
+
+
+mark('interpreter up')
+import qfa_ros.cli.node as cli  # noqa: E402
+
+mark('rclpy and qfa_ros.cli.node imported')
+create_node = cli.create_node
+
+
+def report():
+    print('PHASES ' + json.dumps(marks), file=sys.stderr, flush=True)
+    os.kill(os.getpid(), 2)
+
+
+def probed_create_node(secured):
+    import qfa_ros.ros.node as node_module
+    import qfa_ros.ros.pacing as pacing
+    import qfa_ros.ros.stream as stream
+    mark('qfa_ros.ros.node imported')
+    make_triad = node_module.make_triad
+
+    def probed_make_triad(*args):
+        triad = make_triad(*args)
+        mark('model built (numba initialised)')
+        return triad
+
+    node_module.make_triad = probed_make_triad
+    start, warm_up = stream.SampleStream.start, stream.SampleStream._warm_up
+
+    def probed_start(self):
+        mark('sensor thread started')
+        start(self)
+
+    def probed_warm_up(self):
+        warm_up(self)
+        mark('warm-up done')
+
+    stream.SampleStream.start, stream.SampleStream._warm_up = probed_start, probed_warm_up
+    publish_hand = pacing.Pacer._publish_hand
+
+    def probed_publish_hand(self, *args):
+        publisher = self._hand[0][1]
+        publish = publisher.publish
+
+        def first_publish(data):
+            mark('first sample published')
+            publish(data)
+            publisher.publish = publish
+            report()
+
+        if 'first sample published' not in marks:
+            publisher.publish = first_publish
+        publish_hand(self, *args)
+
+    pacing.Pacer._publish_hand = probed_publish_hand
+    result = create_node(secured)
+    mark('node created')
+    return result
+
+
+cli.create_node = probed_create_node
+sys.argv[0] = 'qfa_node'
+cli.main()
+"""
+
+
+def phases(trees, starts, directory, env):
+    """
+    Time the node's start-up phases from Popen, ``starts`` times per tree, in turn.
+
+    The node runs under a probe (``PHASE_PROBE``: the module is imported by a script, not
+    the console script) that notes when each phase ends, by wall time since Popen.
+    """
+    probe = Path(directory) / 'phase_probe.py'
+    probe.write_text(PHASE_PROBE)
+    seen = {label: [] for label, _ in trees}
+    for n in range(starts + 1):
+        for label, tree in trees:
+            argv, cwd, extra = node_command(tree, Path(directory) / f'phases_{label}_{n}')
+            argv = [sys.executable, str(probe), *argv[argv.index('--ros-args'):]]
+            run = subprocess.run(argv, cwd=cwd, env={
+                **env, **extra, 'FIRST_SAMPLE_T0': repr(time.time())},
+                capture_output=True, text=True, timeout=120)
+            line = [x for x in run.stderr.splitlines() if x.startswith('PHASES ')]
+            if n and line:
+                seen[label].append(json.loads(line[0].split(' ', 1)[1]))
+    names = list(next(iter(seen.values()))[0])
+    lines = ['| Phase ends (wall s since Popen, p50) | '
+             + ' | '.join(label for label, _ in trees) + ' |',
+             '|---|' + '---:|' * len(trees)]
+    for name in names:
+        cells = []
+        for label, _ in trees:
+            values = [run[name] for run in seen[label] if name in run]
+            cells.append(f'{statistics.median(values):.3f}' if values else '')
+        lines.append(f'| {name} | ' + ' | '.join(cells) + ' |')
+    return lines, {label: len(runs) for label, runs in seen.items()}
 
 
 def environment(domain):
@@ -196,6 +309,8 @@ def main():
     parser.add_argument('--timeout', type=float, default=60.0)
     parser.add_argument('--label', default='this tree', help="label of this tree's node")
     parser.add_argument('--out', default=str(RESULTS), help='Markdown file to append to')
+    parser.add_argument('--phases', action='store_true',
+                        help="time the node's start-up phases instead (no subscriber)")
     args = parser.parse_args()
 
     env = environment(args.domain)
@@ -206,6 +321,26 @@ def main():
         label, _, path = spec.rpartition('=')
         trees.append((label or path, Path(path).resolve()))
     load = os.getloadavg()[0]
+    command = ' '.join(['.venv/bin/python', 'bench/first_sample.py'] + sys.argv[1:])
+    if args.phases:
+        busy = subprocess.Popen([sys.executable, '-c', 'while True: pass']) if args.busy \
+            else None
+        try:
+            with tempfile.TemporaryDirectory() as scratch:
+                table, counts = phases(trees, args.starts, scratch, env)
+        finally:
+            if busy is not None:
+                busy.kill()
+                busy.wait()
+        text = '\n'.join([
+            f'### Start-up phases{", one core busy" if args.busy else ""}, '
+            f'{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC', '',
+            f'`{command}` ({os.cpu_count()} cores; load average before the run '
+            f'{load:.2f}; starts per tree: {counts})', '', *table]) + '\n'
+        print(text)
+        with open(args.out, 'a') as stream:
+            stream.write('\n' + text)
+        return
     busy = None
     if args.busy:
         busy = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
@@ -241,7 +376,6 @@ def main():
                 busy.wait()
 
     bare_p50 = statistics.median(v for v in times['bare rclpy publisher'] if v is not None)
-    command = ' '.join(['.venv/bin/python', 'bench/first_sample.py'] + sys.argv[1:])
     lines = [
         f'### {"One core busy" if args.busy else "Quiet machine"}, '
         f'{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC',
