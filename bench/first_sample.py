@@ -377,7 +377,7 @@ def main():
 
     bare_p50 = statistics.median(v for v in times['bare rclpy publisher'] if v is not None)
     lines = [
-        f'### {"One core busy" if args.busy else "Quiet machine"}, '
+        f'### {"One core busy" if args.busy else "No load added"}, '
         f'{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC',
         '',
         f'`{command}` ({os.cpu_count()} cores; load average before the run '
