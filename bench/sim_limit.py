@@ -18,6 +18,9 @@ Each repetition runs, interleaved so that a busy machine affects all alike:
   steps. These run in this process on one core; their CPU time is reported beside the
   wall time.
 
+With ``--tree LABEL=DIR`` (repeatable) it only times the whole process of each source
+tree in turn (e.g. an export of an earlier commit beside this one), start-up included.
+
 Prints a Markdown table of medians: seconds, axis-steps per second, real-time multiple,
 and the ratio of the whole process to the two-core limit (three axes of D seconds at
 the limit rate spread over the cores: ``3 D f_loop / (cores * rate)``).
@@ -127,11 +130,18 @@ def run_kernel(n_samples):
     return timed(call)
 
 
-def run_process(duration):
-    """Run ``qfa-sim static`` in a fresh process; return (wall s, CPU s, peak RSS MB)."""
+def run_process(duration, tree=None):
+    """
+    Run ``qfa-sim static`` in a fresh process; return (wall s, CPU s, peak RSS MB).
+
+    ``tree``: run the ``qfa_ros`` of this source tree (first on ``PYTHONPATH``) instead of
+    the installed one.
+    """
     command = [sys.executable, '-m', 'qfa_ros.cli.sim', 'static', '--duration', str(duration)]
+    env = None if tree is None else {**os.environ, 'PYTHONPATH': str(tree)}
     start = time.perf_counter()
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                               env=env, cwd=tree)
     output = process.stdout.read()
     _, status, usage = os.wait4(process.pid, 0)
     wall = time.perf_counter() - start
@@ -141,13 +151,47 @@ def run_process(duration):
     return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
 
 
+def compare_trees(trees, duration, repeat):
+    """
+    Print whole-process and start-up times of ``qfa-sim static`` per source tree.
+
+    ``trees``: ``[(label, directory)]``; every repetition runs each tree once, in turn.
+    """
+    rows = {label: {'process': [], 'start-up': []} for label, _ in trees}
+    for _, tree in trees:
+        run_process(1.0, tree)  # the JIT cache and the file cache of each tree
+    for _ in range(repeat):
+        for label, tree in trees:
+            rows[label]['process'].append(run_process(duration, tree))
+            rows[label]['start-up'].append(run_process(1.0, tree))
+    print(f'{repeat} interleaved repetitions per tree, {duration:g} s of sensor time; '
+          f'medians (wall s / CPU s).\n')
+    print(f'| tree | `qfa-sim static --duration {duration:g}`, whole process | '
+          '`--duration 1` (start-up, summary) |')
+    print('|---|---|---|')
+    for label, row in rows.items():
+        cells = []
+        for name in ('process', 'start-up'):
+            wall = statistics.median(r[0] for r in row[name])
+            cpu = statistics.median(r[1] for r in row[name])
+            cells.append(f'{wall:.2f} / {cpu:.2f}')
+        print(f'| {label} | {cells[0]} | {cells[1]} |')
+
+
 def main():
     """Run the comparison and print a Markdown table."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--duration', type=float, default=3600.0,
                         help='sensor seconds of the qfa-sim run and of the loops [s]')
     parser.add_argument('--repeat', type=int, default=5)
+    parser.add_argument('--tree', action='append', default=[],
+                        help='LABEL=DIR: compare the whole process of these source trees '
+                        'instead (no limit loops)')
     args = parser.parse_args()
+    if args.tree:
+        compare_trees([tuple(spec.split('=', 1)) for spec in args.tree], args.duration,
+                      args.repeat)
+        return
     from qfa_ros.model.parallel import available_cores
     from qfa_ros.model.triad import TriadConfig
 

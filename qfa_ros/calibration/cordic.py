@@ -85,7 +85,7 @@ def hyperbolic_gain(indices):
     return math.prod(math.sqrt(1.0 - 4.0 ** (-i)) for i in indices)
 
 
-@numba.njit(cache=False, nogil=True)
+@numba.njit(cache=True, nogil=True)
 def _rotate(theta, x_start, shifts, angles):
     """Run the single-register hyperbolic CORDIC over every start angle (int64)."""
     x_out = np.empty_like(theta)

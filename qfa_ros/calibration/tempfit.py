@@ -16,7 +16,6 @@ import math
 import time
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from qfa_ros.calibration.cordic import CordicExp
 
@@ -298,6 +297,10 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
 
 def fit_double_exponential_reference(v_temp, v_out, beta0=None):
     """Fit the double exponential with ``scipy.optimize.least_squares`` on all 4 parameters."""
+    # Imported here: scipy.optimize takes a quarter of a second to import, and the node
+    # and the simulator load this module without ever calling the reference fit.
+    from scipy.optimize import least_squares
+
     v, y = _as_data(v_temp, v_out, 5)
     scaling = _Scaling(v, y)
     u, ys = scaling.u, scaling.y

@@ -8,7 +8,6 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.serialization import serialize_message
 
 from qfa_ros.bag.files import RecorderError
-from qfa_ros.bag.flight_recorder import FlightRecorder
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.bounds import confined_directory
 
@@ -116,6 +115,8 @@ class StreamRecording:
             if shortfall:
                 self._stop(f'recorder not started: {shortfall}', DiagnosticStatus.ERROR)
                 return
+            # Imported here: the MCAP writer's packages load only when a recording starts.
+            from qfa_ros.bag.flight_recorder import FlightRecorder
             self.recorder = FlightRecorder(
                 directory, prefix=self._node.get_name(), max_bytes=values['recorder.max_bytes'],
                 max_duration_ns=int(values['recorder.max_duration_s'] * NS_PER_S),

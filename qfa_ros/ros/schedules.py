@@ -15,7 +15,6 @@ import copy
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.task import Future
 
-from qfa_ros.bag.traces import trace_path, write_estimation_trace
 from qfa_ros.calibration.schedule import EstimationError
 from qfa_ros.model.gyro import DEG_PER_HOUR
 from qfa_ros.model.triad import AXES, concatenate
@@ -214,6 +213,8 @@ class ScheduleService:
             shortfall = self._guard.shortfall(directory)
             if shortfall:
                 raise OSError(shortfall)
+            # Imported here: the MCAP writer's packages load only when a trace is written.
+            from qfa_ros.bag.traces import trace_path, write_estimation_trace
             self.last_trace = write_estimation_trace(
                 trace_path(directory, kind, node.get_clock().now().nanoseconds), kind, results,
                 source=node.get_fully_qualified_name())

@@ -40,6 +40,12 @@ SKIP_WARN_S = 10.0
 WARM_UP_SAMPLES = 50
 """Samples run on a copy of the model before the grid is anchored (JIT, first calls)."""
 
+FIRST_MARGIN_S = 0.01
+"""Least time between anchoring the grid and the first sample's instant [s]."""
+
+FIRST_MARGIN_FACTOR = 4.0
+"""The first batch is given this many times its cost, as measured on the warm copy."""
+
 SWITCH_INTERVAL_S = 0.00005
 """Python's GIL switch interval while the node runs [s]. A thread waiting for the GIL waits
 this long before it asks the holder to drop it, and a busy thread that drops the GIL
@@ -126,6 +132,9 @@ class SampleStream:
         self.saturated = np.zeros(len(AXES), dtype=np.int64)
         self.last_temperature = None
         self.on_schedule_end = None
+        # How long the first sample's instant follows the anchoring of the grid [ns]; the
+        # warm-up measures what the first batch costs and shortens it (at most lead_s).
+        self._first_margin_ns = int(values['stream.lead_s'] * NS_PER_S)
         self._stop = threading.Event()
         # Set by the pacer when it runs dry and by a ground-truth input: compute now.
         self._wake = threading.Event()
@@ -135,7 +144,6 @@ class SampleStream:
 
     def start(self):
         """Start the sensor, pacer and recording threads."""
-        sys.setswitchinterval(SWITCH_INTERVAL_S)
         self.recording_queue.start()
         self.pacer.start()
         self._thread.start()
@@ -186,7 +194,10 @@ class SampleStream:
     # Sensor thread ----------------------------------------------------------------------
     def _loop(self):
         """Compute a batch every ``stream.batch_s`` until stopped (thread target)."""
-        lower_thread_priority()
+        # The warm-up and the first batch run at the process's priority and with Python's
+        # default switch interval: the first sample waits for them, and the pacer has
+        # nothing to publish yet. From then on this thread yields to the pacer.
+        yielding = False
         try:
             self._warm_up()
         except Exception as error:
@@ -202,6 +213,11 @@ class SampleStream:
                     self.sensor_error = f'{type(error).__name__}: {error}'
                     self._node.get_logger().error(f'sensor thread: {self.sensor_error}',
                                                   throttle_duration_sec=5.0)
+            if not yielding:
+                # Before the first sample's instant (the margin of the first batch).
+                sys.setswitchinterval(SWITCH_INTERVAL_S)
+                lower_thread_priority()
+                yielding = True
             if fast:
                 # Let the executor thread take the lock between slices of a fast schedule.
                 self._stop.wait(0.001)
@@ -219,6 +235,16 @@ class SampleStream:
         serialize_message(self._temperature)
         if model.thermal is not None:
             model.thermal.reading_c(output.v_temp)
+        # What a warm batch costs, per sample: the first batch (lead_s of samples) is
+        # computed at once, and its first sample is due as soon as it can be ready.
+        started = time.perf_counter()
+        output = model.run(WARM_UP_SAMPLES)
+        encoder.encode(output.stamps_ns, output.accel, output.gyro if encoder.has_rate else None)
+        per_sample_s = (time.perf_counter() - started) / WARM_UP_SAMPLES
+        lead_s = self._values['stream.lead_s']
+        first_batch_s = per_sample_s * lead_s * self._values['sample_rate_hz']
+        self._first_margin_ns = int(min(lead_s, FIRST_MARGIN_S
+                                        + FIRST_MARGIN_FACTOR * first_batch_s) * NS_PER_S)
         # rclpy, numba and the model leave ~1.4e5 long-lived objects: a full collection
         # walks them all holding the GIL (~90 ms here, every sample of it late), and one
         # comes whenever enough new objects survive (the recorder's). Frozen, they are
@@ -261,9 +287,10 @@ class SampleStream:
             return
         grid = self.grid
         if grid.start_ns is None:
-            # The first sample ends one lead time from now: it gets the same margin as every
-            # later one (the first batch on the model pays for its first-call costs).
-            grid.anchor(now + int(self._values['stream.lead_s'] * NS_PER_S))
+            # The first sample ends as soon as the first batch (computed now, up to lead_s
+            # ahead) can be ready: the warm-up paid for the first calls and measured the
+            # cost of a batch. Every later batch keeps the lead_s margin.
+            grid.anchor(now + self._first_margin_ns)
         if last is not None and now < last:
             # The clock went back (a bag or simulation restarted): restart the stream.
             self.clock_note = f'clock jumped back by {(last - now) / 1e9:.3f} s; ' \
