@@ -26,7 +26,7 @@ from qfa_ros.calibration.schedule import sensor_time_ns
 from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
-from qfa_ros.model.errors import PaperRoom
+from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom, sensor_config
 from qfa_ros.model.gyro import DEG_PER_HOUR
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.parallel import run_chains
@@ -87,6 +87,7 @@ def run_static(args, out=None):
     """
     out = out or sys.stdout
     config, profile = static_sensor()
+    config = sensor_config(args.error_profile, config)
     if args.out is None:
         config = dataclasses.replace(config, gyro=None)
     triad = QfaTriad(config, rng=args.seed, profile=profile, start_ns=args.start_ns)
@@ -154,7 +155,7 @@ def run_trajectory(args, out=None):
         print(f'qfa-sim: {error}', file=sys.stderr)
         return 2
     duration = args.duration if args.duration is not None else max(motion.duration, 60.0)
-    config = TriadConfig(sample_rate_hz=args.rate)
+    config = sensor_config(args.error_profile, TriadConfig(sample_rate_hz=args.rate))
     triad = QfaTriad(config, rng=args.seed, profile=motion, start_ns=args.start_ns)
     chunk = int(round(CHUNK_SECONDS * config.sample_rate_hz))
     total = int(round(duration * config.sample_rate_hz))
@@ -361,6 +362,9 @@ def build_parser():
                         help='IMU sample rate [Hz] (default 1000; 10 kHz / rate integer)')
     motion.add_argument('--truth-rate', type=float, default=100.0,
                         help='ground-truth odometry rate [Hz] (default 100)')
+    parser.add_argument('--error-profile', choices=ERROR_PROFILES, default='paper',
+                        help='static, trajectory: paper (default, the sensor with its errors) '
+                             'or ideal (every error source off; docs/ins.md)')
     parser.add_argument('--out', metavar='FILE.mcap',
                         help='write the scenario as a rosbag2-compatible MCAP file')
     parser.add_argument('--start-time', type=parse_start_time, default=SIM_START_NS,
@@ -392,6 +396,10 @@ def main(argv=None):
         return 2
     if args.trials < 1:
         print('qfa-sim: --trials must be at least 1', file=sys.stderr)
+        return 2
+    if args.error_profile != 'paper' and args.scenario not in ('static', 'trajectory'):
+        print(f'qfa-sim: --error-profile {args.error_profile} applies to static and trajectory '
+              f'(the {args.scenario} scenario estimates the errors it needs)', file=sys.stderr)
         return 2
     if args.out is not None and not args.out.endswith('.mcap'):
         print('qfa-sim: --out must name a .mcap file', file=sys.stderr)

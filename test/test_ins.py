@@ -1,0 +1,119 @@
+"""What an INS developer needs (issue 29): the error-profile switch, truth, imu.yaml."""
+
+import dataclasses
+import os
+import sys
+
+import numpy as np
+import pytest
+
+from qfa_ros.bag.imu_series import read_imu
+from qfa_ros.cli import sim
+from qfa_ros.model import trajectory as tr
+from qfa_ros.model.errors import ERROR_PROFILES, ideal_config, sensor_config
+from qfa_ros.model.gyro import GyroConfig
+from qfa_ros.model.noise import MICRO_G
+from qfa_ros.model.thermal import ThermalConfig
+from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.ros.params import make_triad, PARAMETERS
+
+sys.path.insert(0, os.path.dirname(__file__))
+import strapdown  # noqa: E402
+
+
+def defaults():
+    return {spec.name: spec.default for spec in PARAMETERS}
+
+
+def test_ideal_config_switches_every_error_source_off():
+    paper = TriadConfig.from_datasheet(bias_ug=(100.0, -50.0, 20.0), k2_ug_per_g2=(10.0,) * 3,
+                                       misalignment=((0.0, 1e-4, 0.0), (0.0,) * 3, (0.0,) * 3),
+                                       thermal=ThermalConfig(hysteresis_m_s2=(1e-6,) * 3))
+    assert sensor_config('paper', paper) is paper
+    ideal = sensor_config('ideal', paper)
+    noise = ideal.noise
+    assert (noise.noise_density, noise.bias_instability, noise.adc_noise) == (0.0, 0.0, 0.0)
+    assert not np.any(ideal.bias) and not np.any(ideal.k2) and not np.any(ideal.misalignment)
+    thermal = ideal.thermal
+    assert thermal.bias_model == 'none'
+    for name in ('hysteresis_m_s2', 'sf_tc_ppm_per_c', 'sf_tc2_ppm_per_c2',
+                 'sf_tc3_ppm_per_c3', 'sf_offset_ppm'):
+        assert not np.any(getattr(thermal, name)), name
+    assert thermal.tsensor_noise_v == 0.0 and thermal.probe_tau_s == 0.0
+    # The environment stays: the ambient and the body lag are not errors.
+    assert (thermal.ambient_profile, thermal.sensor_tau_s) == \
+        (paper.thermal.ambient_profile, paper.thermal.sensor_tau_s)
+    gyro = dataclasses.asdict(ideal.gyro)
+    reference = dataclasses.asdict(GyroConfig.ideal())
+    assert gyro == reference
+    assert ideal_config(TriadConfig(gyro=None, thermal=None)).gyro is None
+    with pytest.raises(ValueError, match='one of paper, ideal'):
+        sensor_config('perfect', paper)
+    assert ERROR_PROFILES == ('paper', 'ideal')
+
+
+def test_node_ideal_sensor_has_no_error_but_what_the_operator_injects():
+    values = {**defaults(), 'sensor.error_profile': 'ideal', 'model.bias_ug': [50.0, 0.0, 0.0]}
+    triad = make_triad(values)
+    config = triad.config
+    assert not triad.drift.temperature_coefficient.any()
+    assert not triad.drift.aging
+    assert config.thermal.bias_model == 'none' and not np.any(config.thermal.sf_tc_ppm_per_c)
+    assert config.noise.noise_density == 0.0 and config.gyro.arw == 0.0
+    assert not np.any(config.misalignment) and not np.any(config.k2)
+    assert config.bias == pytest.approx((50.0 * MICRO_G, 0.0, 0.0))
+    # The paper sensor of the same parameters is the drawn unit: errors everywhere.
+    paper = make_triad({**values, 'sensor.error_profile': 'paper'}).config
+    assert paper.thermal.bias_model == 'mixed' and np.any(paper.misalignment)
+    assert paper.noise.noise_density > 0 and paper.gyro.arw > 0
+
+
+@pytest.mark.parametrize('profile', ERROR_PROFILES)
+def test_ideal_static_output_is_the_truth_within_the_loop_quantization(profile):
+    config, static = sim.static_sensor()
+    triad = QfaTriad(sensor_config(profile, config), rng=2, profile=static)
+    out = triad.run_for(5.0)
+    error = np.abs(out.accel - out.truth).max()
+    gyro_error = np.abs(out.gyro - out.rate_truth).max()
+    if profile == 'ideal':
+        # What stays: the loop's ADC and DAC quantization, a few ug per sample.
+        assert error < 3 * MICRO_G
+        assert gyro_error == 0.0
+    else:
+        assert error > 100 * MICRO_G and gyro_error > 0.0
+
+
+def test_qfa_sim_error_profile_applies_to_static_and_trajectory_only(capsys):
+    assert sim.main(['paper-2019', '--error-profile', 'ideal']) == 2
+    assert 'static and trajectory' in capsys.readouterr().err
+    assert sim.main(['static', '--duration', '2', '--error-profile', 'ideal']) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()
+            if line.split()[:1] in (['x'], ['y'], ['z'])]
+    # Columns: axis, mean, error ug, bias(T) ug, std ug, ...: no error, no bias.
+    assert len(rows) == 3
+    for row in rows:
+        assert abs(float(row[2])) < 0.1 and float(row[3]) == 0.0 and float(row[4]) < 1.0
+
+
+def test_ideal_drive_from_qfa_sim_integrates_back_to_the_truth(tmp_path):
+    # Acceptance of issue 29: `qfa-sim trajectory --error-profile ideal`, 10 minutes of
+    # the drive at 1 kHz, read back from the bag and integrated by the tests' own
+    # strapdown mechanization: within 0.5 m and 1e-5 deg of the trajectory.
+    path = tmp_path / 'ideal_drive.mcap'
+    assert sim.main(['trajectory', '--error-profile', 'ideal', '--duration', '600',
+                     '--out', str(path)]) == 0
+    stamps, accel, rate = read_imu(path)
+    assert len(stamps) == 600_000
+    drive = tr.vehicle_drive()
+    k0 = drive.kinematics(np.array([0.0]))
+    positions, dcms, _ = strapdown.navigate(
+        rate, accel, 1e-3, k0['latitude'][0], k0['longitude'][0], k0['height'][0],
+        k0['velocity'][0], k0['dcm'][0])
+    truth = drive.kinematics((stamps - sim.SIM_START_NS) / 1e9)
+    position = strapdown.position_error(positions, truth['latitude'], truth['longitude'],
+                                        truth['height'])
+    attitude = strapdown.attitude_error(dcms, truth['dcm'])
+    assert np.max(np.linalg.norm(position, axis=1)) < 0.5
+    assert np.max(np.abs(np.degrees(attitude))) < 1e-5
+    # It went somewhere: more than 2 km north of the start (radius of the meridian > 6.3e6 m).
+    assert (truth['latitude'][-1] - truth['latitude'][0]) * 6.3e6 > 2000.0
