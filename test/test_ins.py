@@ -1,16 +1,20 @@
 """What an INS developer needs (issue 29): the error-profile switch, truth, imu.yaml."""
 
 import dataclasses
+import math
 import os
 import sys
 
+from mcap.reader import make_reader
 import numpy as np
 import pytest
+from rosbags.highlevel import AnyReader
 
 from qfa_ros.bag.imu_series import read_imu
 from qfa_ros.cli import sim
 from qfa_ros.model import trajectory as tr
 from qfa_ros.model.errors import ERROR_PROFILES, ideal_config, sensor_config
+from qfa_ros.model.geodetic import enu_to_geodetic
 from qfa_ros.model.gyro import GyroConfig
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.thermal import ThermalConfig
@@ -117,3 +121,41 @@ def test_ideal_drive_from_qfa_sim_integrates_back_to_the_truth(tmp_path):
     assert np.max(np.abs(np.degrees(attitude))) < 1e-5
     # It went somewhere: more than 2 km north of the start (radius of the meridian > 6.3e6 m).
     assert (truth['latitude'][-1] - truth['latitude'][0]) * 6.3e6 > 2000.0
+
+
+def test_trajectory_bag_carries_its_truth_origin_and_geodetic_position_is_recovered(tmp_path):
+    path = tmp_path / 'drive.mcap'
+    assert sim.main(['trajectory', '--duration', '60', '--rate', '100', '--truth-rate', '10',
+                     '--latitude', '-33.5', '--longitude', '151.25', '--height', '120',
+                     '--out', str(path)]) == 0
+    with AnyReader([path]) as reader:
+        topics = {c.topic: c for c in reader.connections}
+        assert '/qfa/truth/odometry' not in topics
+        origin = topics['/truth/origin']
+        assert origin.msgtype == 'sensor_msgs/msg/NavSatFix'
+        assert 'transient_local' in str(origin.ext.offered_qos_profiles).lower()
+        (_, time_ns, raw), = reader.messages(connections=[origin])
+        fix = reader.deserialize(raw, origin.msgtype)
+        odometry = [(t, reader.deserialize(raw, c.msgtype)) for c, t, raw in
+                    reader.messages(connections=[topics['/truth/odometry']])]
+    assert time_ns == sim.SIM_START_NS
+    assert (fix.latitude, fix.longitude, fix.altitude) == (-33.5, 151.25, 120.0)
+    assert fix.header.frame_id == odometry[0][1].header.frame_id == 'enu_origin'
+    with open(path, 'rb') as stream:
+        records = {m.name: m.metadata for m in make_reader(stream).iter_metadata()}
+    assert {k: records['truth_origin'][k] for k in ('latitude_deg', 'longitude_deg',
+                                                    'height_m', 'datum')} == {
+        'latitude_deg': '-33.5', 'longitude_deg': '151.25', 'height_m': '120.0',
+        'datum': 'WGS-84'}
+    # docs/ins.md: geodetic position = origin + the ENU tangent-plane odometry.
+    position = np.array([[m.pose.pose.position.x, m.pose.pose.position.y,
+                          m.pose.pose.position.z] for _, m in odometry])
+    latitude, longitude, height = enu_to_geodetic(
+        position, math.radians(fix.latitude), math.radians(fix.longitude), fix.altitude)
+    drive = tr.vehicle_drive(latitude_deg=-33.5, longitude_deg=151.25, height_m=120.0)
+    truth = drive.kinematics((np.array([t for t, _ in odometry]) - sim.SIM_START_NS) / 1e9)
+    assert np.ptp(position[:, :2]) > 10.0  # it moved
+    north_m, east_m = 6.3e6 * (latitude - truth['latitude']), \
+        6.3e6 * math.cos(math.radians(33.5)) * (longitude - truth['longitude'])
+    assert np.max(np.abs(north_m)) < 1e-6 and np.max(np.abs(east_m)) < 1e-6
+    assert np.max(np.abs(height - truth['height'])) < 1e-6

@@ -6,7 +6,8 @@ Runs without ROS or DDS, as fast as it can. Bags start at ``--start-time`` (defa
 a timeline, the same for every run. ``qfa-sim trajectory --motion drive``
 (or ``--trajectory-file poses.csv``) moves the full IMU (QFA accelerometers and gyros)
 along a trajectory on the WGS-84 Earth and writes the stream with its ground truth
-(nav_msgs/Odometry on ``/qfa/truth/odometry``) so that an INS can be scored.
+(nav_msgs/Odometry on ``/truth/odometry`` in the ENU tangent plane of the start, whose
+geodetic origin is on ``/truth/origin``, docs/ins.md) so that an INS can be scored.
 """
 
 import argparse
@@ -171,6 +172,9 @@ def run_trajectory(args, out=None):
     with bag if bag else contextlib.nullcontext():
         if bag:
             bag.write_phase(motion.name, args.start_ns)
+            origin = motion.kinematics(np.array([motion.start]))
+            bag.write_origin(args.start_ns, math.degrees(origin['latitude'][0]),
+                             math.degrees(origin['longitude'][0]), origin['height'][0])
         for part in triad.run_chunks(total, chunk):
             accel_error += (part.accel - part.truth).sum(axis=0)
             gyro_error += (part.gyro - part.rate_truth).sum(axis=0)
@@ -195,7 +199,8 @@ def run_trajectory(args, out=None):
               f'{gyro_error[i] / total / DEG_PER_HOUR:17.4f}', file=out)
     if args.out is not None:
         print(f'wrote {args.out}: /imu/data_raw (Imu with angular velocity), '
-              f'/qfa/truth/odometry at {config.sample_rate_hz / truth_every:g} Hz', file=out)
+              f'/truth/odometry at {config.sample_rate_hz / truth_every:g} Hz, /truth/origin',
+              file=out)
     return 0
 
 
