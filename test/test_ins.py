@@ -7,18 +7,21 @@ import sys
 
 from mcap.reader import make_reader
 import numpy as np
+from numpy.testing import assert_allclose
 import pytest
 from rosbags.highlevel import AnyReader
 
 from qfa_ros.bag.imu_series import read_imu
 from qfa_ros.cli import sim
 from qfa_ros.model import trajectory as tr
+from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.errors import ERROR_PROFILES, ideal_config, sensor_config
 from qfa_ros.model.geodetic import enu_to_geodetic
 from qfa_ros.model.gyro import GyroConfig
-from qfa_ros.model.noise import MICRO_G
+from qfa_ros.model.noise import MICRO_G, NoiseConfig
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.unit import draw_unit
 from qfa_ros.ros.params import make_triad, PARAMETERS
 
 sys.path.insert(0, os.path.dirname(__file__))
@@ -159,3 +162,48 @@ def test_trajectory_bag_carries_its_truth_origin_and_geodetic_position_is_recove
         6.3e6 * math.cos(math.radians(33.5)) * (longitude - truth['longitude'])
     assert np.max(np.abs(north_m)) < 1e-6 and np.max(np.abs(east_m)) < 1e-6
     assert np.max(np.abs(height - truth['height'])) < 1e-6
+
+
+def _quiet_unit_triad(profile, seed=5):
+    """Return the drawn unit of ``seed`` with drift, no noise: its output is its truth."""
+    gyro = GyroConfig().with_errors(arw=0.0, bias_instability=0.0, rate_random_walk=0.0,
+                                    quantization=0.0)
+    config = TriadConfig(noise=NoiseConfig.off(), gyro=gyro,
+                         thermal=ThermalConfig(ambient_profile='constant', ambient_c=31.0,
+                                               initial_sensor_c=31.0))
+    triad = draw_unit(seed).triad(config, rng=seed, profile=profile)
+    triad.drift.set_step(0, 'k_vi', 150e-6)
+    triad.drift.set_step(2, 'b', -80e-6)
+    triad.gyro_bias_correction = np.array([1e-7, -2e-7, 3e-7])
+    return triad
+
+
+@pytest.mark.parametrize('roll, pitch', [(0.0, 0.0), (math.pi / 2, 0.3), (2.5, -1.2)])
+def test_error_truth_equals_what_the_model_holds(roll, pitch):
+    # The truth predicts the simulated loops' mean output (no noise) in any attitude,
+    # drift, thermal curve, misalignment, K2, gyro errors and corrections included.
+    static = tr.static(45.0, roll=roll, pitch=pitch, yaw=0.4)
+    triad = _quiet_unit_triad(static)
+    truth = error_truth(triad, static.kinematics(np.zeros(1))['specific_force'][0])
+    out = triad.run_for(1.0)
+    force = out.truth.mean(axis=0)
+    assert_allclose(out.accel.mean(axis=0), truth.accel_output(force)[0], rtol=0,
+                    atol=0.02 * MICRO_G)
+    rate = out.rate_truth.mean(axis=0)
+    sensed = (np.eye(3) + triad.gyro.unit.misalignment) @ rate
+    predicted = truth.gyro_bias + (np.eye(3) + truth.gyro_matrix) @ rate \
+        + truth.gyro_asymmetry * np.abs(sensed)
+    assert_allclose(out.gyro.mean(axis=0), predicted, rtol=0, atol=1e-12)
+    # The terms are the unit's: K2 and misalignment through the thermal scale factor
+    # and the drifted feedback gain (both within 2e-3 of one).
+    unit = draw_unit(5)
+    off = ~np.eye(3, dtype=bool)
+    assert_allclose(truth.accel_matrix[off], np.asarray(unit.misalignment)[off], rtol=2e-3,
+                    atol=1e-9)
+    assert_allclose(truth.accel_k2, unit.k2, rtol=2e-3)
+    # The drift steps show in the scale factor: the output goes as 1 / k_fb, k_fb =
+    # k_DA2 k_VI k_t: x +150 ppm k_VI, z -80 ppm B (k_t); y only its thermal curve.
+    thermal = triad.thermal.scale_factor_error(triad.thermal.sensor_c)
+    assert np.diag(truth.accel_matrix) == pytest.approx(
+        (1 + thermal) / (1 + np.array([150e-6, 0.0, -80e-6])) - 1, abs=1e-9)
+    assert truth.temperature == pytest.approx(31.0)

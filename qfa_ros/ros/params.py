@@ -223,6 +223,13 @@ PARAMETERS = (
     ParameterSpec('gyro.turn_on_bias_deg_per_hr', round(_GYRO.turn_on_bias / DEG_PER_HOUR, 9),
                   'Spread (1 sigma) of the gyro turn-on bias drawn per unit [deg/h]', True,
                   0.0, 10000.0),
+    ParameterSpec('truth.enabled', True,
+                  'Publish truth/odometry and truth/origin (input.mode static or trajectory) and '
+                  'truth/imu_errors, the errors the model holds (docs/ins.md); '
+                  '~/calibration_events is published either way', True),
+    ParameterSpec('truth.rate_hz', 10.0,
+                  'Rate of truth/odometry and truth/imu_errors [Hz], and how often applied '
+                  'corrections are looked for', True, 0.1, 100.0),
     ParameterSpec('input.mode', 'static',
                   'Input: static orientation, scripted profile, trajectory on the Earth, or '
                   'ground-truth topic', choices=INPUT_MODES),
