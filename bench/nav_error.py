@@ -1,7 +1,8 @@
 """Navigation error of drawn units before and after self-calibration, by a strapdown INS.
 
 Run: ``PYTHONPATH=. .venv/bin/python bench/nav_error.py [--units 20] [--first-seed 0]
-[--jobs 2] [--minutes 60] [--figure docs/figures/nav_error.png]``.
+[--jobs 2] [--minutes 60] [--figure docs/figures/nav_error.png] [--save DIR]``;
+``--save DIR --tabulate`` tabulates the units an interrupted run saved.
 
 Each unit is the drawn unit of its seed (``qfa_ros.model.unit``) with seed 1's component
 temperature coefficients (``sensor.error_profile: paper``) and the default gyros, in a
@@ -28,8 +29,8 @@ and 60 minutes, mean and maximum over the units. Prints Markdown; writes the fig
 """
 
 import argparse
-import copy
 from concurrent.futures import ProcessPoolExecutor
+import copy
 import math
 from pathlib import Path
 import sys
@@ -170,14 +171,32 @@ def main():
     parser.add_argument('--jobs', type=int, default=2)
     parser.add_argument('--minutes', type=int, default=60)
     parser.add_argument('--figure', default=str(ROOT / 'docs' / 'figures' / 'nav_error.png'))
+    parser.add_argument('--save', metavar='DIR',
+                        help='save the errors of each unit (unit_SEED.npz) as it finishes')
+    parser.add_argument('--tabulate', action='store_true',
+                        help='only tabulate the units saved in --save DIR')
     args = parser.parse_args()
     seeds = list(range(args.first_seed, args.first_seed + args.units))
     table = {}
-    with ProcessPoolExecutor(args.jobs) as pool:
-        for seed, result in zip(seeds, pool.map(run_unit, seeds, [args.minutes] * len(seeds))):
-            for key, value in result.items():
-                table.setdefault(key, []).append(value)
-            print(f'unit {seed} done', file=sys.stderr, flush=True)
+    if args.tabulate:
+        # The units a (possibly interrupted) run saved: only those are tabulated.
+        files = sorted(Path(args.save).glob('unit_*.npz'))
+        seeds = [int(f.stem.split('_')[1]) for f in files]
+        for f in files:
+            with np.load(f) as data:
+                for key in data.files:
+                    table.setdefault(tuple(key.split('|')), []).append(data[key])
+    else:
+        with ProcessPoolExecutor(args.jobs) as pool:
+            for seed, result in zip(seeds, pool.map(run_unit, seeds,
+                                                    [args.minutes] * len(seeds))):
+                for key, value in result.items():
+                    table.setdefault(key, []).append(value)
+                if args.save:
+                    Path(args.save).mkdir(parents=True, exist_ok=True)
+                    np.savez(Path(args.save) / f'unit_{seed:04d}.npz',
+                             **{'|'.join(key): value for key, value in result.items()})
+                print(f'unit {seed} done', file=sys.stderr, flush=True)
     marks = [m for m in (10, 60) if m <= args.minutes]
     print(f'{len(seeds)} units (seeds {seeds[0]}..{seeds[-1]}), {args.minutes} min\n')
     header = ' | '.join(f'{m} min mean | {m} min max' for m in marks)
