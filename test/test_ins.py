@@ -145,7 +145,25 @@ def test_trajectory_bag_carries_its_truth_origin_and_geodetic_position_is_recove
         fix = reader.deserialize(raw, origin.msgtype)
         odometry = [(t, reader.deserialize(raw, c.msgtype)) for c, t, raw in
                     reader.messages(connections=[topics['/truth/odometry']])]
+        errors = [(t, reader.deserialize(raw, c.msgtype)) for c, t, raw in
+                  reader.messages(connections=[topics['/truth/imu_errors']])]
     assert time_ns == sim.SIM_START_NS
+    # The error truth every 10 s: what the model holds at the end of each 10 s.
+    assert [t for t, _ in errors] == [sim.SIM_START_NS + k * 10 ** 10 for k in range(1, 7)]
+    triad = QfaTriad(TriadConfig(sample_rate_hz=100.0), rng=0, profile=tr.vehicle_drive(
+        latitude_deg=-33.5, longitude_deg=151.25, height_m=120.0))
+    triad.run(1000)
+    expected = error_truth(triad, triad.profile.evaluate(np.array([10.0]))[0]).imu_fields()
+    first = errors[0][1]
+    assert first.header.frame_id == 'imu_link'
+    assert [first.linear_acceleration.x, first.linear_acceleration.y,
+            first.linear_acceleration.z] == expected['linear_acceleration']
+    assert [first.angular_velocity.x, first.angular_velocity.y, first.angular_velocity.z] \
+        == expected['angular_velocity']
+    assert list(first.linear_acceleration_covariance) == \
+        expected['linear_acceleration_covariance']
+    assert list(first.orientation_covariance) == expected['orientation_covariance']
+    assert np.any(expected['angular_velocity'])  # the drawn gyro biases
     assert (fix.latitude, fix.longitude, fix.altitude) == (-33.5, 151.25, 120.0)
     assert fix.header.frame_id == odometry[0][1].header.frame_id == 'enu_origin'
     with open(path, 'rb') as stream:

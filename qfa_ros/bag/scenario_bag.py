@@ -3,7 +3,7 @@
 import numpy as np
 
 from qfa_ros.bag.imu_cdr import ImuEncoder
-from qfa_ros.bag.qos import QOS_LATCHED, QOS_SENSOR_DATA
+from qfa_ros.bag.qos import QOS_DEFAULT, QOS_LATCHED, QOS_SENSOR_DATA
 from qfa_ros.bag.trace import TraceWriter
 from qfa_ros.bag.traces import write_results
 from qfa_ros.bag.types import stamp
@@ -13,6 +13,7 @@ from qfa_ros.model.design import published_acceleration_variance
 IMU_TOPIC = '/imu/data_raw'
 TRUTH_TOPIC = '/truth/odometry'
 ORIGIN_TOPIC = '/truth/origin'
+IMU_ERRORS_TOPIC = '/truth/imu_errors'
 ORIGIN_METADATA = 'truth_origin'
 """Name of the MCAP metadata record of the truth origin (docs/ins.md)."""
 NAVSAT_STATUS_FIX = 0
@@ -30,7 +31,8 @@ class ScenarioBag:
     velocity from the gyros when ``rate_variance`` is given), with ``truth_frame_id``
     the truth: ``/truth/odometry`` (nav_msgs/Odometry, see :meth:`write_truth`) and
     ``/truth/origin`` (sensor_msgs/NavSatFix, transient local, and the MCAP metadata
-    record ``truth_origin``; see :meth:`write_origin`),
+    record ``truth_origin``; see :meth:`write_origin`) and ``/truth/imu_errors``
+    (sensor_msgs/Imu, :meth:`write_imu_errors`),
     ``/imu/temperature`` (sensor_msgs/Temperature [degC]),
     ``/qfa/scenario/phase`` (std_msgs/String naming the phase that starts at its log
     time) and estimation traces under ``/qfa/trace/<run>/...`` (see
@@ -53,6 +55,7 @@ class ScenarioBag:
         if truth_frame_id is not None:
             self.bag.add_topic(TRUTH_TOPIC, 'nav_msgs/msg/Odometry', QOS_SENSOR_DATA)
             self.bag.add_topic(ORIGIN_TOPIC, 'sensor_msgs/msg/NavSatFix', QOS_LATCHED)
+            self.bag.add_topic(IMU_ERRORS_TOPIC, 'sensor_msgs/msg/Imu', QOS_DEFAULT)
         self.bag.add_topic(IMU_TOPIC, 'sensor_msgs/msg/Imu', QOS_SENSOR_DATA)
         self.bag.add_topic(TEMPERATURE_TOPIC, 'sensor_msgs/msg/Temperature', QOS_SENSOR_DATA)
         self.bag.add_topic(PHASE_TOPIC, 'std_msgs/msg/String', QOS_LATCHED)
@@ -116,6 +119,18 @@ class ScenarioBag:
             'longitude_deg': repr(float(longitude_deg)),
             'height_m': repr(float(height_m)), 'frame_id': self.truth_frame_id,
             'datum': 'WGS-84', 'topic': TRUTH_TOPIC})
+
+    def write_imu_errors(self, time_ns, truth):
+        """Write an :class:`~qfa_ros.model.error_truth.ErrorTruth` on ``/truth/imu_errors``."""
+        fields = truth.imu_fields()
+        message = {'header': {'stamp': stamp(int(time_ns)), 'frame_id': self.frame_id},
+                   'orientation': {'x': 0.0, 'y': 0.0, 'z': 0.0, 'w': 1.0}}
+        for name in ('linear_acceleration', 'angular_velocity'):
+            message[name] = dict(zip('xyz', fields[name]))
+        for name in ('linear_acceleration_covariance', 'angular_velocity_covariance',
+                     'orientation_covariance'):
+            message[name] = fields[name]
+        self.bag.write(IMU_ERRORS_TOPIC, message, int(time_ns))
 
     def write_temperature(self, stamps_ns, celsius, variance=0.0):
         """Write sensor temperatures [degC] at ``stamps_ns``."""

@@ -27,6 +27,7 @@ from qfa_ros.calibration.schedule import sensor_time_ns
 from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
+from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom, sensor_config
 from qfa_ros.model.gyro import DEG_PER_HOUR
 from qfa_ros.model.noise import MICRO_G
@@ -38,6 +39,8 @@ from qfa_ros.model.unit import draw_unit
 CHUNK_SECONDS = 30.0
 """Sensor time per chunk of the static and trajectory scenarios [s]: long enough for the
 axes' threads and for the next chunk's preparation to overlap a chunk's loops."""
+IMU_ERRORS_PERIOD_S = 10.0
+"""Period of ``/truth/imu_errors`` in trajectory bags [s] (the errors move slowly)."""
 SIM_START_NS = 1_767_225_600_000_000_000
 """Default start of simulated recordings: 2026-01-01T00:00:00Z [ns since the epoch].
 
@@ -147,6 +150,22 @@ def build_trajectory(args):
         yaw=math.radians(args.yaw))
 
 
+def trajectory_chunks(triad, total, chunk, with_errors):
+    """
+    Yield the trajectory's output chunks; with ``with_errors``, stop between them.
+
+    Error truth is read from the triad between chunks (``/truth/imu_errors`` every
+    :data:`IMU_ERRORS_PERIOD_S`), which :meth:`QfaTriad.run_chunks` does not allow (it
+    runs the next chunk while the caller handles one); the numbers are the same.
+    """
+    if not with_errors:
+        yield from triad.run_chunks(total, chunk)
+        return
+    step = int(round(IMU_ERRORS_PERIOD_S * triad.config.sample_rate_hz))
+    for start in range(0, total, step):
+        yield triad.run(min(step, total - start))
+
+
 def run_trajectory(args, out=None):
     """Move the full IMU along a trajectory; write the stream and its ground truth."""
     out = out or sys.stdout
@@ -175,11 +194,15 @@ def run_trajectory(args, out=None):
             origin = motion.kinematics(np.array([motion.start]))
             bag.write_origin(args.start_ns, math.degrees(origin['latitude'][0]),
                              math.degrees(origin['longitude'][0]), origin['height'][0])
-        for part in triad.run_chunks(total, chunk):
+        for part in trajectory_chunks(triad, total, chunk, bag is not None):
             accel_error += (part.accel - part.truth).sum(axis=0)
             gyro_error += (part.gyro - part.rate_truth).sum(axis=0)
             if bag:
                 bag.write_imu(part)
+                # The triad is at the chunk's end: the errors it holds there.
+                end_s = (int(part.stamps_ns[-1]) - args.start_ns) / 1e9
+                bag.write_imu_errors(part.stamps_ns[-1], error_truth(
+                    triad, motion.evaluate(np.array([end_s]))[0]))
                 index = done + np.arange(len(part.stamps_ns))
                 picked = (index + 1) % truth_every == 0
                 if picked.any():
@@ -199,7 +222,8 @@ def run_trajectory(args, out=None):
               f'{gyro_error[i] / total / DEG_PER_HOUR:17.4f}', file=out)
     if args.out is not None:
         print(f'wrote {args.out}: /imu/data_raw (Imu with angular velocity), '
-              f'/truth/odometry at {config.sample_rate_hz / truth_every:g} Hz, /truth/origin',
+              f'/truth/odometry at {config.sample_rate_hz / truth_every:g} Hz, /truth/origin, '
+              f'/truth/imu_errors every {IMU_ERRORS_PERIOD_S:g} s',
               file=out)
     return 0
 

@@ -69,6 +69,25 @@ class ErrorTruth:
     gyro_asymmetry: np.ndarray
     temperature: float
 
+    def imu_fields(self):
+        """
+        Return the ``truth/imu_errors`` layout: a dict of sensor_msgs/Imu field values.
+
+        ``linear_acceleration``: accelerometer bias; ``angular_velocity``: gyro bias;
+        ``linear_acceleration_covariance`` / ``angular_velocity_covariance``: ``N_a`` /
+        ``N_g`` row major; ``orientation_covariance``: K2 x, y, z, gyro asymmetry x, y, z,
+        body temperature, 0, 0 (``docs/ins.md``). Without gyros their fields are zero.
+        """
+        def floats(values):
+            return [float(v) for v in np.nan_to_num(np.ravel(values))]
+        return {'linear_acceleration': floats(self.accel_bias),
+                'angular_velocity': floats(self.gyro_bias),
+                'linear_acceleration_covariance': floats(self.accel_matrix),
+                'angular_velocity_covariance': floats(self.gyro_matrix),
+                'orientation_covariance': floats(np.concatenate([
+                    self.accel_k2, np.nan_to_num(self.gyro_asymmetry),
+                    [self.temperature, 0.0, 0.0]]))}
+
     def accel_output(self, force):
         """Return the published output the truth implies for specific forces (n, 3)."""
         force = np.atleast_2d(np.asarray(force, dtype=float))

@@ -58,16 +58,13 @@ def imu_errors_message(truth, stamp_ns, frame_id):
     _stamp(message.header.stamp, stamp_ns)
     message.header.frame_id = frame_id
     message.orientation.w = 1.0
-    a, g = truth.accel_bias, np.nan_to_num(truth.gyro_bias)
-    message.linear_acceleration.x, message.linear_acceleration.y, \
-        message.linear_acceleration.z = (float(v) for v in a)
-    message.angular_velocity.x, message.angular_velocity.y, message.angular_velocity.z = (
-        float(v) for v in g)
-    message.linear_acceleration_covariance = [float(v) for v in truth.accel_matrix.ravel()]
-    message.angular_velocity_covariance = [
-        float(v) for v in np.nan_to_num(truth.gyro_matrix).ravel()]
-    message.orientation_covariance = [float(v) for v in np.concatenate([
-        truth.accel_k2, np.nan_to_num(truth.gyro_asymmetry), [truth.temperature, 0.0, 0.0]])]
+    fields = truth.imu_fields()
+    for name in ('linear_acceleration', 'angular_velocity'):
+        vector = getattr(message, name)
+        vector.x, vector.y, vector.z = fields[name]
+    for name in ('linear_acceleration_covariance', 'angular_velocity_covariance',
+                 'orientation_covariance'):
+        setattr(message, name, fields[name])
     return message
 
 
