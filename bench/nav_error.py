@@ -25,7 +25,9 @@ apart from the emulator), height held (a height aid: the free vertical channel d
 The INS is aligned as a real one is: roll and pitch by levelling on the first 15 s at rest
 (the accelerometers' mean, which absorbs their constant horizontal bias into the tilt),
 heading true (a perfect gyrocompass). Reported: the horizontal position error [m] after 10
-and 60 minutes, mean and maximum over the units. Prints Markdown; writes the figure.
+and 60 minutes, mean and maximum over the units, and the height error of the same stream
+navigated with a free vertical channel after 5 and 10 minutes (where the z axis's scale
+factor acts on g). Prints Markdown; writes the figure.
 """
 
 import argparse
@@ -89,7 +91,12 @@ def levelled_attitude(force, dcm):
 
 
 def navigate(triad, motion, minutes):
-    """Move ``triad`` along ``motion`` for ``minutes``; return the horizontal error (n,) [m]."""
+    """
+    Move ``triad`` along ``motion`` for ``minutes``; return two errors per sample [m].
+
+    The horizontal error with the height held, and the height error of the free vertical
+    channel (no height aid; it diverges, so only its first minutes mean anything).
+    """
     start = triad.time
     path = motion.shifted(start)
     triad.profile = path
@@ -103,13 +110,15 @@ def navigate(triad, motion, minutes):
     k0 = path.kinematics(np.array([start]))
     level = int(LEVEL_S * RATE_HZ)
     dcm = levelled_attitude(accel[:level].mean(axis=0), k0['dcm'][0])
-    positions, _, _ = strapdown.navigate(rate, accel, 1.0 / RATE_HZ, k0['latitude'][0],
-                                         k0['longitude'][0], k0['height'][0],
-                                         k0['velocity'][0], dcm, hold_height=True)
     truth = path.kinematics(start + np.arange(1, n + 1) / RATE_HZ)
-    error = strapdown.position_error(positions, truth['latitude'], truth['longitude'],
-                                     truth['height'])
-    return np.hypot(error[:, 0], error[:, 1])
+    errors = []
+    for held in (True, False):
+        positions, _, _ = strapdown.navigate(rate, accel, 1.0 / RATE_HZ, k0['latitude'][0],
+                                             k0['longitude'][0], k0['height'][0],
+                                             k0['velocity'][0], dcm, hold_height=held)
+        errors.append(strapdown.position_error(positions, truth['latitude'],
+                                               truth['longitude'], truth['height']))
+    return np.hypot(errors[0][:, 0], errors[0][:, 1]), np.abs(errors[1][:, 2])
 
 
 def run_unit(seed, minutes):
@@ -136,8 +145,9 @@ def run_unit(seed, minutes):
                 triad.thermal.set_ambient(ambient_profile='ramp', ambient_c=25.0,
                                           ramp_rate_c_per_s=RAMP_C / 3600.0,
                                           ramp_limits_c=(25.0, 25.0 + RAMP_C))
-            error = navigate(triad, motion, minutes)
-            results[(case, name)] = error[every - 1::every]
+            horizontal, vertical = navigate(triad, motion, minutes)
+            results[(case, name)] = horizontal[every - 1::every]
+            results[(case, f'{name}, free height')] = vertical[every - 1::every]
     return results
 
 
@@ -208,6 +218,16 @@ def main():
             cells = ' | '.join(f'{errors[:, m - 1].mean():.1f} | {errors[:, m - 1].max():.1f}'
                                for m in marks)
             print(f'| {case} | {motion} | {cells} |')
+    if (CASES[0], 'drive, free height') in table and args.minutes >= 10:
+        print('\nHeight error of the free vertical channel (no height aid) [m]\n')
+        print('| case | drive 5 min mean | drive 10 min mean | static 5 min mean | '
+              'static 10 min mean |')
+        print('|---|---|---|---|---|')
+        for case in CASES:
+            cells = ' | '.join(
+                f'{np.mean(table[(case, f"{motion}, free height")], axis=0)[m - 1]:.1f}'
+                for motion in MOTIONS for m in (5, 10))
+            print(f'| {case} | {cells} |')
     if args.figure:
         figure(args.minutes, table, args.figure)
         print(f'\nfigure: {args.figure}')
