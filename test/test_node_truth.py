@@ -136,6 +136,9 @@ def test_drift_shows_in_the_truth_and_a_correction_is_an_event(setup):
     steps = np.array([float(values[f'accel_scale_change_ppm_{a}']) for a in 'xyz'])
     # The correction undoes the drift within the schedule's estimate (1 cycle of 1 s).
     assert np.allclose(steps, FEEDBACK_PPM, atol=150.0), steps
+    first = int(values['stamp_ns'])
+    client.spin_until(lambda: stamp_ns(truth.errors[-1].header) >= first, 30,
+                      'the truth after the correction')
     corrected = errors_of(truth.errors[-1])[1].diagonal()
     assert np.all(np.abs(corrected - before) < 150e-6)
     response = client.call(SetBool, f'{NODE}/set_compensation', SetBool.Request(data=False))
