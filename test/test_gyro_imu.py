@@ -179,11 +179,11 @@ def test_qfa_sim_trajectory_writes_imu_and_truth(tmp_path, capsys):
     truth = tr.rate_table_turn()
     with AnyReader([path]) as reader:
         topics = {c.topic: c for c in reader.connections}
-        assert topics['/qfa/truth/odometry'].msgtype == 'nav_msgs/msg/Odometry'
+        assert topics['/truth/odometry'].msgtype == 'nav_msgs/msg/Odometry'
         imu = [deserialize_message(raw, Imu) for c, _, raw in
                reader.messages(connections=[topics['/imu/data_raw']])]
         odometry = [deserialize_message(raw, Odometry) for c, _, raw in
-                    reader.messages(connections=[topics['/qfa/truth/odometry']])]
+                    reader.messages(connections=[topics['/truth/odometry']])]
     assert len(imu) == 600 and len(odometry) == 150
     assert imu[-1].angular_velocity_covariance[0] > 0
     # At rest for the first 10 s: the gyros see the Earth rate (x north, 45 deg).

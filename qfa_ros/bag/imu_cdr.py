@@ -103,3 +103,37 @@ class ImuEncoder:
         data = buffer.tobytes()
         size = self.size
         return [data[i * size:(i + 1) * size] for i in range(count)]
+
+
+def decode_imu(messages):
+    """
+    Return (stamps_ns int64[n], accel (n, 3), rate (n, 3)) of serialized Imu messages.
+
+    The inverse of :meth:`ImuEncoder.encode` for any little-endian CDR ``sensor_msgs/msg/Imu``
+    stream whose ``header.frame_id`` keeps one length (every message of a stream from
+    one sensor): the fields are read at their offsets with numpy, not message by message.
+
+    :raises ValueError: a message is not little-endian CDR or differs in size.
+    """
+    messages = list(messages)
+    if not messages:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+    first = messages[0]
+    if first[:4] != ENCAPSULATION:
+        raise ValueError('decode_imu reads little-endian plain CDR only')
+    name_length = struct.unpack_from('<I', first, 12)[0]
+    orientation = (12 + name_length + 7) // 8 * 8
+    size = len(first)
+    if any(len(m) != size for m in messages):
+        raise ValueError('decode_imu needs messages of one size (one frame_id)')
+    buffer = np.frombuffer(b''.join(messages), dtype=np.uint8).reshape(len(messages), size)
+    start = len(ENCAPSULATION)
+    stamp = np.ascontiguousarray(buffer[:, start:start + 8]).view('<u4').astype(np.int64)
+    stamps = stamp[:, 0] * NS_PER_S + stamp[:, 1]
+
+    def vectors(offset):
+        return np.ascontiguousarray(buffer[:, offset:offset + 24]).view('<f8').astype(float)
+
+    base = start + orientation
+    return (stamps, vectors(base + 8 * _DOUBLES_BEFORE_ACCEL),
+            vectors(base + 8 * _DOUBLES_BEFORE_RATE))

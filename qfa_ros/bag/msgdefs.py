@@ -136,6 +136,80 @@ MESSAGE_TEXTS = {
         'geometry_msgs/Vector3 linear_acceleration\n'
         'float64[9] linear_acceleration_covariance # Row major x, y z\n'
     ),
+    'sensor_msgs/msg/NavSatFix': (
+        '# Navigation Satellite fix for any Global Navigation Satellite System\n'
+        '#\n'
+        '# Specified using the WGS 84 reference ellipsoid\n'
+        '\n'
+        '# header.stamp specifies the ROS time for this measurement (the\n'
+        '#        corresponding satellite time may be reported using the\n'
+        '#        sensor_msgs/TimeReference message).\n'
+        '#\n'
+        '# header.frame_id is the frame of reference reported by the satellite\n'
+        '#        receiver, usually the location of the antenna.  This is a\n'
+        '#        Euclidean frame relative to the vehicle, not a reference\n'
+        '#        ellipsoid.\n'
+        'std_msgs/Header header\n'
+        '\n'
+        '# Satellite fix status information.\n'
+        'NavSatStatus status\n'
+        '\n'
+        '# Latitude [degrees]. Positive is north of equator; negative is south.\n'
+        'float64 latitude\n'
+        '\n'
+        '# Longitude [degrees]. Positive is east of prime meridian; negative is west.\n'
+        'float64 longitude\n'
+        '\n'
+        '# Altitude [m]. Positive is above the WGS 84 ellipsoid\n'
+        '# (quiet NaN if no altitude is available).\n'
+        'float64 altitude\n'
+        '\n'
+        '# Position covariance [m^2] defined relative to a tangential plane\n'
+        '# through the reported position. The components are East, North, and\n'
+        '# Up (ENU), in row-major order.\n'
+        '#\n'
+        '# Beware: this coordinate system exhibits singularities at the poles.\n'
+        'float64[9] position_covariance\n'
+        '\n'
+        '# If the covariance of the fix is known, fill it in completely. If the\n'
+        '# GPS receiver provides the variance of each measurement, put them\n'
+        '# along the diagonal. If only Dilution of Precision is available,\n'
+        '# estimate an approximate covariance from that.\n'
+        '\n'
+        'uint8 COVARIANCE_TYPE_UNKNOWN = 0\n'
+        'uint8 COVARIANCE_TYPE_APPROXIMATED = 1\n'
+        'uint8 COVARIANCE_TYPE_DIAGONAL_KNOWN = 2\n'
+        'uint8 COVARIANCE_TYPE_KNOWN = 3\n'
+        '\n'
+        'uint8 position_covariance_type\n'
+    ),
+    'sensor_msgs/msg/NavSatStatus': (
+        '# Navigation Satellite fix status for any Global Navigation Satellite System.\n'
+        '#\n'
+        '# Whether to output an augmented fix is determined by both the fix\n'
+        '# type and the last time differential corrections were received.  A\n'
+        '# fix is valid when status >= STATUS_FIX.\n'
+        '\n'
+        'int8 STATUS_UNKNOWN = -2        # status is not yet set\n'
+        'int8 STATUS_NO_FIX =  -1        # unable to fix position\n'
+        'int8 STATUS_FIX =      0        # unaugmented fix\n'
+        'int8 STATUS_SBAS_FIX = 1        # with satellite-based augmentation\n'
+        'int8 STATUS_GBAS_FIX = 2        # with ground-based augmentation\n'
+        '\n'
+        'int8 status -2 # STATUS_UNKNOWN\n'
+        '\n'
+        '# Bits defining which Global Navigation Satellite System signals were\n'
+        '# used by the receiver.\n'
+        '\n'
+        'uint16 SERVICE_UNKNOWN = 0  # Remember service is a bitfield, so checking'
+        ' (service & SERVICE_UNKNOWN) will not work. Use == instead.\n'
+        'uint16 SERVICE_GPS =     1\n'
+        'uint16 SERVICE_GLONASS = 2\n'
+        'uint16 SERVICE_COMPASS = 4      # includes BeiDou.\n'
+        'uint16 SERVICE_GALILEO = 8\n'
+        '\n'
+        'uint16 service\n'
+    ),
     'sensor_msgs/msg/Temperature': (
         '# Single temperature reading.\n'
         '\n'
@@ -346,6 +420,7 @@ MESSAGE_DEFINITIONS = {name: compose_definition(name) for name in (
     'nav_msgs/msg/Odometry',
     'rosgraph_msgs/msg/Clock',
     'sensor_msgs/msg/Imu',
+    'sensor_msgs/msg/NavSatFix',
     'sensor_msgs/msg/Temperature',
     'std_msgs/msg/Bool',
     'std_msgs/msg/Float64',
@@ -374,6 +449,10 @@ TYPE_HASHES = {
         'RIHS01_692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564',
     'sensor_msgs/msg/Imu':
         'RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b',
+    'sensor_msgs/msg/NavSatFix':
+        'RIHS01_62223ab3fe210a15976021da7afddc9e200dc9ec75231c1b6a557fc598a65404',
+    'sensor_msgs/msg/NavSatStatus':
+        'RIHS01_d1ed3befa628e09571bd273b888ba1c1fd187c9a5e0006b385d7e5e9095a3204',
     'sensor_msgs/msg/Temperature':
         'RIHS01_72514a14126ab9f8a9abec974c78e5610a367b59db5da355ff1fb982d5bad4b8',
     'std_msgs/msg/Bool':

@@ -3,7 +3,7 @@
 import numpy as np
 
 from qfa_ros.bag.imu_cdr import ImuEncoder
-from qfa_ros.bag.qos import QOS_LATCHED, QOS_SENSOR_DATA
+from qfa_ros.bag.qos import QOS_DEFAULT, QOS_LATCHED, QOS_SENSOR_DATA
 from qfa_ros.bag.trace import TraceWriter
 from qfa_ros.bag.traces import write_results
 from qfa_ros.bag.types import stamp
@@ -11,7 +11,13 @@ from qfa_ros.bag.writer import McapBagWriter
 from qfa_ros.model.design import published_acceleration_variance
 
 IMU_TOPIC = '/imu/data_raw'
-TRUTH_TOPIC = '/qfa/truth/odometry'
+TRUTH_TOPIC = '/truth/odometry'
+ORIGIN_TOPIC = '/truth/origin'
+IMU_ERRORS_TOPIC = '/truth/imu_errors'
+ORIGIN_METADATA = 'truth_origin'
+"""Name of the MCAP metadata record of the truth origin (docs/ins.md)."""
+NAVSAT_STATUS_FIX = 0
+NAVSAT_COVARIANCE_TYPE_KNOWN = 3
 TEMPERATURE_TOPIC = '/imu/temperature'
 PHASE_TOPIC = '/qfa/scenario/phase'
 
@@ -22,8 +28,11 @@ class ScenarioBag:
 
     Topics: ``/imu/data_raw`` (sensor_msgs/Imu, REP-145, log time = header stamp =
     the triad's stamps [ns]: ``qfa-sim``'s ``--start-time`` + sensor time; angular
-    velocity from the gyros when ``rate_variance`` is given), ``/qfa/truth/odometry``
-    (nav_msgs/Odometry, see :meth:`write_truth`),
+    velocity from the gyros when ``rate_variance`` is given), with ``truth_frame_id``
+    the truth: ``/truth/odometry`` (nav_msgs/Odometry, see :meth:`write_truth`) and
+    ``/truth/origin`` (sensor_msgs/NavSatFix, transient local, and the MCAP metadata
+    record ``truth_origin``; see :meth:`write_origin`) and ``/truth/imu_errors``
+    (sensor_msgs/Imu, :meth:`write_imu_errors`),
     ``/imu/temperature`` (sensor_msgs/Temperature [degC]),
     ``/qfa/scenario/phase`` (std_msgs/String naming the phase that starts at its log
     time) and estimation traces under ``/qfa/trace/<run>/...`` (see
@@ -45,6 +54,8 @@ class ScenarioBag:
         self.truth_frame_id = truth_frame_id
         if truth_frame_id is not None:
             self.bag.add_topic(TRUTH_TOPIC, 'nav_msgs/msg/Odometry', QOS_SENSOR_DATA)
+            self.bag.add_topic(ORIGIN_TOPIC, 'sensor_msgs/msg/NavSatFix', QOS_LATCHED)
+            self.bag.add_topic(IMU_ERRORS_TOPIC, 'sensor_msgs/msg/Imu', QOS_DEFAULT)
         self.bag.add_topic(IMU_TOPIC, 'sensor_msgs/msg/Imu', QOS_SENSOR_DATA)
         self.bag.add_topic(TEMPERATURE_TOPIC, 'sensor_msgs/msg/Temperature', QOS_SENSOR_DATA)
         self.bag.add_topic(PHASE_TOPIC, 'std_msgs/msg/String', QOS_LATCHED)
@@ -70,7 +81,7 @@ class ScenarioBag:
 
     def write_truth(self, stamps_ns, position, orientation, velocity, body_rate):
         """
-        Write the true pose and twist on ``/qfa/truth/odometry`` (nav_msgs/Odometry).
+        Write the true pose and twist on ``/truth/odometry`` (nav_msgs/Odometry).
 
         ``header.frame_id`` is the ENU tangent plane of the trajectory's start,
         ``child_frame_id`` the IMU frame; position [m] and orientation (x, y, z, w) in
@@ -91,6 +102,36 @@ class ScenarioBag:
                                     'angular': dict(zip('xyz', w))},
                           'covariance': zero}}, time_ns)
 
+    def write_origin(self, time_ns, latitude_deg, longitude_deg, height_m):
+        """
+        Write the truth origin: the geodetic point of the odometry's ENU tangent plane.
+
+        On ``/truth/origin`` (sensor_msgs/NavSatFix at ``time_ns``, ``header.frame_id``
+        the truth frame, status fix, the position exact: covariance zero of the known
+        type) and as the MCAP metadata record ``truth_origin`` (``latitude_deg``,
+        ``longitude_deg``, ``height_m`` above the WGS-84 ellipsoid, ``frame_id``,
+        ``datum``), so that a reader without a message decoder finds it too.
+        """
+        self.bag.write(ORIGIN_TOPIC, origin_fix(time_ns, self.truth_frame_id, latitude_deg,
+                                                longitude_deg, height_m), int(time_ns))
+        self.bag.add_metadata(ORIGIN_METADATA, {
+            'latitude_deg': repr(float(latitude_deg)),
+            'longitude_deg': repr(float(longitude_deg)),
+            'height_m': repr(float(height_m)), 'frame_id': self.truth_frame_id,
+            'datum': 'WGS-84', 'topic': TRUTH_TOPIC})
+
+    def write_imu_errors(self, time_ns, truth):
+        """Write an :class:`~qfa_ros.model.error_truth.ErrorTruth` on ``/truth/imu_errors``."""
+        fields = truth.imu_fields()
+        message = {'header': {'stamp': stamp(int(time_ns)), 'frame_id': self.frame_id},
+                   'orientation': {'x': 0.0, 'y': 0.0, 'z': 0.0, 'w': 1.0}}
+        for name in ('linear_acceleration', 'angular_velocity'):
+            message[name] = dict(zip('xyz', fields[name]))
+        for name in ('linear_acceleration_covariance', 'angular_velocity_covariance',
+                     'orientation_covariance'):
+            message[name] = fields[name]
+        self.bag.write(IMU_ERRORS_TOPIC, message, int(time_ns))
+
     def write_temperature(self, stamps_ns, celsius, variance=0.0):
         """Write sensor temperatures [degC] at ``stamps_ns``."""
         for time_ns, value in zip(np.asarray(stamps_ns).tolist(),
@@ -108,3 +149,12 @@ class ScenarioBag:
         namespace = '/qfa/trace' if run is None else f'/qfa/trace/{run}'
         trace = TraceWriter.in_bag(self.bag, namespace)
         write_results(trace, kind, results, context)
+
+
+def origin_fix(time_ns, frame_id, latitude_deg, longitude_deg, height_m):
+    """Return the sensor_msgs/NavSatFix mapping of a truth origin (exact, a fix)."""
+    return {'header': {'stamp': stamp(int(time_ns)), 'frame_id': frame_id},
+            'status': {'status': NAVSAT_STATUS_FIX, 'service': 0},
+            'latitude': float(latitude_deg), 'longitude': float(longitude_deg),
+            'altitude': float(height_m), 'position_covariance': [0.0] * 9,
+            'position_covariance_type': NAVSAT_COVARIANCE_TYPE_KNOWN}

@@ -141,6 +141,7 @@ class McapBagWriter:
         self.part_path = self.path.with_name(self.path.name + PART_SUFFIX)
         self._overwrite = bool(overwrite)
         self._custom_data = {str(k): str(v) for k, v in (storage_metadata or {}).items()}
+        self._extra_metadata = {}
         self._ros_distro = str(ros_distro)
         self._compression_name = None if compression in (None, 'none') else compression
         self._topics = {}
@@ -469,6 +470,21 @@ class McapBagWriter:
             'ros_distro': self._ros_distro,
         }
 
+    def add_metadata(self, name, record):
+        """
+        Add an MCAP metadata record ``name`` (str to str) written at ``finish()``.
+
+        After the ``rosbag2`` record, in the order added; a second record of one name
+        replaces the first.
+        """
+        if name == 'rosbag2':
+            raise ValueError('metadata name rosbag2 is the bag metadata record')
+        record = {str(k): str(v) for k, v in record.items()}
+        with self._lock:
+            self._check_open('add metadata to')
+            self._extra_metadata[str(name)] = record
+            self._finish_overhead += 64 + sum(len(k) + len(v) + 8 for k, v in record.items())
+
     def finish(self):
         """Complete the file and publish it under its final name; idempotent.
 
@@ -491,6 +507,8 @@ class McapBagWriter:
                 self._writer.add_metadata(
                     'rosbag2', {'serialized_metadata': dump_yaml(self.bag_metadata())}
                 )
+                for name, record in self._extra_metadata.items():
+                    self._writer.add_metadata(name, record)
                 self._writer.finish()
                 self._file.sync_and_close()
                 publish_part(self.part_path, self.path, self._overwrite)

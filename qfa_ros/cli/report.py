@@ -1,4 +1,8 @@
-"""``qfa-report BAG... [--out DIR]``: draw PNG figures from traces and scenario bags."""
+"""
+``qfa-report BAG... [--out DIR]``: draw PNG figures from traces and scenario bags.
+
+``qfa-report imu-yaml CONFIG|BAG``: write an ``imu.yaml`` (:mod:`qfa_ros.cli.imu_yaml`).
+"""
 
 import argparse
 from pathlib import Path
@@ -11,6 +15,11 @@ from qfa_ros.report.figures import report
 @stops_quietly('qfa-report')
 def main(argv=None):
     """Run the report command line; return the exit status."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    if args[:1] == ['imu-yaml']:
+        from qfa_ros.cli.imu_yaml import main as imu_yaml
+        return imu_yaml(args[1:])
+    argv = args
     parser = argparse.ArgumentParser(
         prog='qfa-report',
         description='Plot qfa_ros estimation traces and qfa-sim scenario bags as PNG figures '

@@ -6,7 +6,8 @@ Runs without ROS or DDS, as fast as it can. Bags start at ``--start-time`` (defa
 a timeline, the same for every run. ``qfa-sim trajectory --motion drive``
 (or ``--trajectory-file poses.csv``) moves the full IMU (QFA accelerometers and gyros)
 along a trajectory on the WGS-84 Earth and writes the stream with its ground truth
-(nav_msgs/Odometry on ``/qfa/truth/odometry``) so that an INS can be scored.
+(nav_msgs/Odometry on ``/truth/odometry`` in the ENU tangent plane of the start, whose
+geodetic origin is on ``/truth/origin``, docs/ins.md) so that an INS can be scored.
 """
 
 import argparse
@@ -27,7 +28,8 @@ from qfa_ros.cli.interrupt import stops_quietly
 from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
-from qfa_ros.model.errors import PaperRoom
+from qfa_ros.model.error_truth import error_truth
+from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom, sensor_config
 from qfa_ros.model.gyro import DEG_PER_HOUR
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.parallel import run_chains
@@ -38,6 +40,8 @@ from qfa_ros.model.unit import draw_unit
 CHUNK_SECONDS = 30.0
 """Sensor time per chunk of the static and trajectory scenarios [s]: long enough for the
 axes' threads and for the next chunk's preparation to overlap a chunk's loops."""
+IMU_ERRORS_PERIOD_S = 10.0
+"""Period of ``/truth/imu_errors`` in trajectory bags [s] (the errors move slowly)."""
 SIM_START_NS = 1_767_225_600_000_000_000
 """Default start of simulated recordings: 2026-01-01T00:00:00Z [ns since the epoch].
 
@@ -88,6 +92,7 @@ def run_static(args, out=None):
     """
     out = out or sys.stdout
     config, profile = static_sensor()
+    config = sensor_config(args.error_profile, config)
     if args.out is None:
         config = dataclasses.replace(config, gyro=None)
     triad = QfaTriad(config, rng=args.seed, profile=profile, start_ns=args.start_ns)
@@ -146,6 +151,22 @@ def build_trajectory(args):
         yaw=math.radians(args.yaw))
 
 
+def trajectory_chunks(triad, total, chunk, with_errors):
+    """
+    Yield the trajectory's output chunks; with ``with_errors``, stop between them.
+
+    Error truth is read from the triad between chunks (``/truth/imu_errors`` every
+    :data:`IMU_ERRORS_PERIOD_S`), which :meth:`QfaTriad.run_chunks` does not allow (it
+    runs the next chunk while the caller handles one); the numbers are the same.
+    """
+    if not with_errors:
+        yield from triad.run_chunks(total, chunk)
+        return
+    step = int(round(IMU_ERRORS_PERIOD_S * triad.config.sample_rate_hz))
+    for start in range(0, total, step):
+        yield triad.run(min(step, total - start))
+
+
 def run_trajectory(args, out=None):
     """Move the full IMU along a trajectory; write the stream and its ground truth."""
     out = out or sys.stdout
@@ -155,7 +176,7 @@ def run_trajectory(args, out=None):
         print(f'qfa-sim: {error}', file=sys.stderr)
         return 2
     duration = args.duration if args.duration is not None else max(motion.duration, 60.0)
-    config = TriadConfig(sample_rate_hz=args.rate)
+    config = sensor_config(args.error_profile, TriadConfig(sample_rate_hz=args.rate))
     triad = QfaTriad(config, rng=args.seed, profile=motion, start_ns=args.start_ns)
     chunk = int(round(CHUNK_SECONDS * config.sample_rate_hz))
     total = int(round(duration * config.sample_rate_hz))
@@ -171,11 +192,18 @@ def run_trajectory(args, out=None):
     with bag if bag else contextlib.nullcontext():
         if bag:
             bag.write_phase(motion.name, args.start_ns)
-        for part in triad.run_chunks(total, chunk):
+            origin = motion.kinematics(np.array([motion.start]))
+            bag.write_origin(args.start_ns, math.degrees(origin['latitude'][0]),
+                             math.degrees(origin['longitude'][0]), origin['height'][0])
+        for part in trajectory_chunks(triad, total, chunk, bag is not None):
             accel_error += (part.accel - part.truth).sum(axis=0)
             gyro_error += (part.gyro - part.rate_truth).sum(axis=0)
             if bag:
                 bag.write_imu(part)
+                # The triad is at the chunk's end: the errors it holds there.
+                end_s = (int(part.stamps_ns[-1]) - args.start_ns) / 1e9
+                bag.write_imu_errors(part.stamps_ns[-1], error_truth(
+                    triad, motion.evaluate(np.array([end_s]))[0]))
                 index = done + np.arange(len(part.stamps_ns))
                 picked = (index + 1) % truth_every == 0
                 if picked.any():
@@ -195,7 +223,9 @@ def run_trajectory(args, out=None):
               f'{gyro_error[i] / total / DEG_PER_HOUR:17.4f}', file=out)
     if args.out is not None:
         print(f'wrote {args.out}: /imu/data_raw (Imu with angular velocity), '
-              f'/qfa/truth/odometry at {config.sample_rate_hz / truth_every:g} Hz', file=out)
+              f'/truth/odometry at {config.sample_rate_hz / truth_every:g} Hz, /truth/origin, '
+              f'/truth/imu_errors every {IMU_ERRORS_PERIOD_S:g} s',
+              file=out)
     return 0
 
 
@@ -362,6 +392,9 @@ def build_parser():
                         help='IMU sample rate [Hz] (default 1000; 10 kHz / rate integer)')
     motion.add_argument('--truth-rate', type=float, default=100.0,
                         help='ground-truth odometry rate [Hz] (default 100)')
+    parser.add_argument('--error-profile', choices=ERROR_PROFILES, default='paper',
+                        help='static, trajectory: paper (default, the sensor with its errors) '
+                             'or ideal (every error source off; docs/ins.md)')
     parser.add_argument('--out', metavar='FILE.mcap',
                         help='write the scenario as a rosbag2-compatible MCAP file')
     parser.add_argument('--start-time', type=parse_start_time, default=SIM_START_NS,
@@ -394,6 +427,10 @@ def main(argv=None):
         return 2
     if args.trials < 1:
         print('qfa-sim: --trials must be at least 1', file=sys.stderr)
+        return 2
+    if args.error_profile != 'paper' and args.scenario not in ('static', 'trajectory'):
+        print(f'qfa-sim: --error-profile {args.error_profile} applies to static and trajectory '
+              f'(the {args.scenario} scenario estimates the errors it needs)', file=sys.stderr)
         return 2
     if args.out is not None and not args.out.endswith('.mcap'):
         print('qfa-sim: --out must name a .mcap file', file=sys.stderr)

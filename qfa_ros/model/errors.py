@@ -29,6 +29,7 @@ the paper experiment reproduces seed 1's forward 90 %, feedback 91 % and restrai
 paper's 90 %; the correlation sets the trial-to-trial scatter.
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 
 from qfa_ros.model.thermal import ThermalConfig
@@ -36,7 +37,8 @@ from qfa_ros.model.thermal import ThermalConfig
 PPM = 1e-6
 N_AXES = 3
 ERROR_PROFILES = ('paper', 'ideal')
-"""Names of :func:`error_profile`."""
+"""Names of :func:`error_profile` and of :func:`sensor_config` (the sensor-wide switch)."""
+ZERO3 = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -140,3 +142,61 @@ class PaperRoom:
                              room_correlation_s=self.room_correlation_s,
                              initial_sensor_c=room_c, bias_model='none',
                              sf_tc_ppm_per_c=(0.0, 0.0, 0.0))
+
+
+def ideal_thermal(thermal):
+    """
+    Return ``thermal`` (a ThermalConfig, or None) with no error of the sensor.
+
+    The ambient, the body lag and the temperature sensor's scale and ADC stay (they are
+    the environment and the reading, not errors of the acceleration); the zero bias
+    versus temperature, the scale-factor curve, its offset, the bias hysteresis, the
+    temperature-probe lag and the temperature-sensor noise are zero.
+    """
+    if thermal is None:
+        return None
+    return dataclasses.replace(thermal, bias_model='none', hysteresis_m_s2=ZERO3,
+                               sf_tc_ppm_per_c=ZERO3, sf_tc2_ppm_per_c2=ZERO3,
+                               sf_tc3_ppm_per_c3=ZERO3, sf_offset_ppm=ZERO3,
+                               probe_tau_s=0.0, tsensor_noise_v=0.0)
+
+
+def ideal_config(config):
+    """
+    Return ``config`` (a TriadConfig) with every error source it can switch off, off.
+
+    Accelerometers: white noise, bias instability and ADC input noise (the noise
+    model's correlation times are kept), the IEEE 1293 bias, K2 and misalignment, the
+    thermal zero-bias and scale-factor curves (:func:`ideal_thermal`). Gyros (when
+    present): every term of the IEEE 952 model and its per-unit draw (ARW, bias
+    instability, rate random walk, turn-on bias, scale factor and asymmetry,
+    misalignment, g-sensitivity, temperature terms, quantization); the range stays.
+    What cannot be off: the loop's ADC and DAC quantization and the loop dynamics
+    (they are the closed loop), averaged into each published sample.
+    """
+    gyro = config.gyro
+    if gyro is not None:
+        gyro = gyro.with_errors(arw=0.0, bias_instability=0.0, rate_random_walk=0.0,
+                                turn_on_bias=0.0, scale_factor=0.0,
+                                scale_factor_asymmetry=0.0, misalignment=0.0,
+                                g_sensitivity=0.0, bias_tc=0.0, scale_factor_tc=0.0,
+                                quantization=0.0, bias=ZERO3)
+    noise = dataclasses.replace(config.noise, noise_density=0.0, bias_instability=0.0,
+                                adc_noise=0.0)
+    return dataclasses.replace(config, noise=noise, bias=ZERO3, k2=ZERO3,
+                               misalignment=(ZERO3, ZERO3, ZERO3),
+                               thermal=ideal_thermal(config.thermal), gyro=gyro)
+
+
+def sensor_config(name, config):
+    """
+    Return ``config`` (a TriadConfig) under the sensor-wide error profile ``name``.
+
+    ``paper``: ``config`` itself (today's sensor, unchanged); ``ideal``:
+    :func:`ideal_config`. The component temperature coefficients of the same name are
+    :func:`error_profile`'s (written into a built triad).
+
+    :raises ValueError: ``name`` is not one of :data:`ERROR_PROFILES`.
+    """
+    error_profile(name)
+    return ideal_config(config) if name == 'ideal' else config

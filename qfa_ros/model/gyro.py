@@ -201,6 +201,11 @@ class GyroTriad:
         self._angle_residual = np.zeros(3)
         self._sensing = np.eye(3) + self.unit.misalignment
 
+    @property
+    def in_run_bias(self):
+        """Return the slow bias processes' value held now (3,) [rad/s]: flicker + walk."""
+        return self._slow.copy()
+
     def variance(self):
         """Return the variance of one published sample per axis [(rad/s)^2] (REP-145)."""
         c = self.config

@@ -324,6 +324,16 @@ class ThermalModel:
         """Return the body temperature at the next sample [degC]."""
         return self._sensor_now
 
+    @property
+    def probe_c(self):
+        """Return the temperature-sensor chip's temperature at the next sample [degC]."""
+        return self._probe_now
+
+    @property
+    def hysteresis(self):
+        """Return the bias hysteresis state at the next sample (-1 cooling .. 1 heating)."""
+        return self._hysteresis_now
+
     def ambient_at(self, t):
         """Return the deterministic ambient profile at times ``t`` [s] (room: its centre)."""
         cfg = self.config

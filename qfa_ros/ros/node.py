@@ -57,6 +57,7 @@ from qfa_ros.ros.params import (
 from qfa_ros.ros.recording import StreamRecording
 from qfa_ros.ros.schedules import ScheduleService
 from qfa_ros.ros.stream import offered_qos, SampleStream
+from qfa_ros.ros.truth import TruthPublisher
 
 PPM = 1e-6
 
@@ -202,7 +203,8 @@ class QfaNode(Node):
         # Triggered by the sensor thread when a schedule ends, so that the executor wakes
         # and resumes the service coroutine awaiting it.
         schedule_done = self.create_guard_condition(self.schedule_done_callback)
-        self._stream.on_schedule_end = schedule_done.trigger
+        self._truth = TruthPublisher(self, self._lock, self._triad, values, self._stream)
+        self._stream.on_schedule_end = self._truth.chain(schedule_done.trigger)
         self.add_on_set_parameters_callback(self.validate_parameters_callback)
         self.add_post_set_parameters_callback(self.parameters_set_callback)
 
@@ -388,6 +390,7 @@ class QfaNode(Node):
             return response
         with self._lock:
             response.success, response.message = self._keeper.set_compensation(request.data)
+            self._truth.mark('set_compensation')
         if response.success:
             problem = self._keeper.save()
             if problem:

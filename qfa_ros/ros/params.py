@@ -7,6 +7,7 @@ splitting it would scatter one table over several modules.
 """
 
 from contextlib import contextmanager
+import dataclasses
 from dataclasses import dataclass
 import functools
 import math
@@ -26,7 +27,7 @@ from qfa_ros.calibration.estimation import (
 from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model import trajectory as trajectories
-from qfa_ros.model.errors import error_profile, ERROR_PROFILES, PaperRoom
+from qfa_ros.model.errors import error_profile, ERROR_PROFILES, PaperRoom, sensor_config
 from qfa_ros.model.gyro import DEG_PER_HOUR, GyroConfig
 from qfa_ros.model.hardware import STANDARD_GRAVITY
 from qfa_ros.model.noise import MICRO_G, NoiseConfig
@@ -138,10 +139,12 @@ PARAMETERS = (
                   'Thermal model: body lag, on-board temperature sensor, zero bias and '
                   'scale-factor error versus temperature (seed 2)', True),
     ParameterSpec('sensor.error_profile', 'paper',
-                  "Physical error sources of the sensor (qfa_ros.model.errors): paper, seed 1's "
-                  'component temperature coefficients (DA1 reference +20, k_tz +7, in-amp +6, '
-                  'I_ref +30, magnet/k_t +10 ppm/degC, chosen to match the paper) acting '
-                  'through the thermal model; ideal, none of them', True,
+                  "Error sources of the sensor (qfa_ros.model.errors, docs/ins.md): paper, the "
+                  "sensor with its errors (the drawn unit, noise.*, gyro.*, the thermal curves "
+                  "and seed 1's component temperature coefficients: DA1 reference +20, k_tz +7, "
+                  'in-amp +6, I_ref +30, magnet/k_t +10 ppm/degC); ideal, every source off '
+                  '(no unit draw, no noise, ideal gyros, no thermal curves or coefficients; '
+                  'model.* and drift.* still add what they set)', True,
                   choices=ERROR_PROFILES),
     ParameterSpec('thermal.ambient_profile', 'room',
                   "Ambient temperature profile (room: the paper's laboratory, wandering "
@@ -228,6 +231,13 @@ PARAMETERS = (
     ParameterSpec('gyro.turn_on_bias_deg_per_hr', round(_GYRO.turn_on_bias / DEG_PER_HOUR, 9),
                   'Spread (1 sigma) of the gyro turn-on bias drawn per unit [deg/h]', True,
                   0.0, 10000.0),
+    ParameterSpec('truth.enabled', True,
+                  'Publish truth/odometry and truth/origin (input.mode static or trajectory) and '
+                  'truth/imu_errors, the errors the model holds (docs/ins.md); '
+                  '~/calibration_events is published either way', True),
+    ParameterSpec('truth.rate_hz', 10.0,
+                  'Rate of truth/odometry and truth/imu_errors [Hz], and how often applied '
+                  'corrections are looked for', True, 0.1, 100.0),
     ParameterSpec('input.mode', 'static',
                   'Input: static orientation, scripted profile, trajectory on the Earth, or '
                   'ground-truth topic', choices=INPUT_MODES),
@@ -564,8 +574,11 @@ def temperature_settings(values):
 
 
 def unit_of(values):
-    """Return the drawn :class:`~qfa_ros.model.unit.Unit` of ``unit.*``, or None."""
-    if not values['unit.draw']:
+    """Return the drawn :class:`~qfa_ros.model.unit.Unit` of ``unit.*``, or None.
+
+    None also for ``sensor.error_profile: ideal`` (an ideal sensor is no drawn unit).
+    """
+    if not values['unit.draw'] or values['sensor.error_profile'] == 'ideal':
         return None
     seed = values['unit.seed']
     return draw_unit(values['seed'] if seed < 0 else seed)
@@ -615,6 +628,10 @@ def triad_config(values, unit=False):
             k2_ug_per_g2=tuple(values['model.k2_ug_per_g2']),
             loop_rate_hz=values['loop_rate_hz'], sample_rate_hz=values['sample_rate_hz'],
             noise=noise, thermal=thermal, gyro=gyro, misalignment=misalignment)
+    if values['sensor.error_profile'] == 'ideal':
+        # Every source of the sensor off; the operator's model.* terms stay (injected).
+        return dataclasses.replace(sensor_config('ideal', config), bias=config.bias,
+                                   k2=config.k2, misalignment=config.misalignment)
     if unit is False:
         unit = unit_of(values)
     return config if unit is None else unit.configure(config)

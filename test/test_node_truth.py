@@ -1,0 +1,166 @@
+"""The node's truth for INS developers over real DDS: pose, origin, errors, events."""
+
+import math
+import signal
+import time
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from nav_msgs.msg import Odometry
+from node_helpers import Client, domain_id, ImuCollector, NodeProcess
+import numpy as np
+import pytest
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, NavSatFix
+from std_srvs.srv import SetBool, Trigger
+
+from qfa_ros.model import trajectory as tr
+from qfa_ros.model.noise import MICRO_G
+
+NODE = '/qfa_node'
+ROLL, PITCH, YAW = 0.4, -0.3, 1.1
+FEEDBACK_PPM = [800.0, -600.0, 1000.0]
+
+
+def stamp_ns(header):
+    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+
+
+class Truth:
+    """Collect the truth topics and the calibration events of the node."""
+
+    def __init__(self, client):
+        self.odometry, self.origin, self.errors, self.events = [], [], [], []
+        client.subscribe(Odometry, 'truth/odometry', self.odometry.append)
+        client.subscribe(NavSatFix, 'truth/origin', self.origin.append, latched=True)
+        client.subscribe(Imu, 'truth/imu_errors', self.errors.append)
+        client.node.create_subscription(
+            DiagnosticStatus, f'{NODE}/calibration_events', self.events.append,
+            QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL))
+
+
+@pytest.fixture(scope='module')
+def setup(tmp_path_factory):
+    directory = tmp_path_factory.mktemp('truth')
+    domain = domain_id('truth')
+    parameters = {'state_file': '', 'output_dir': str(directory),
+                  'thermal.ambient_profile': 'constant', 'truth.rate_hz': 20.0,
+                  'input.roll': ROLL, 'input.pitch': PITCH, 'input.yaw': YAW,
+                  'estimation.realtime': False, 'estimation.feedback.cycles': 1,
+                  'estimation.feedback.settle_s': 0.2, 'estimation.feedback.average_s': 1.0,
+                  'qos_overrides./imu/data_raw.publisher.depth': 1000}
+    node = NodeProcess(domain, directory, parameters)
+    client = Client(domain)
+    imu = ImuCollector(client, depth=1000)
+    truth = Truth(client)
+    client.spin_until(lambda: imu.samples and truth.origin and len(truth.errors) > 2, 60,
+                      'the node and its truth')
+    yield {'node': node, 'client': client, 'imu': imu, 'truth': truth}
+    client.close()
+    node.stop(signal.SIGKILL)
+
+
+def errors_of(message):
+    """Return (bias (3,), N (3, 3), K2 (3,)) of a truth/imu_errors message."""
+    a = message.linear_acceleration
+    return (np.array([a.x, a.y, a.z]),
+            np.array(message.linear_acceleration_covariance).reshape(3, 3),
+            np.array(message.orientation_covariance[:3]))
+
+
+def test_static_truth_pose_and_origin(setup):
+    client, truth = setup['client'], setup['truth']
+    client.spin_until(lambda: len(truth.odometry) > 3, 30, 'truth/odometry')
+    origin = truth.origin[-1]
+    assert (origin.latitude, origin.longitude, origin.altitude) == (45.0, 0.0, 0.0)
+    assert origin.header.frame_id == 'enu_origin'
+    odometry = truth.odometry[-1]
+    assert odometry.header.frame_id == 'enu_origin' and odometry.child_frame_id == 'imu_link'
+    p, q = odometry.pose.pose.position, odometry.pose.pose.orientation
+    assert max(abs(p.x), abs(p.y), abs(p.z)) < 1e-9
+    expected = tr.dcm_to_quaternion(tr.euler_to_dcm(ROLL, PITCH, YAW))
+    assert np.allclose([q.x, q.y, q.z, q.w], expected, atol=1e-9)
+    # The truth is stamped as a sample of the stream: on the 1 kHz grid of imu/data_raw.
+    imu_stamp = setup['imu'].samples[-1][0]
+    assert (stamp_ns(odometry.header) - imu_stamp) % 1_000_000 == 0
+
+
+def test_error_truth_predicts_the_published_output(setup):
+    # The node's drawn unit has a mg turn-on bias, K2 and misalignment: the truth the node
+    # publishes, applied to the true specific force, gives the stream's mean within its
+    # white noise (the bias-instability state is in the truth).
+    client, imu, truth = setup['client'], setup['imu'], setup['truth']
+    start = time.time_ns() + 200_000_000
+    imu.clear(start)
+    client.spin_until(lambda: len(imu.samples) >= 2000, 60, '2000 samples',
+                      progress=lambda: len(imu.samples))
+    samples = np.array(imu.samples[:2000])
+    end = samples[-1, 0]
+    client.spin_until(lambda: truth.errors and stamp_ns(truth.errors[-1].header) > end, 30,
+                      'the truth of the window')
+    window = [m for m in truth.errors if start <= stamp_ns(m.header) <= end]
+    assert len(window) >= 20
+    static = tr.static(45.0, roll=ROLL, pitch=PITCH, yaw=YAW)
+    force = static.kinematics(np.zeros(1))['specific_force'][0]
+    predicted = []
+    for message in window:
+        bias, matrix, k2 = errors_of(message)
+        predicted.append(bias + (np.eye(3) + matrix) @ force + k2 * force * force)
+    mean = samples[:, 1:].mean(axis=0)
+    error = mean - force
+    assert np.all(np.abs(error) > 50 * MICRO_G)  # the errors are there
+    sigma = math.sqrt(imu.last_message.linear_acceleration_covariance[0] / len(samples))
+    assert np.all(np.abs(mean - np.mean(predicted, axis=0)) < 6 * sigma + 0.5 * MICRO_G), \
+        (mean - np.mean(predicted, axis=0)) / MICRO_G
+
+
+def test_drift_shows_in_the_truth_and_a_correction_is_an_event(setup):
+    client, truth = setup['client'], setup['truth']
+    response = client.call(Trigger, f'{NODE}/capture_reference', Trigger.Request())
+    assert response.success, response.message
+    before = errors_of(truth.errors[-1])[1].diagonal()
+    assert all(r.successful for r in client.set_parameters({'drift.feedback_ppm':
+                                                            FEEDBACK_PPM}))
+    changed = time.time_ns() + 300_000_000
+    client.spin_until(lambda: stamp_ns(truth.errors[-1].header) > changed, 30, 'new truth')
+    drifted = errors_of(truth.errors[-1])[1].diagonal()
+    # The output goes as 1 / k_fb: a feedback drift d is a scale-factor error of -d.
+    assert np.allclose((drifted - before) / 1e-6, -np.array(FEEDBACK_PPM), rtol=0.01)
+    assert not truth.events
+    response = client.call(Trigger, f'{NODE}/estimate_feedback_gain', Trigger.Request())
+    assert response.success, response.message
+    client.spin_until(lambda: truth.events, 30, 'the calibration event')
+    event = truth.events[-1]
+    values = {kv.key: kv.value for kv in event.values}
+    assert values['kind'] == 'feedback' and event.level == DiagnosticStatus.OK
+    steps = np.array([float(values[f'accel_scale_change_ppm_{a}']) for a in 'xyz'])
+    # The correction undoes the drift within the schedule's estimate (1 cycle of 1 s).
+    assert np.allclose(steps, FEEDBACK_PPM, atol=150.0), steps
+    first = int(values['stamp_ns'])
+    client.spin_until(lambda: stamp_ns(truth.errors[-1].header) >= first, 30,
+                      'the truth after the correction')
+    corrected = errors_of(truth.errors[-1])[1].diagonal()
+    assert np.all(np.abs(corrected - before) < 150e-6)
+    response = client.call(SetBool, f'{NODE}/set_compensation', SetBool.Request(data=False))
+    assert response.success, response.message
+    client.spin_until(lambda: len(truth.events) == 2, 30, 'the second event')
+    values = {kv.key: kv.value for kv in truth.events[-1].values}
+    assert values['kind'] == 'set_compensation'
+    assert int(values['stamp_ns']) > int({kv.key: kv.value for kv in event.values}[
+        'stamp_ns'])
+
+
+def test_a_new_trajectory_publishes_its_origin(setup):
+    client, truth = setup['client'], setup['truth']
+    count = len(truth.origin)
+    assert all(r.successful for r in client.set_parameters({
+        'input.mode': 'trajectory', 'latitude_deg': -20.0, 'longitude_deg': 30.0}))
+    client.spin_until(lambda: len(truth.origin) > count and truth.origin[-1].latitude < 0,
+                      30, 'the new origin')
+    origin = truth.origin[-1]
+    assert (origin.latitude, origin.longitude) == pytest.approx((-20.0, 30.0), abs=1e-9)
+    # A late subscriber gets it too (transient local).
+    late = []
+    client.subscribe(NavSatFix, 'truth/origin', late.append, latched=True)
+    client.spin_until(lambda: late, 30, 'the latched origin')
+    assert late[-1].latitude == pytest.approx(-20.0)
