@@ -509,13 +509,17 @@ def make_triad(values, profile=None):
     Return the :class:`QfaTriad` of the parameter ``values``: the unit, its aging, errors.
 
     The error sources of ``sensor.error_profile`` (:mod:`qfa_ros.model.errors`) act
-    through the thermal model's body temperature.
+    through the thermal model's body temperature, with the drawn unit's own component
+    coefficients (its I_ref and forward-chain temperature coefficients).
     """
     unit = unit_of(values)
     triad = QfaTriad(triad_config(values, unit), rng=values['seed'], profile=profile)
+    errors = error_profile(values['sensor.error_profile'])
     if unit is not None:
         unit.install_aging(triad)
-    error_profile(values['sensor.error_profile']).apply(triad)
+        unit.install_error_profile(triad, errors)
+    else:
+        errors.apply(triad)
     return triad
 
 
