@@ -105,7 +105,7 @@ def main(argv=None):
     scenario = 'reduced (the test)' if args.short else "the node's default sensor"
     print(f'# I_ref temperature coefficient from the temperature calibration ({scenario})\n')
     print(f'Command: `python bench/reference_tc.py{" --short" if args.short else ""} '
-          f'--units {args.units}`; each unit\'s own I_ref coefficient c0 (drawn: '
+          f"--units {args.units}`; each unit's own I_ref coefficient c0 (drawn: "
           'qfa_ros.model.unit, the estimator does not read it); feedback estimates 10 degC '
           'above the reference, no drift applied (right answer 0).\n')
     print('| unit | axis | true c0 [ppm/degC] | measured c [ppm/degC] | (c - c0) / SE | '
@@ -116,7 +116,8 @@ def main(argv=None):
         for axis, name in enumerate('xyz'):
             deviations.append((tc[axis] - truth[axis]) / se[axis])
             print(f'| {seed} | {name} | {truth[axis]:+.3f} | '
-                  f'{tc[axis]:+.3f} ± {se[axis]:.3f} | {deviations[-1]:+.2f} | {plain[axis]:+.1f} ± {plain_se[axis]:.1f} | '
+                  f'{tc[axis]:+.3f} ± {se[axis]:.3f} | {deviations[-1]:+.2f} | '
+                  f'{plain[axis]:+.1f} ± {plain_se[axis]:.1f} | '
                   f'{corr[axis]:+.1f} ± {corr_se[axis]:.1f} |')
     corrected = np.array([c for *_, (_, (c, _)), _ in rows]).ravel()
     print(f'\nrms of (c - c0) / SE: {np.sqrt(np.mean(np.square(deviations))):.2f}; corrected '

@@ -199,7 +199,7 @@ def _check_reference_settings(kind, settings, port, state):
     if differ:
         raise EstimationError(
             f'{kind} schedule settings differ from the reference\'s ({"; ".join(differ)}): '
-            'the loop\'s transient would read as a drift of tens of ppm; set them back or '
+            "the loop's transient would read as a drift of tens of ppm; set them back or "
             'capture the reference again')
 
 

@@ -201,12 +201,12 @@ class Unit:
 
     def install_error_profile(self, triad, profile):
         """
-        Write ``profile`` (an :class:`~qfa_ros.model.errors.ErrorProfile`) with this unit's
-        coefficients.
+        Write ``profile`` (an ErrorProfile) with this unit's coefficients into ``triad``.
 
-        The profile switches the sources on (``ideal`` leaves every one off); each
-        forward-chain component it names and its I_ref source (when its coefficient is
-        not zero) take this unit's coefficients instead of the type figure.
+        ``profile`` is a :class:`~qfa_ros.model.errors.ErrorProfile`: it switches the
+        sources on (``ideal`` leaves every one off); each forward-chain component it
+        names and its I_ref source (when its coefficient is not zero) take this unit's
+        coefficients instead of the type figure.
         """
         profile.apply(triad)
         for axis in range(len(AXES)):
