@@ -7,9 +7,9 @@ settle, 0.28 s average: the improved schedule's segments), then runs the estimat
 one setting changed on the same quiet, drift-free triad (no thermal model, noise off
 but the converter's own): every ppm it reads is the setting's, not a drift. A setting
 whose change moves the estimate beyond 1 ppm must match between reference and estimate
-(the schedules refuse a mismatch); the others may differ. Also the loop and sample rates (the node's
-``loop_rate_hz`` / ``sample_rate_hz``, a state file carried to a node restarted at
-another rate)::
+(the schedules refuse a mismatch); the others may differ. Also the loop and sample
+rates (the node's ``loop_rate_hz`` / ``sample_rate_hz``, a state file carried to a node
+restarted at another rate)::
 
     python bench/schedule_settings.py            # about 2 s of CPU
 """
