@@ -476,9 +476,16 @@ def estimate_probe_lag(v, rate, force, output, max_lag_s=MAX_PROBE_LAG_S,
     all-block fit (bias, scale factor, misalignment, K2) fit best is the lag. On
     plateaus the rate is zero and the correction vanishes.
     """
-    lags = np.arange(0.0, max_lag_s + 0.5 * step_s, step_s)
-    rss = [_global_fit(v + lag * rate, force, output)[2] for lag in lags]
-    return float(lags[int(np.argmin(rss))])
+    def best(lags):
+        rss = [_global_fit(v + lag * rate, force, output)[2] for lag in lags]
+        return round(float(lags[int(np.argmin(rss))]), 6)
+
+    # Coarse, then fine around the coarse minimum (the residual is smooth in the lag).
+    coarse_step = 5.0 * step_s
+    lag = best(np.arange(0.0, max_lag_s + 0.5 * coarse_step, coarse_step))
+    fine = np.arange(max(0.0, lag - coarse_step), min(max_lag_s, lag + coarse_step)
+                     + 0.5 * step_s, step_s)
+    return best(fine)
 
 
 def fit_multiposition(blocks, tumbles, settings):
