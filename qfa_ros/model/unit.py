@@ -208,14 +208,8 @@ class Unit:
         names and its I_ref source (when its coefficient is not zero) take this unit's
         coefficients instead of the type figure.
         """
-        profile.apply(triad)
-        for axis in range(len(AXES)):
-            for component, row in zip(FORWARD_TC_COMPONENTS, self.forward_tc_ppm_per_c):
-                if component in profile.forward_tc_ppm:
-                    triad.drift.set_temperature_coefficient(axis, component, row[axis])
-            if profile.i_ref_tc_ppm != 0.0:
-                triad.drift.set_temperature_coefficient(axis, 'i_ref',
-                                                        self.i_ref_tc_ppm_per_c[axis])
+        install_component_tcs(triad, profile, self.i_ref_tc_ppm_per_c,
+                              self.forward_tc_ppm_per_c)
 
     def triad(self, config, rng=None, profile=None, extra_misalignment=None, start_ns=0):
         """Return a :class:`QfaTriad` that is this unit (:meth:`configure`, aging)."""
@@ -319,7 +313,9 @@ def draw_unit(seed, spread=None):
     misalignment = np.clip(rng.normal(0.0, spread.misalignment_sigma_mrad, (3, 3)),
                            -spread.misalignment_max_mrad, spread.misalignment_max_mrad) * 1e-3
     np.fill_diagonal(misalignment, 0.0)
-    i_ref_tc, forward_tc = _draw_component_tcs(seed, spread)
+    i_ref_tc, forward_tc = draw_component_tcs(
+        np.random.SeedSequence([UNIT_STREAM, int(seed)], spawn_key=(COMPONENT_TC_KEY,)),
+        spread)
 
     def rows(array):
         return tuple(tuple(float(v) for v in row) for row in array)
@@ -336,10 +332,45 @@ def draw_unit(seed, spread=None):
                 forward_tc_ppm_per_c=rows(forward_tc))
 
 
-def _draw_component_tcs(seed, spread):
-    """Draw the component coefficients from their own stream (no other draw moves)."""
-    rng = np.random.default_rng(np.random.SeedSequence([UNIT_STREAM, int(seed)],
-                                                       spawn_key=(COMPONENT_TC_KEY,)))
+def install_component_tcs(triad, profile, i_ref_tc_ppm_per_c, forward_tc_ppm_per_c):
+    """
+    Write ``profile`` into ``triad`` with per-axis component coefficients [ppm/degC].
+
+    ``profile`` (an :class:`~qfa_ros.model.errors.ErrorProfile`) says which sources act:
+    each forward-chain component it names (:data:`FORWARD_TC_COMPONENTS` rows of
+    ``forward_tc_ppm_per_c``) and its I_ref source (when its coefficient is not zero)
+    take the given coefficients instead of the type figure; ``ideal`` leaves all off.
+    """
+    profile.apply(triad)
+    for axis in range(len(AXES)):
+        for component, row in zip(FORWARD_TC_COMPONENTS, forward_tc_ppm_per_c):
+            if component in profile.forward_tc_ppm:
+                triad.drift.set_temperature_coefficient(axis, component, row[axis])
+        if profile.i_ref_tc_ppm != 0.0:
+            triad.drift.set_temperature_coefficient(axis, 'i_ref', i_ref_tc_ppm_per_c[axis])
+
+
+def draw_component_tcs(seed_sequence, spread=None):
+    """
+    Draw the I_ref and forward-chain temperature coefficients of one unit [ppm/degC].
+
+    Parameters
+    ----------
+    seed_sequence : numpy.random.SeedSequence
+        The stream (:func:`draw_unit` uses ``SeedSequence([UNIT_STREAM, seed],
+        spawn_key=(COMPONENT_TC_KEY,))``; a fleet study its unit's own).
+    spread : UnitSpread, optional
+        The spreads.
+
+    Returns
+    -------
+    i_ref : float64[3]
+        Per axis.
+    forward : float64[len(FORWARD_TC_COMPONENTS), 3]
+        Per component and axis.
+    """
+    spread = UnitSpread() if spread is None else spread
+    rng = np.random.default_rng(seed_sequence)
 
     def clipped(mean, sigma, size):
         mean, sigma = np.asarray(mean, float), np.asarray(sigma, float)
