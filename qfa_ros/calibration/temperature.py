@@ -17,6 +17,10 @@ soaks until the on-board reading is back where it started, so the sensor leaves 
 would.
 Only what the sensor can know is used: outputs, the temperature reading and the known
 fixture positions.
+
+One module over ~500 lines because it is one cohesive thing: the chamber program, its
+tumble records and the fit of those records (with the reading's lag behind the proof
+mass estimated from the same records) share the block format and the settings.
 """
 
 import dataclasses
