@@ -140,9 +140,9 @@ def test_estimate_with_other_segment_settings_than_the_reference_is_refused(setu
         assert 'capture the reference again' in response.message
     assert (directory / 'state.json').read_text() == saved
     # The forward schedule's settings do not change its expectation: not refused.
-    result, = client.set_parameters({'estimation.feedback.average_s': 10.0,
+    results = client.set_parameters({'estimation.feedback.average_s': 10.0,
                                      'estimation.forward.average_s': 0.3})
-    assert result.successful, result.reason
+    assert all(r.successful for r in results), [r.reason for r in results]
     response = trigger(client, 'estimate_forward_gain')
     assert response.success, response.message
     assert client.set_parameters({'estimation.forward.average_s': 0.5})[0].successful
