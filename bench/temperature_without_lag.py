@@ -1,5 +1,5 @@
 """
-The temperature study with the probe-lag correction off: does the correction cost yield?
+Run a temperature study with the probe-lag correction off (does the correction cost yield).
 
 Runs the first ``--units`` units of a temperature study in this process (the function a
 fleet worker runs, :func:`qfa_ros.fleet.unit.simulate_batch`) with
@@ -7,8 +7,7 @@ fleet worker runs, :func:`qfa_ros.fleet.unit.simulate_batch`) with
 28), writes them to ``--out`` and prints the fleet summary; compare with the study's own
 results by ``bench/population_compare.py``::
 
-    nice -n 10 python bench/temperature_without_lag.py \\
-        bench/studies/temperature_reduced_200.yaml --units 100 --out nolag.parquet
+    nice -n 10 python bench/temperature_without_lag.py STUDY.yaml --units 100 --out X.parquet
 """
 
 import argparse
