@@ -328,7 +328,8 @@ PARAMETERS = (
                   'estimation.feedback.temperature_correction needs)'),
     ParameterSpec('temperature_calibration.m_bits', _CHAMBER.m_bits,
                   'Fraction bits M of the fixed-point CORDIC zero-bias compensator (seed 2: '
-                  '16; the scale factor uses 24)', False,
+                  '16; the scale factor uses 24); at least these: an axis whose fitted terms '
+                  'cancel gets the bits they take beyond the 4 guard bits, up to 27', False,
                   8, 30),
     ParameterSpec('output_dir', '~/.ros/qfa_ros',
                   'Base directory of every trace and recording the node writes (~ expanded '
