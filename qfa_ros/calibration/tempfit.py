@@ -758,9 +758,17 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
     # Terms that cancel by c bits cost the fixed-point output c bits: beyond the guard
     # bits, widen the words by what the cancellation takes (within the 63-bit datapath).
     widen = max(0, math.ceil(min(cancellation, 64.0)) - guard_bits)
-    compensator = DoubleExpCompensator(
-        fit, m_bits=min(max_m_bits(guard_bits), max(m_bits, m_bits + widen)),
-        guard_bits=guard_bits, v_range=v_range)
+    bits = min(max_m_bits(guard_bits), m_bits + widen)
+    while True:
+        try:
+            compensator = DoubleExpCompensator(fit, m_bits=bits, guard_bits=guard_bits,
+                                               v_range=v_range)
+            break
+        except ValueError:
+            # The widened words overflow a multiplier of this fit's datapath: fewer.
+            if bits <= m_bits:
+                raise
+            bits -= 1
     fixed = compensator.evaluate_fixed(v_bins)
     return TemperatureCalibration(
         fit=fit, poly3=poly3, poly4=poly4, m_bits=compensator.m_bits,
