@@ -6,7 +6,8 @@ Run from the repository root::
     .venv/bin/python bench/reference_tc.py > bench/results/reference_tc.md
 
 Per unit: the node's default sensor (``qfa_ros.ros.params`` defaults with ``seed`` =
-the unit: drawn unit, ``sensor.error_profile: paper`` with I_ref +30 ppm/degC, 10 kHz
+the unit: drawn unit, ``sensor.error_profile: paper`` with the unit's own I_ref
+coefficient, drawn around +30 ppm/degC, 10 kHz
 loop, the default ``temperature_calibration.*``) captures its references, runs the
 temperature calibration with the I_ref steps at every plateau (what
 ``~/calibrate_temperature`` runs), then soaks 10 degC above the reference (constant
@@ -54,7 +55,7 @@ def short_unit(seed):
     config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant', sensor_tau_s=60.0),
                          loop_rate_hz=2000.0, sample_rate_hz=100.0, crossover_hz=100.0)
     triad = unit.triad(config, rng=seed)
-    ErrorProfile().apply(triad)
+    unit.install_error_profile(triad, ErrorProfile())
     return (triad, TemperatureSettings(period_s=720.0, block_s=2.0, bins=40,
                                        reference_steps=True),
             FeedbackSettings(cycles=4, settle_s=0.3, average_s=0.3, order='chopped'), 60.0)
@@ -86,7 +87,8 @@ def run_unit(seed, short):
             triad, state, dataclasses.replace(switching, temperature_correction=on),
             apply=False))
         estimates.append((result.estimate_ppm, result.std_error_ppm))
-    return steps.estimate_ppm, steps.std_error_ppm, estimates
+    truth = draw_unit(seed).i_ref_tc_ppm_per_c
+    return steps.estimate_ppm, steps.std_error_ppm, estimates, truth
 
 
 def main(argv=None):
@@ -103,20 +105,22 @@ def main(argv=None):
     scenario = 'reduced (the test)' if args.short else "the node's default sensor"
     print(f'# I_ref temperature coefficient from the temperature calibration ({scenario})\n')
     print(f'Command: `python bench/reference_tc.py{" --short" if args.short else ""} '
-          f'--units {args.units}`; configured I_ref coefficient +30 ppm/degC; feedback '
-          'estimates 10 degC above the reference, no drift applied (right answer 0).\n')
-    print('| unit | axis | measured c [ppm/degC] | (c - 30) / SE | feedback, uncorrected '
-          '[ppm] | feedback, corrected [ppm] |')
-    print('|---|---|---|---|---|---|')
+          f"--units {args.units}`; each unit's own I_ref coefficient c0 (drawn: "
+          'qfa_ros.model.unit, the estimator does not read it); feedback estimates 10 degC '
+          'above the reference, no drift applied (right answer 0).\n')
+    print('| unit | axis | true c0 [ppm/degC] | measured c [ppm/degC] | (c - c0) / SE | '
+          'feedback, uncorrected [ppm] | feedback, corrected [ppm] |')
+    print('|---|---|---|---|---|---|---|')
     deviations = []
-    for seed, tc, se, ((plain, plain_se), (corr, corr_se)) in rows:
+    for seed, tc, se, ((plain, plain_se), (corr, corr_se)), truth in rows:
         for axis, name in enumerate('xyz'):
-            deviations.append((tc[axis] - 30.0) / se[axis])
-            print(f'| {seed} | {name} | {tc[axis]:+.3f} ± {se[axis]:.3f} | '
-                  f'{deviations[-1]:+.2f} | {plain[axis]:+.1f} ± {plain_se[axis]:.1f} | '
+            deviations.append((tc[axis] - truth[axis]) / se[axis])
+            print(f'| {seed} | {name} | {truth[axis]:+.3f} | '
+                  f'{tc[axis]:+.3f} ± {se[axis]:.3f} | {deviations[-1]:+.2f} | '
+                  f'{plain[axis]:+.1f} ± {plain_se[axis]:.1f} | '
                   f'{corr[axis]:+.1f} ± {corr_se[axis]:.1f} |')
-    corrected = np.array([c for *_, (_, (c, _)) in rows]).ravel()
-    print(f'\nrms of (c - 30) / SE: {np.sqrt(np.mean(np.square(deviations))):.2f}; corrected '
+    corrected = np.array([c for *_, (_, (c, _)), _ in rows]).ravel()
+    print(f'\nrms of (c - c0) / SE: {np.sqrt(np.mean(np.square(deviations))):.2f}; corrected '
           f'feedback estimates: mean {corrected.mean():+.2f} ppm, rms '
           f'{np.sqrt(np.mean(corrected ** 2)):.2f} ppm; {time.perf_counter() - started:.0f} s')
     return 0

@@ -235,8 +235,8 @@ def test_results_carry_every_raw_point():
 
 
 def test_feedback_result_carries_every_raw_point():
-    triad, state = calibrated_triad()
     settings = FeedbackSettings(cycles=3, average_s=0.5, order='chopped')
+    triad, state = calibrated_triad(schedule=replace(FAST_PAPER, feedback=settings))
     words_before = [loop.n_vref for loop in triad.axes]
     result = run_schedule(triad, feedback_schedule(triad, state, settings))
     assert list(result.points['reference_on']) == [0, 1, 1, 0] * 3
@@ -313,7 +313,8 @@ def test_standard_error_matches_the_scatter(order):
     # Default noise (white + bias instability): the reported standard errors of reference
     # and estimate explain the estimation error, RMS z-score near 1 over 36 axis-draws.
     if order == 'single':
-        reference, settings = FeedbackSettings(average_s=10.0), FeedbackSettings(average_s=1.0)
+        # The reference shares the estimate's segments (a mismatch is refused).
+        reference = settings = FeedbackSettings(average_s=1.0)
     else:
         # 60 ms settling: the PI tail after a switch has decayed below the noise (at
         # 20 ms it inflated the regression residuals, the standard error 3x conservative).
@@ -375,3 +376,100 @@ def test_calibration_state_rejects_malformed_data(data):
 def test_invalid_schedule_settings_raise_value_error(cls, kwargs, name):
     with pytest.raises(ValueError, match=name):
         cls(**kwargs)
+
+
+# Issue 28: the settings a reference and an estimate must share ------------------------
+
+SEGMENTS = FeedbackSettings(cycles=4, settle_s=0.02, average_s=0.28, order='chopped')
+SHORT_FORWARD = ForwardSettings(points=4, average_s=0.2)
+
+
+def captured(seed=0, forward=SHORT_FORWARD, feedback=SEGMENTS, **config):
+    triad = QfaTriad(TriadConfig(noise=QUIET, **config), rng=seed)
+    triad.run_for(0.2)
+    state = CalibrationState()
+    run_schedule(triad, capture_reference(triad, state, forward, feedback))
+    return triad, state
+
+
+@pytest.mark.parametrize('change, named', [
+    ({'average_s': 1.12}, 'average_s 0.28 at the reference, 1.12 now'),
+    ({'settle_s': 0.2}, 'settle_s 0.02 at the reference, 0.2 now'),
+    ({'order': 'single'}, "order 'chopped' at the reference, 'single' now"),
+])
+def test_feedback_estimate_with_other_segments_is_refused(change, named):
+    triad, state = captured()
+    # Unchecked, the mismatch reads tens of ppm of drift that is not there.
+    unchecked = run_schedule(triad, feedback_schedule(
+        triad, state, replace(SEGMENTS, **change), apply=False, check_settings=False))
+    assert np.all(np.abs(unchecked.estimate_ppm) > 20.0)
+    assert_refused(triad, state, feedback_schedule(triad, state, replace(SEGMENTS, **change)),
+                   named)
+    assert_refused(triad, state, self_calibrate(triad, state, SHORT_FORWARD,
+                                                replace(SEGMENTS, **change)), named)
+
+
+def test_single_order_cycles_must_match_and_chopped_cycles_may_differ():
+    single = replace(SEGMENTS, order='single')
+    triad, state = captured(feedback=single)
+    assert_refused(triad, state, feedback_schedule(triad, state, replace(single, cycles=1)),
+                   'cycles 4 at the reference, 1 now')
+    triad, state = captured()
+    for cycles in (1, 16):
+        result = run_schedule(triad, feedback_schedule(
+            triad, state, replace(SEGMENTS, cycles=cycles), apply=False))
+        assert_allclose(result.estimate_ppm, 0.0, atol=0.2)
+
+
+def test_state_carried_to_another_loop_rate_is_refused():
+    _, state = captured()
+    triad = QfaTriad(TriadConfig(noise=QUIET, loop_rate_hz=20000.0), rng=0)
+    triad.run_for(0.2)
+    for schedule in (forward_schedule(triad, state, SHORT_FORWARD),
+                     feedback_schedule(triad, state, SEGMENTS)):
+        assert_refused(triad, state, schedule,
+                       'loop_rate_hz 10000.0 at the reference, 20000.0 now')
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_settings_that_may_differ_keep_the_estimate_within_1_ppm(seed):
+    # The forward settings and the chopped cycles, motion limit and bias instability do
+    # not change what the estimate expects (bench/schedule_settings.py): with a real drift
+    # injected every variant reads it within 1 ppm.
+    triad, state = captured(seed)
+    truth_forward, truth_feedback = -150.0, 220.0
+    for axis in range(3):
+        triad.drift.set_step(axis, 'k_amp', truth_forward * PPM)
+        triad.drift.set_step(axis, 'k_vi', truth_feedback * PPM)
+    expected_feedback = truth_feedback
+    expected_forward = truth_forward
+    for forward in (SHORT_FORWARD, replace(SHORT_FORWARD, points=6, step=512),
+                    replace(SHORT_FORWARD, settle_s=0.0, average_s=0.5),
+                    replace(SHORT_FORWARD, order='bidirectional'),
+                    replace(SHORT_FORWARD, order='interleaved', settle_s=0.1)):
+        result = run_schedule(triad, forward_schedule(triad, state, forward, apply=False))
+        assert_allclose(result.estimate_ppm, expected_forward, atol=1.0)
+    for feedback in (SEGMENTS, replace(SEGMENTS, cycles=1), replace(SEGMENTS, cycles=8),
+                     replace(SEGMENTS, motion_limit=1e-2, bias_instability=0.0)):
+        result = run_schedule(triad, feedback_schedule(triad, state, feedback, apply=False))
+        assert_allclose(result.estimate_ppm, expected_feedback, atol=1.0)
+
+
+def test_old_state_without_reference_settings_is_refused_with_a_reason():
+    triad, state = captured()
+    data = state.to_dict()
+    assert set(data['reference_settings']) == {'forward', 'feedback'}
+    del data['reference_settings']  # a state file written before they were stored
+    old = CalibrationState.from_dict(json.loads(json.dumps(data)))
+    assert old.has_reference and old.reference_settings == {}
+    for schedule, kind in ((forward_schedule(triad, old, SHORT_FORWARD), 'forward'),
+                           (feedback_schedule(triad, old, SEGMENTS), 'feedback')):
+        assert_refused(triad, old, schedule,
+                       f'the {kind} reference has no stored schedule settings .* capture the '
+                       'reference again')
+    # A round trip keeps them.
+    again = CalibrationState.from_dict(json.loads(json.dumps(state.to_dict())))
+    assert again.reference_settings == state.reference_settings
+    bad = {**state.to_dict(), 'reference_settings': {'feedback': {'order': [1]}}}
+    with pytest.raises(ValueError, match='malformed'):
+        CalibrationState.from_dict(bad)

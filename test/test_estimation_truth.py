@@ -129,15 +129,18 @@ def test_reference_tc_schedule_measures_the_coefficient_against_gravity():
 
 def test_temperature_calibration_measures_the_iref_coefficient_it_corrects_with():
     # Reduced like test_temperature_calibration (2 kHz loop, 100 Hz output, body 60 s,
-    # a 720 s chamber program): the paper profile on drawn unit 11. The step in counts,
-    # -I_ref / (k_VI k_DA), moves with the I_ref source's +30 ppm/degC only (not with the
-    # magnet, the forward chain nor the unit's scale-factor curve).
+    # a 720 s chamber program): the paper profile on drawn unit 11, with the unit's own
+    # I_ref coefficients (drawn around +30 ppm/degC; the estimator does not read them).
+    # The step in counts, -I_ref / (k_VI k_DA), moves with the I_ref source only (not
+    # with the magnet, the forward chain nor the unit's scale-factor curve).
     unit = draw_unit(11)
     unit = replace(unit, probe_tau_s=unit.probe_tau_s * 60.0 / 300.0)
     config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant', sensor_tau_s=60.0),
                          loop_rate_hz=2000.0, sample_rate_hz=100.0, crossover_hz=100.0)
     triad = unit.triad(config, rng=11)
-    ErrorProfile().apply(triad)
+    unit.install_error_profile(triad, ErrorProfile())
+    truth = np.asarray(unit.i_ref_tc_ppm_per_c)
+    assert np.ptp(truth) > 5.0     # three different unknowns, not the type figure
     state = CalibrationState()
     switching = FeedbackSettings(cycles=4, settle_s=0.3, average_s=0.3, order='chopped')
     run_schedule(triad, capture_reference(triad, state, feedback=switching))
@@ -149,18 +152,18 @@ def test_temperature_calibration_measures_the_iref_coefficient_it_corrects_with(
     # Within 3 standard errors plus 0.15 ppm/degC: the on-board reading lags the body
     # while a plateau still settles, which the residual scatter does not show.
     assert np.all(steps.std_error_ppm < 0.2)
-    assert np.all(np.abs(steps.estimate_ppm - 30.0) <= 3 * steps.std_error_ppm + 0.15), \
+    assert np.all(np.abs(steps.estimate_ppm - truth) <= 3 * steps.std_error_ppm + 0.15), \
         (steps.estimate_ppm, steps.std_error_ppm)
     assert state.reference_tc_ppm == steps.estimate_ppm.tolist()
     # 10 degC above the reference, no drift applied: uncorrected, the feedback schedule
-    # takes I_ref's -300 ppm for a drift; corrected, it sees none.
+    # takes I_ref's -10 c0 ppm for a drift; corrected, it sees none.
     triad.thermal.set_ambient(ambient_profile='constant', ambient_c=35.0)
     idle(triad, 360.0)   # six body time constants
     triad.run_for(0.5)
     plain, corrected = (run_schedule(triad, feedback_schedule(
         triad, state, replace(switching, temperature_correction=on), apply=False))
         for on in (False, True))
-    assert np.all(np.abs(plain.estimate_ppm + 300.0) < 30.0), plain.estimate_ppm
+    assert np.all(np.abs(plain.estimate_ppm + 10.0 * truth) < 30.0), plain.estimate_ppm
     assert np.all(np.abs(corrected.estimate_ppm) <= 3 * corrected.std_error_ppm + 1.0), \
         (corrected.estimate_ppm, corrected.std_error_ppm)
 

@@ -44,6 +44,12 @@ def write_study(path, data):
     ({'environment': {'error_profile': 'mars'}}, 'environment.error_profile'),
     ({'aging': {'distribution': 'cauchy'}}, 'aging.distribution'),
     ({'environment': {'magnet_tc_ppm': 'warm'}}, 'environment.magnet_tc_ppm'),
+    ({'environment': {'component_tcs': 'guessed'}}, 'environment.component_tcs'),
+    ({'kind': 'vibration'}, 'kind'),
+    ({'kind': 'temperature', 'temperature': {'period': 60}}, 'temperature.period'),
+    ({'kind': 'temperature', 'sensor': {'sensor_tau_s': -1.0}}, 'sensor.sensor_tau_s'),
+    ({'kind': 'temperature', 'verification': {'temperatures_c': [20.0]}},
+     'verification.temperatures_c'),
 ])
 def test_bad_study_fails_before_starting_and_names_the_key(tmp_path, capsys, change, key):
     study = write_study(tmp_path / 'bad.yaml', {**CHEAP, **change})
@@ -245,3 +251,51 @@ def test_code_digest_follows_the_simulating_code_only(tmp_path):
     assert _digest_of_copy(tmp_path, _append('calibration/new_stage.py', 'X = 1\n')) != digest
     # The node and the recorder do not compute a unit's rows.
     assert _digest_of_copy(tmp_path, _append('ros/node.py', '\n# note\n')) == digest
+
+
+def test_drawn_component_coefficients_differ_per_unit_and_move_no_other_draw():
+    # Issue 28: component_tcs drawn gives each unit its own I_ref and forward-chain
+    # temperature coefficients; the aging draws (another stream) stay the same.
+    from qfa_ros.model.unit import COMPONENT_TC_KEY, draw_component_tcs
+    draws = [draw_component_tcs(np.random.SeedSequence([0, i], spawn_key=(COMPONENT_TC_KEY,)))
+             for i in range(3)]
+    assert len({round(float(i_ref[0]), 6) for i_ref, _ in draws}) == 3
+    drawn = Study.from_dict({**CHEAP, 'units': 1,
+                             'environment': {'component_tcs': 'drawn'}})
+    typed = Study.from_dict({**CHEAP, 'units': 1})
+    assert drawn.digest() != typed.digest()
+    row_drawn, = simulate_unit(drawn, 0)
+    row_typed, = simulate_unit(typed, 0)
+    for axis in 'xyz':
+        # Same aging, so the same drift truths; other coefficients, other estimates.
+        assert row_drawn[f'feedback_truth_ppm_{axis}'] == pytest.approx(
+            row_typed[f'feedback_truth_ppm_{axis}'], abs=1e-6)
+
+
+TEMPERATURE = {'kind': 'temperature', 'units': 2, 'batch_units': 1, 'seed': 3,
+               'temperature': {'period_s': 720.0, 'block_s': 2.0, 'bins': 40},
+               'sensor': {'sensor_tau_s': 60.0, 'loop_rate_hz': 2000.0,
+                          'sample_rate_hz': 100.0, 'crossover_hz': 100.0},
+               'verification': {'temperatures_c': [-27.0, 8.0, 41.0, 64.0],
+                                'average_s': 1.0}}
+
+
+def test_temperature_study_calibrates_and_verifies_every_unit(tmp_path):
+    from qfa_ros.fleet.summary import format_summary, temperature_rows
+    from qfa_ros.fleet.temperature_unit import unit_seed
+    study = Study.from_dict(TEMPERATURE)
+    assert study.calibrations == 1
+    table = run_study(study, tmp_path / 'temperature.parquet', workers=1, progress=False,
+                      log=lambda line: None)
+    assert table.num_rows == 2
+    rows = table.to_pylist()
+    assert [r['unit_seed'] for r in rows] == [unit_seed(study, 0), unit_seed(study, 1)]
+    for row in rows:
+        assert row['probe_lag_s'] == pytest.approx(row['probe_tau_s'], abs=0.3)
+        assert {f'zd_roll_p90_ug_{a}' for a in 'xyz'} <= set(row)
+        for axis in 'xyz':
+            assert 0 < row[f'zd_max_ug_{axis}'] < 30.0
+            assert row[f'sf_max_ppm_{axis}'] < 20.0
+    assert len(temperature_rows(table)) == 9
+    summary = format_summary(table)
+    assert 'units within every limit' in summary and '2 of 2' in summary

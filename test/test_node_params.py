@@ -5,11 +5,13 @@ import math
 from pathlib import Path
 
 from node_helpers import domain_id
+import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 import yaml
 
 from qfa_ros.calibration.state import AxisReference, CalibrationState
+from qfa_ros.model.unit import draw_unit, FORWARD_TC_COMPONENTS
 from qfa_ros.ros.params import (
     as_declared_type,
     check_all,
@@ -78,12 +80,22 @@ def test_bad_values_are_rejected_with_a_reason(name, value, words):
 def test_default_sensor_carries_the_paper_error_sources_in_the_paper_room():
     # One sensor: the node's default triad has seed 1's component temperature
     # coefficients (qfa_ros.model.errors) and sits in the paper's wandering room.
+    # The drawn unit (seed 1) brings its own I_ref and forward-chain coefficients.
     paper = make_triad(defaults())
     drift = paper.drift
+    unit = draw_unit(1)
+    forward = dict(zip(FORWARD_TC_COMPONENTS, unit.forward_tc_ppm_per_c))
+    for component, ppm in (('i_ref', unit.i_ref_tc_ppm_per_c), ('b', [10.0] * 3),
+                           *forward.items()):
+        index = drift.components.index(component)
+        assert drift.temperature_coefficient[:, index] == pytest.approx(np.multiply(ppm,
+                                                                                    1e-6))
+    assert len(set(unit.i_ref_tc_ppm_per_c)) == 3
+    nominal = make_triad({**defaults(), 'unit.draw': False}).drift
     for component, ppm in (('i_ref', 30.0), ('b', 10.0), ('v_da1_ref', 20.0),
                            ('k_tz', 7.0), ('k_amp', 6.0)):
-        index = drift.components.index(component)
-        assert drift.temperature_coefficient[:, index] == pytest.approx([ppm * 1e-6] * 3)
+        index = nominal.components.index(component)
+        assert nominal.temperature_coefficient[:, index] == pytest.approx([ppm * 1e-6] * 3)
     thermal = paper.thermal.config
     assert (thermal.ambient_profile, thermal.room_amplitude_c, thermal.room_correlation_s) \
         == ('room', 1.5, 43200.0)

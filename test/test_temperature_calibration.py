@@ -17,8 +17,9 @@ from qfa_ros.calibration.temperature import (
     TemperatureSettings,
 )
 from qfa_ros.calibration.tempfit import ThermalCompensation
-from qfa_ros.calibration.verification import verify_cycle
+from qfa_ros.calibration.verification import verify_attitudes, verify_cycle
 from qfa_ros.cli.sim import main as sim_main
+from qfa_ros.model.errors import ErrorProfile
 from qfa_ros.model.noise import MICRO_G, NoiseConfig
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalConfig
@@ -187,3 +188,29 @@ def test_sim_rejects_bad_arguments(capsys):
     assert sim_main(['static', '--duration', '-1']) == 2
     assert sim_main(['static', '--out', 'x.bag']) == 2
     assert 'must' in capsys.readouterr().err
+
+
+def test_unit_218566_is_compensated_in_eight_attitudes_off_the_calibration_grid():
+    # Issue 28: with a body that follows the chamber within seconds (time constant 8 s)
+    # and the unit's own 1.2 s probe lag, the reading lagged the proof mass while the
+    # chamber moved and the fits took y's 130 ppm/degC slope at the wrong temperature:
+    # 50-57 ug and 32-42 ppm on y rolled +-90 deg. The calibration now estimates the lag
+    # and fits against the mass's temperature. Fast offline mode: 2 kHz loop, 100 Hz.
+    unit = draw_unit(218566)
+    config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant', sensor_tau_s=8.0),
+                         **FAST)
+    triad = unit.triad(config, rng=218566)
+    unit.install_error_profile(triad, ErrorProfile())
+    result = run_schedule(triad, temperature_schedule(
+        triad, CalibrationState(), TemperatureSettings(period_s=1440.0, block_s=1.0)))
+    assert result.probe_lag_s == pytest.approx(unit.probe_tau_s, abs=0.2)
+    # Off the 10 degC grid, eight attitudes: level, inverted, rolled and pitched +-90 deg
+    # and two arbitrary ones.
+    verification = verify_attitudes(triad, temperatures_c=(-27.0, 8.0, 41.0, 64.0),
+                                    soak_s=80.0)
+    assert len(verification.names) == 8 and {'roll +90', 'roll -90', 'pitch +90',
+                                              'pitch -90'} <= set(verification.names)
+    assert np.all(verification.zero_drift_p2p <= 30 * MICRO_G), \
+        dict(zip(verification.names, verification.zero_drift_p2p / MICRO_G))
+    assert np.all(verification.scale_max <= 20e-6), verification.scale_error / 1e-6
+    assert np.all(verification.scale_p2p <= 20e-6)

@@ -308,3 +308,26 @@ def test_baseline_compensator_is_bit_exact_with_its_scalar_reference_and_round_t
     restored = TemperatureCalibration.from_dict(json.loads(json.dumps(calibration.to_dict())))
     assert restored.compensator().rom() == compensator.rom()
     assert restored.fit.offset == calibration.fit.offset
+
+
+def test_a_cancelling_fit_gets_the_fraction_bits_it_loses():
+    # Issue 28: a double exponential whose terms cancel (an S-shaped curve outside the
+    # family) lost those bits in the 16-bit compensator: the population study's failures
+    # (tens to thousands of ug). The compensator now widens its words by the cancellation
+    # beyond the guard bits.
+    from qfa_ros.calibration.tempfit import calibrate_zero_bias, DoubleExpCompensator
+    v = np.linspace(0.35, 1.2, 2000)
+    y = 1e-3 * ((v - 0.75) / 0.45) ** 3
+    calibration = calibrate_zero_bias(v, y, m_bits=16, n_bins=60, baseline=True)
+    assert calibration.cancellation_bits > 6.0
+    assert calibration.m_bits == 16 + math.ceil(calibration.cancellation_bits) - 4
+    narrow = DoubleExpCompensator(calibration.fit, m_bits=16, guard_bits=4,
+                                  v_range=calibration.v_range)
+    v_bins = np.linspace(0.36, 1.19, 50)
+    exact = calibration.fit.evaluate(v_bins)
+    wide_error = np.abs(calibration.compensator().evaluate_fixed(v_bins) - exact).max()
+    narrow_error = np.abs(narrow.evaluate_fixed(v_bins) - exact).max()
+    assert wide_error < narrow_error / 8
+    # A well-conditioned fit keeps the requested bits.
+    plain = calibrate_zero_bias(v, 1e-3 * np.exp(2.0 * v), m_bits=16, n_bins=60)
+    assert plain.cancellation_bits < 4 and plain.m_bits == 16

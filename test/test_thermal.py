@@ -284,3 +284,33 @@ def test_a_units_config_reproduces_its_curves_and_ages():
     triad.drift.set_time_acceleration(3.15576e7)
     npt.assert_allclose(triad.drift.bias_at(1.0), unit.bias_aging_per_year, rtol=1e-9)
     assert triad.drift.rate[0, triad.drift.components.index('b')] != 0.0
+
+
+def test_units_draw_their_own_component_coefficients_from_their_own_stream():
+    # Issue 28: the I_ref and forward-chain temperature coefficients are per unit (the
+    # estimators measure unknowns), drawn from their own stream: no other draw moved.
+    from qfa_ros.model.errors import ErrorProfile
+    from qfa_ros.model.triad import QfaTriad, TriadConfig
+    from qfa_ros.model.unit import draw_unit, FORWARD_TC_COMPONENTS
+    i_ref = np.array([draw_unit(seed).i_ref_tc_ppm_per_c for seed in range(200)])
+    forward = np.array([draw_unit(seed).forward_tc_ppm_per_c for seed in range(200)])
+    assert np.all((i_ref >= 0.0) & (i_ref <= 60.0))
+    assert abs(i_ref.mean() - 30.0) < 2.0 and 8.0 < i_ref.std() < 12.0
+    npt.assert_allclose(forward.mean(axis=(0, 2)), [20.0, 7.0, 6.0], atol=1.0)
+    # Seed 7's other draws are those of the draw before these were added (its turn-on bias
+    # and K2, recorded from that version).
+    unit = draw_unit(7)
+    npt.assert_allclose(unit.turn_on_bias, (-0.01215409209511419, 0.0029759159819227133,
+                                            -0.009705406379406237), rtol=1e-12)
+    # The profile switches the sources, the unit sets their size.
+    triad = QfaTriad(TriadConfig(), rng=0)
+    unit.install_error_profile(triad, ErrorProfile())
+    drift = triad.drift
+    npt.assert_allclose(drift.temperature_coefficient[:, drift.components.index('i_ref')],
+                        np.multiply(unit.i_ref_tc_ppm_per_c, 1e-6))
+    for component, row in zip(FORWARD_TC_COMPONENTS, unit.forward_tc_ppm_per_c):
+        npt.assert_allclose(drift.temperature_coefficient[:, drift.components.index(component)],
+                            np.multiply(row, 1e-6))
+    ideal = QfaTriad(TriadConfig(), rng=0)
+    unit.install_error_profile(ideal, ErrorProfile.ideal())
+    assert not ideal.drift.temperature_coefficient.any()

@@ -134,6 +134,81 @@ class FeedbackSettings:
         return [False, True] * self.cycles
 
 
+FORWARD_MATCHED = ()
+"""Forward settings an estimate must share with its reference: none. The open-loop chain
+has no transient that outlasts a sample, so points, step, settle, averaging time and order
+move a drift-free estimate by less than 0.1 ppm (``bench/schedule_settings.py``); the loop
+rate must match (the forward gain of k(D(z)) is per loop step: +4086 ppm at twice the
+rate)."""
+FEEDBACK_MATCHED = ('settle_s', 'average_s', 'order')
+"""Feedback settings an estimate must share with its reference: a segment mean includes
+what is left of the closed loop's transient after an I_ref switch (about 1700 ppm of the
+step 20 ms after it, decaying with about 5 ms), so the step depends on the settle and
+averaging times and on the share of segments that follow a switch (the order); a reference
+at 0.28 s and an estimate at 1.12 s read +25 ppm. ``cycles`` must match too in the
+``single`` order (its first segment follows no switch, so the share depends on the count;
+in the ``chopped`` order it is a half for every count). ``motion_limit``,
+``bias_instability`` and ``temperature_correction`` change refusals, the standard error or
+the correction for the temperature, not what the step measures."""
+REFERENCE_SETTING_TOLERANCE_PPM = 1.0
+"""How far a setting may move a drift-free estimate before it must match [ppm]."""
+
+
+def reference_settings(kind, settings, sensor):
+    """
+    Return what a ``kind`` estimate must share with its reference (stored at capture).
+
+    The settings of :data:`FORWARD_MATCHED` or :data:`FEEDBACK_MATCHED` and the loop and
+    sample rates (the loop's gain and transient are set in loop steps; the segments are
+    whole samples, so at another sample rate the same seconds may cover other times). A
+    reference and an estimate that share them see the same transient, which cancels in
+    the ratio.
+    """
+    port = SensorPort.of(sensor)
+    names = FORWARD_MATCHED if kind == 'forward' else FEEDBACK_MATCHED
+    record = {name: getattr(settings, name) for name in names}
+    if kind == 'feedback' and settings.order == 'single':
+        record['cycles'] = settings.cycles
+    record['sample_rate_hz'] = float(port.sample_rate_hz)
+    record['loop_rate_hz'] = float(port.loop_rate_hz)
+    return record
+
+
+def _check_ready(kind, settings, port, state, check_settings=True):
+    """Refuse a ``kind`` estimate without a reference or with settings other than its."""
+    name = 'forward_slope' if kind == 'forward' else 'feedback_step'
+    if any(getattr(r, name) is None for r in state.references):
+        raise EstimationError(f'no {kind} reference captured: call capture_reference first')
+    if check_settings:
+        _check_reference_settings(kind, settings, port, state)
+
+
+def _check_reference_settings(kind, settings, port, state):
+    """Refuse a ``kind`` estimate whose settings differ from those of its reference."""
+    stored = state.reference_settings.get(kind)
+    if not stored:
+        raise EstimationError(
+            f'the {kind} reference has no stored schedule settings (captured by an older '
+            'version): an estimate with other settings would read a drift that is not there; '
+            'capture the reference again')
+    now = reference_settings(kind, settings, port)
+    differ = [f'{name} {stored.get(name)!r} at the reference, {value!r} now'
+              for name, value in now.items() if not _same(stored.get(name), value)]
+    differ += [f'{name} {stored[name]!r} at the reference, unused now'
+               for name in stored if name not in now]
+    if differ:
+        raise EstimationError(
+            f'{kind} schedule settings differ from the reference\'s ({"; ".join(differ)}): '
+            "the loop's transient would read as a drift of tens of ppm; set them back or "
+            'capture the reference again')
+
+
+def _same(a, b):
+    if isinstance(a, str) or isinstance(b, str) or a is None or b is None:
+        return a == b
+    return math.isclose(float(a), float(b), rel_tol=1e-9, abs_tol=1e-12)
+
+
 @dataclass
 class EstimationResult:
     """
@@ -248,7 +323,8 @@ def _require_closed(port):
         raise EstimationError('a loop is open: another schedule is running')
 
 
-def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capture=False):
+def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capture=False,
+                     check_settings=True):
     """
     Run the forward-gain schedule as a generator (see :func:`run_schedule`).
 
@@ -257,12 +333,14 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
     fits the least-squares slope of eq. 19, compares it with the reference slope
     ``k_pre-eq0`` (``1 + dk_pre = slope / slope0``) and divides k(D(z)) by
     ``1 + dk_pre`` (eq. 22); then re-closes the loops. With ``capture`` the slope
-    becomes the reference instead. ``sensor`` is a :class:`SensorPort` or a sensor
-    model (wrapped in one).
+    becomes the reference instead, stored with its settings
+    (:func:`reference_settings`). ``sensor`` is a :class:`SensorPort` or a sensor
+    model (wrapped in one). With ``check_settings`` (the default) an estimate whose
+    settings or rates differ from the reference's is refused, before anything moves.
     """
     port = SensorPort.of(sensor)
-    if not capture and any(r.forward_slope is None for r in state.references):
-        raise EstimationError('no forward reference captured: call capture_reference first')
+    if not capture:
+        _check_ready('forward', settings, port, state, check_settings)
     _require_closed(port)
     start_ns = port.sensor_time_ns()
     axes = range(port.n_axes)
@@ -314,6 +392,7 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
     if capture:
         for axis, ref in enumerate(state.references):
             ref.forward_slope = float(slope[axis])
+        state.reference_settings['forward'] = reference_settings('forward', settings, port)
     elif apply:
         for axis in axes:
             port.set_controller_gain(axis, gains_before[axis] / ratio[axis])
@@ -397,7 +476,8 @@ def _segment_allan_variance(counts, rate_hz):
     return np.maximum(avar_half - white / duration, white / duration)
 
 
-def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, capture=False):
+def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, capture=False,
+                      check_settings=True):
     """
     Run the feedback-gain schedule as a generator (see :func:`run_schedule`).
 
@@ -409,11 +489,13 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
     becomes the reference instead, stored with the on-board temperature reading.
     With ``settings.temperature_correction`` the reference step is first moved to the
     present reading with the coefficient of :func:`reference_tc_schedule`. The input
-    must be static and in range.
+    must be static and in range. With ``check_settings`` (the default) an estimate whose
+    :data:`FEEDBACK_MATCHED` settings or rates differ from the reference's is refused
+    before anything moves (the captured settings are stored with the reference).
     """
     port = SensorPort.of(sensor)
-    if not capture and any(r.feedback_step is None for r in state.references):
-        raise EstimationError('no feedback reference captured: call capture_reference first')
+    if not capture:
+        _check_ready('feedback', settings, port, state, check_settings)
     correct = settings.temperature_correction and not capture
     if correct:
         if not state.reference_tc_ppm:
@@ -472,6 +554,7 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
         for axis, ref in enumerate(state.references):
             ref.feedback_step = float(step[axis])
             state.set_reference_reading(axis, reading if math.isfinite(reading) else None)
+        state.reference_settings['feedback'] = reference_settings('feedback', settings, port)
     elif apply:
         for axis in range(port.n_axes):
             port.set_n_vref(axis, int(round(words_before[axis] / ratio[axis])))
@@ -495,8 +578,14 @@ def capture_reference(sensor, state, forward=ForwardSettings(), feedback=Feedbac
 
 
 def self_calibrate(sensor, state, forward=ForwardSettings(), feedback=FeedbackSettings()):
-    """Run the forward schedule, then the feedback schedule; return the two results."""
+    """
+    Run the forward schedule, then the feedback schedule; return the two results.
+
+    Both references and both schedules' settings are checked before anything moves.
+    """
     port = SensorPort.of(sensor)
+    _check_ready('forward', forward, port, state)
+    _check_ready('feedback', feedback, port, state)
     forward_result = yield from forward_schedule(port, state, forward)
     feedback_result = yield from feedback_schedule(port, state, feedback)
     return forward_result, feedback_result

@@ -102,6 +102,11 @@ class SensorPort:
         return self._triad.config.sample_rate_hz
 
     @property
+    def loop_rate_hz(self):
+        """Digital loop rate [Hz] (the loop's transients are set in its steps)."""
+        return self._triad.config.loop_rate_hz
+
+    @property
     def settle_time_s(self):
         """Time the output stays flagged invalid after re-closing a loop [s]."""
         return self._triad.config.settle_time

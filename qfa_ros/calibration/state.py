@@ -60,6 +60,12 @@ class CalibrationState:
     gyro_bias : list of float
         Gyro bias correction per axis [rad/s]
         (:func:`qfa_ros.calibration.gyro_bias.gyro_bias_schedule`); empty until measured.
+    reference_settings : dict
+        The schedule settings each reference was captured with, ``{'forward': {...},
+        'feedback': {...}}`` (the settings that change what an estimate expects, and the
+        loop and sample rates; :func:`qfa_ros.calibration.estimation.reference_settings`).
+        An estimate with other settings is refused. Empty in a state file written before
+        they were stored: its references cannot be compared and must be captured again.
     """
 
     references: list = field(default_factory=lambda: [AxisReference() for _ in AXES])
@@ -71,6 +77,7 @@ class CalibrationState:
     temperature: dict = field(default_factory=dict)
     reference_tc_ppm: list = field(default_factory=list)
     gyro_bias: list = field(default_factory=list)
+    reference_settings: dict = field(default_factory=dict)
 
     @property
     def has_reference(self):
@@ -99,7 +106,8 @@ class CalibrationState:
                         updated_at_ns=int(data.get('updated_at_ns', 0)),
                         temperature=dict(data.get('temperature', {})),
                         reference_tc_ppm=[float(v) for v in data.get('reference_tc_ppm', [])],
-                        gyro_bias=[float(v) for v in data.get('gyro_bias', [])])
+                        gyro_bias=[float(v) for v in data.get('gyro_bias', [])],
+                        reference_settings=_settings_from(data.get('reference_settings', {})))
         except (KeyError, TypeError, ValueError) as error:
             raise ValueError(f'calibration state: malformed ({error})') from error
         if len(refs) != len(AXES) or len(state.controller_gain) not in (0, len(AXES)) \
@@ -140,6 +148,20 @@ class CalibrationState:
         self.controller_gain = [port.controller_gain(axis) for axis in range(port.n_axes)]
         self.n_vref = [port.n_vref(axis) for axis in range(port.n_axes)]
         self.updated_at_ns = port.sensor_time_ns()
+
+
+def _settings_from(data):
+    """Validate the stored reference settings: per kind a flat mapping of scalars."""
+    if not isinstance(data, dict) or not set(data) <= {'forward', 'feedback'}:
+        raise ValueError('reference_settings must map forward/feedback to settings')
+    settings = {}
+    for kind, values in data.items():
+        if not isinstance(values, dict) or len(values) > 32 or not all(
+                isinstance(k, str) and isinstance(v, (bool, int, float, str))
+                and len(k) <= 64 and len(str(v)) <= 64 for k, v in values.items()):
+            raise ValueError(f'reference_settings.{kind} must map names to scalars')
+        settings[kind] = dict(values)
+    return settings
 
 
 def install_compensation(triad, temperature_state):

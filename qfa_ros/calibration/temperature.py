@@ -17,6 +17,10 @@ soaks until the on-board reading is back where it started, so the sensor leaves 
 would.
 Only what the sensor can know is used: outputs, the temperature reading and the known
 fixture positions.
+
+One module over ~500 lines because it is one cohesive thing: the chamber program, its
+tumble records and the fit of those records (with the reading's lag behind the proof
+mass estimated from the same records) share the block format and the settings.
 """
 
 import dataclasses
@@ -200,6 +204,9 @@ class TemperatureResult:
         Sensor time of the final soak back to the starting temperature [s].
     plateau_extra : list
         What the ``at_plateau`` hook returned at every plateau.
+    probe_lag_s : float
+        Lag of the on-board reading behind the proof mass the fit estimated and removed
+        [s] (:func:`estimate_probe_lag`).
     start_ns, end_ns : int
         Sensor time span [ns].
     """
@@ -214,6 +221,7 @@ class TemperatureResult:
     start_ns: int
     end_ns: int
     plateau_extra: list = dataclasses.field(default_factory=list)
+    probe_lag_s: float = 0.0
 
     @property
     def residuals(self):
@@ -246,7 +254,7 @@ class TemperatureResult:
         """Return the fits, comparison figures and ROM words as a mapping (trace result)."""
         mapping = {'applied': self.applied, 'duration_s': self.duration_s,
                    'soak_s': self.soak_s, 'start_ns': self.start_ns, 'end_ns': self.end_ns,
-                   'summary': self.summary()}
+                   'probe_lag_s': self.probe_lag_s, 'summary': self.summary()}
         c = self.compensation
         # bias keys as the single-position calibration had them (fit.<axis>, ...); the
         # scale-factor correction's with a _scale suffix, in ppm
@@ -373,7 +381,7 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
         triad.fixture = None
         triad.thermal.set_ambient(**previous)
         triad.temperature_compensation = was_compensating
-    compensation, points = fit_multiposition(blocks, tumbles, settings)
+    compensation, points, lag = fit_multiposition(blocks, tumbles, settings)
     end_ns = sensor_time_ns(triad)
     if settings.apply:
         state.temperature = compensation.to_dict()
@@ -387,7 +395,7 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
            'temperature': triad.thermal.reading_c(np.array([b[1] for b in blocks])),
            'force': force, 'output': output, 'zero': output - force}
     return TemperatureResult('temperature', asdict(settings), compensation, points, raw,
-                             settings.apply, soak_s, start_ns, end_ns, extra)
+                             settings.apply, soak_s, start_ns, end_ns, extra, lag)
 
 
 def temperature_calibration(triad, state, settings=TemperatureSettings()):
@@ -416,11 +424,85 @@ def _chebyshev(u, degree):
     return np.polynomial.chebyshev.chebvander(u, degree)
 
 
+MAX_PROBE_LAG_S = 4.0
+"""Longest lag of the on-board temperature reading behind the proof mass the fit looks for
+[s] (twice the datasheet-like 0.5-2 s of :mod:`qfa_ros.model.unit`)."""
+PROBE_LAG_STEP_S = 0.05
+"""Resolution of the lag search [s]."""
+
+
+def reading_rate(times_s, v, width=3):
+    """
+    Return the rate of the on-board reading at every block [V/s], smoothed over a tumble.
+
+    Central differences of the block means against their end times, then a running mean
+    over a tumble's worth of blocks (the reading's quantization and noise would otherwise
+    dominate the derivative on a plateau).
+    """
+    if len(v) < 3:
+        return np.zeros(len(v))
+    rate = np.gradient(v, times_s)
+    width = min(width, len(v))
+    kernel = np.ones(width) / width
+    padded = np.pad(rate, (width // 2, width - 1 - width // 2), mode='edge')
+    return np.convolve(padded, kernel, mode='valid')
+
+
+def _global_fit(v, force, output):
+    """Return misalignment, K2 and the residual sum of squares of the all-block fit."""
+    centre, half = 0.5 * (v.max() + v.min()), max(0.5 * np.ptp(v), 1e-9)
+    u = (v - centre) / half
+    misalignment = np.zeros((3, 3))
+    k2 = np.zeros(3)
+    rss = 0.0
+    for i in range(3):
+        others = [j for j in range(3) if j != i]
+        design = np.column_stack([_chebyshev(u, 6),
+                                  _chebyshev(u, 4) * force[:, i:i + 1],
+                                  force[:, others], force[:, i] ** 2])
+        target = output[:, i] - force[:, i]
+        coefficients = np.linalg.lstsq(design, target, rcond=None)[0]
+        misalignment[i, others] = coefficients[-3:-1]
+        k2[i] = coefficients[-1]
+        rss += float(np.sum((target - design @ coefficients) ** 2))
+    return misalignment, k2, rss
+
+
+def estimate_probe_lag(v, rate, force, output, max_lag_s=MAX_PROBE_LAG_S,
+                       step_s=PROBE_LAG_STEP_S):
+    """
+    Estimate how far the on-board reading lags the proof mass from the blocks [s].
+
+    The errors follow the proof mass's temperature; the reading follows it with the
+    probe's lag ``tau``, so the mass is at ``V + tau dV/dt`` of the reading. While the
+    chamber moves, heating and cooling blocks at one reading disagree by twice the slope
+    of the curves times ``tau dV/dt``; the ``tau`` whose corrected reading makes the
+    all-block fit (bias, scale factor, misalignment, K2) fit best is the lag. On
+    plateaus the rate is zero and the correction vanishes.
+    """
+    def best(lags):
+        rss = [_global_fit(v + lag * rate, force, output)[2] for lag in lags]
+        return round(float(lags[int(np.argmin(rss))]), 6)
+
+    # Coarse, then fine around the coarse minimum (the residual is smooth in the lag).
+    coarse_step = 5.0 * step_s
+    lag = best(np.arange(0.0, max_lag_s + 0.5 * coarse_step, coarse_step))
+    fine = np.arange(max(0.0, lag - coarse_step), min(max_lag_s, lag + coarse_step)
+                     + 0.5 * step_s, step_s)
+    return best(fine)
+
+
 def fit_multiposition(blocks, tumbles, settings):
     """
     Fit bias, scale factor, misalignment and K2 per axis from the tumble blocks.
 
-    First, per axis, one linear least squares over every block:
+    The on-board reading lags the proof mass (the probe's lag: a second or two); while the
+    chamber moves it reads a temperature the mass had a moment before, which biases the
+    fits by the curves' slopes times the lag times the rate (40 ppm of scale factor on a
+    steep axis when the body follows the chamber within seconds). So first the lag is
+    estimated from the blocks (:func:`estimate_probe_lag`) and every block's reading moved
+    to the mass's, ``V + tau dV/dt`` (nothing changes on a settled plateau, where the
+    compensation is used). Then, per axis, one linear least squares over every block:
     ``y_i = B(V) + (1 + S(V)) f_i + M_ij f_j + M_il f_l + K2_i f_i^2`` with ``B`` and
     ``S`` Chebyshev series in the scaled V (degrees 6 and 4): the constant ``M`` and
     ``K2``. Then per tumble, with those removed, ``y_i - f_i = b + b' dV + s f_i +
@@ -434,18 +516,10 @@ def fit_multiposition(blocks, tumbles, settings):
     v = np.array([b[1] for b in blocks])
     force = np.array([b[2] for b in blocks])
     output = np.array([b[3] for b in blocks])
-    centre, half = 0.5 * (v.max() + v.min()), max(0.5 * np.ptp(v), 1e-9)
-    u = (v - centre) / half
-    misalignment = np.zeros((3, 3))
-    k2 = np.zeros(3)
-    for i in range(3):
-        others = [j for j in range(3) if j != i]
-        design = np.column_stack([_chebyshev(u, 6),
-                                  _chebyshev(u, 4) * force[:, i:i + 1],
-                                  force[:, others], force[:, i] ** 2])
-        coefficients = np.linalg.lstsq(design, output[:, i] - force[:, i], rcond=None)[0]
-        misalignment[i, others] = coefficients[-3:-1]
-        k2[i] = coefficients[-1]
+    rate = reading_rate(np.array([b[0] for b in blocks]) * 1e-9, v)
+    lag = estimate_probe_lag(v, rate, force, output)
+    v = v + lag * rate
+    misalignment, k2, _ = _global_fit(v, force, output)
     corrected = output - force @ misalignment.T - k2 * force ** 2
     v_mean, bias, scale, times = [], [], [], []
     n = len(POSITIONS)
@@ -481,4 +555,4 @@ def fit_multiposition(blocks, tumbles, settings):
             v_mean, clip=True)
     for i, name in enumerate(AXES):
         points[f'scale_{name}'] = scale[:, i]
-    return ThermalCompensation(bias_cal, scale_cal, misalignment, k2), points
+    return ThermalCompensation(bias_cal, scale_cal, misalignment, k2), points, lag

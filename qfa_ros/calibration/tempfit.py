@@ -701,6 +701,11 @@ class TemperatureCalibration:
         return calibration
 
 
+def max_m_bits(guard_bits):
+    """Return the most fraction bits the 63-bit datapath holds with ``guard_bits``."""
+    return (63 - guard_bits - 4) // 2
+
+
 def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
                         v_range=None, guard_bits=4, baseline=False):
     """
@@ -718,7 +723,9 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
     zero_output : array_like
         Zero output of the axis per sample (any unit, e.g. m/s^2).
     m_bits : int
-        Fixed-point fraction bits of the compensator.
+        Fixed-point fraction bits of the compensator: at least these; a fit whose terms
+        cancel by more than ``guard_bits`` gets the bits the cancellation takes on top
+        (up to :func:`max_m_bits`), so a degenerate fit keeps its precision.
     n_bins, min_count : int
         Number of V_temp bins and the least samples a bin needs to be used.
     v_range : pair of float, optional
@@ -747,13 +754,25 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
         # a unipolar temperature ADC never reads below 0 V
         v_range = (max(low, 0.0) if v_bins.min() >= 0 else low,
                    float(v_bins.max()) + 0.25 * span)
-    compensator = DoubleExpCompensator(fit, m_bits=m_bits, guard_bits=guard_bits,
-                                       v_range=v_range)
-    fixed = compensator.evaluate_fixed(v_bins)
     term_peak = max([np.abs(a * np.exp(b * v_bins)).max() for a, b in zip(fit.alpha, fit.beta)]
                     + [np.abs(fit.offset + fit.slope * v_bins).max()])
     sum_peak = np.abs(fit.evaluate(v_bins)).max()
     cancellation = math.log2(term_peak / sum_peak) if sum_peak > 0 else math.inf
+    # Terms that cancel by c bits cost the fixed-point output c bits: beyond the guard
+    # bits, widen the words by what the cancellation takes (within the 63-bit datapath).
+    widen = max(0, math.ceil(min(cancellation, 64.0)) - guard_bits)
+    bits = min(max_m_bits(guard_bits), m_bits + widen)
+    while True:
+        try:
+            compensator = DoubleExpCompensator(fit, m_bits=bits, guard_bits=guard_bits,
+                                               v_range=v_range)
+            break
+        except ValueError:
+            # The widened words overflow a multiplier of this fit's datapath: fewer.
+            if bits <= m_bits:
+                raise
+            bits -= 1
+    fixed = compensator.evaluate_fixed(v_bins)
     return TemperatureCalibration(
         fit=fit, poly3=poly3, poly4=poly4, m_bits=compensator.m_bits,
         n_bits=compensator.n_bits, guard_bits=compensator.guard_bits,

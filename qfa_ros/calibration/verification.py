@@ -9,12 +9,15 @@ compares the output with the fixture's known input, as the lab's verification do
 """
 
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
+from qfa_ros.calibration.chamber import idle
 from qfa_ros.calibration.schedule import samples_for
 from qfa_ros.calibration.temperature import AMBIENT_FIELDS, fixture_profile, POSITIONS
 from qfa_ros.model.hardware import STANDARD_GRAVITY
+from qfa_ros.model.profiles import StaticProfile
 
 
 @dataclass
@@ -91,3 +94,86 @@ def verify_cycle(triad, low_c=-40.0, high_c=70.0, period_s=2400.0, shape='sine',
     centres = np.array([0.5 * (edges[max(b - 1, 0)] + edges[min(b, len(edges) - 1)])
                         for b in used])
     return VerificationResult(p2p, scale, centres)
+
+
+ATTITUDES = (('level', 0.0, 0.0), ('inverted', math.pi, 0.0),
+             ('roll +90', 0.5 * math.pi, 0.0), ('roll -90', -0.5 * math.pi, 0.0),
+             ('pitch +90', 0.0, 0.5 * math.pi), ('pitch -90', 0.0, -0.5 * math.pi),
+             ('arbitrary 1', 0.61, -0.43), ('arbitrary 2', -2.27, 0.97))
+"""Verification attitudes ``(name, roll, pitch)`` [rad]: level, inverted, rolled and pitched
++-90 degrees (each axis's +-g pair) and two arbitrary ones (every axis a share of g)."""
+
+SCALE_PAIRS = (('pitch -90', 'pitch +90'), ('roll +90', 'roll -90'), ('level', 'inverted'))
+"""Per axis the two attitudes of :data:`ATTITUDES` that put it at +g and -g."""
+
+
+@dataclass
+class AttitudeVerification:
+    """
+    Compensated errors in fixed attitudes at constant chamber temperatures.
+
+    Attributes
+    ----------
+    names : list of str
+        Attitude names (:data:`ATTITUDES` order).
+    temperatures_c : float64[t]
+        Chamber temperatures [degC].
+    error : float64[t, a, 3]
+        Mean output minus the input per temperature, attitude and axis [m/s^2].
+    zero_drift_p2p : float64[a, 3]
+        Peak to peak of ``error`` over the temperatures [m/s^2].
+    scale_error : float64[t, 3]
+        Per temperature and axis the scale-factor error of the axis's +-g pair
+        (:data:`SCALE_PAIRS`) [1].
+    """
+
+    names: list
+    temperatures_c: np.ndarray
+    error: np.ndarray
+    zero_drift_p2p: np.ndarray
+    scale_error: np.ndarray
+
+    @property
+    def scale_p2p(self):
+        """Peak to peak of the scale-factor error over the temperatures per axis [1]."""
+        return np.ptp(self.scale_error, axis=0)
+
+    @property
+    def scale_max(self):
+        """Largest |scale-factor error| over the temperatures per axis [1]."""
+        return np.abs(self.scale_error).max(axis=0)
+
+
+def verify_attitudes(triad, temperatures_c=(-27.0, 8.0, 41.0, 64.0), attitudes=ATTITUDES,
+                     soak_s=None, average_s=1.5, settle_s=0.5):
+    """
+    Hold the chamber at each temperature and measure the compensated output per attitude.
+
+    Per temperature: constant ambient, a soak of ``soak_s`` (default eight body time
+    constants, environment time only), then per attitude ``settle_s`` discarded and
+    ``average_s`` averaged; the error is the mean output minus the known input. Offline
+    (``triad.run``), compensation as it is; the ambient is restored afterwards.
+    """
+    previous = {name: getattr(triad.thermal.config, name) for name in AMBIENT_FIELDS}
+    soak_s = 8.0 * triad.thermal.config.sensor_tau_s if soak_s is None else soak_s
+    error = np.zeros((len(temperatures_c), len(attitudes), 3))
+    try:
+        for t, chamber_c in enumerate(temperatures_c):
+            triad.thermal.set_ambient(ambient_profile='constant', ambient_c=float(chamber_c))
+            idle(triad, soak_s)
+            for a, (_, roll, pitch) in enumerate(attitudes):
+                triad.fixture = StaticProfile.orientation(roll, pitch)
+                triad.run(samples_for(triad, settle_s))
+                out = triad.run(samples_for(triad, average_s))
+                error[t, a] = (out.accel - out.truth).mean(axis=0)
+    finally:
+        triad.fixture = None
+        triad.thermal.set_ambient(**previous)
+    names = [name for name, *_ in attitudes]
+    scale = np.full((len(temperatures_c), 3), np.nan)
+    for axis, (up, down) in enumerate(SCALE_PAIRS):
+        if up in names and down in names:
+            i, j = names.index(up), names.index(down)
+            scale[:, axis] = (error[:, i, axis] - error[:, j, axis]) / (2.0 * STANDARD_GRAVITY)
+    return AttitudeVerification(names, np.asarray(temperatures_c, float), error,
+                                np.ptp(error, axis=0), scale)

@@ -24,10 +24,30 @@ A study is YAML with these keys (every one optional but ``units``)::
       wander_c: 1.0               # room wander amplitude (12 h correlation)
       error_profile: paper        # paper | ideal: seed 1's temperature coefficients
       magnet_tc_ppm: null         # override the profile's k_t temperature coefficient
+      component_tcs: type         # type: every unit the profile's coefficients; drawn:
+                                  # each unit its own I_ref and forward-chain ones
+                                  # (qfa_ros.model.unit spreads)
 
 A Monte Carlo of one self-calibration after drifts of a given size is the study with one
 calibration a year after the reference and uniform aging of that size (the scenarios of
 ``bench/estimation_accuracy.py``).
+
+``kind: temperature`` is the other procedure: every unit (drawn by :mod:`qfa_ros.model.unit`
+from a seed the study derives, reported in the rows) runs the temperature calibration
+(``~/calibrate_temperature``'s schedule) and is verified in eight attitudes at constant
+chamber temperatures off its 10 degC grid (:mod:`qfa_ros.calibration.verification`);
+``schedule``, ``aging`` and the calendar keys are unused. Its keys::
+
+    kind: temperature
+    temperature: {period_s: 3600.0}      # overrides of TemperatureSettings fields
+    sensor:                              # the sensor the procedure runs on
+      sensor_tau_s: 300.0                # body time constant [s]
+      loop_rate_hz: 10000.0
+      sample_rate_hz: 1000.0
+      crossover_hz: 300.0
+    verification:
+      temperatures_c: [-27.0, 8.0, 41.0, 64.0]
+      average_s: 1.5
 """
 
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -40,10 +60,16 @@ import yaml
 
 from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
 from qfa_ros.calibration.experiments import IMPROVED_SCHEDULE, PAPER_SCHEDULE
+from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model.errors import ERROR_PROFILES
 
 SCHEDULES = {'paper': PAPER_SCHEDULE, 'improved': IMPROVED_SCHEDULE}
 AGING_DISTRIBUTIONS = ('normal', 'uniform')
+COMPONENT_TCS = ('type', 'drawn')
+KINDS = ('self_calibration', 'temperature')
+SENSOR_KEYS = {'sensor_tau_s': (1.0, 1e5), 'loop_rate_hz': (100.0, 1e5),
+               'sample_rate_hz': (1.0, 1e4), 'crossover_hz': (1.0, 1e4)}
+VERIFICATION_KEYS = ('temperatures_c', 'average_s')
 SPANS_PPM = {'paper': 200.0, 'year': 100.0, 'large': 1000.0}
 """Drift spans of the one-calibration Monte Carlo [ppm]: the paper's +-200 ppm; one year
 of aging (+-100 ppm/year, the navigation-grade QFA scale-factor stability class);
@@ -111,6 +137,7 @@ class Environment:
     wander_c: float = 1.0
     error_profile: str = 'paper'
     magnet_tc_ppm: float = None
+    component_tcs: str = 'type'
 
 
 @dataclass(frozen=True)
@@ -141,10 +168,16 @@ class Study:
     calibration_interval_days: float = 30.0
     aging: Aging = field(default_factory=Aging)
     environment: Environment = field(default_factory=Environment)
+    kind: str = 'self_calibration'
+    temperature: dict = field(default_factory=dict)
+    sensor: dict = field(default_factory=dict)
+    verification: dict = field(default_factory=dict)
 
     @property
     def calibrations(self):
-        """Return the number of self-calibrations within the horizon."""
+        """Return the number of self-calibrations within the horizon (1: temperature)."""
+        if self.kind == 'temperature':
+            return 1
         return int(math.floor(self.horizon_years * 365.25 / self.calibration_interval_days
                               + 1e-9))
 
@@ -161,6 +194,10 @@ class Study:
         feedback = replace(base.feedback, **self.feedback)
         capture = replace(base.reference_feedback, **self.feedback)
         return replace(base, forward=forward, feedback=feedback, capture_feedback=capture)
+
+    def temperature_settings(self):
+        """Return the :class:`TemperatureSettings` of a temperature study."""
+        return TemperatureSettings(**self.temperature)
 
     def to_dict(self):
         """Return the study as plain data (the resumable run's identity)."""
@@ -201,6 +238,10 @@ class Study:
         if distribution not in AGING_DISTRIBUTIONS:
             raise StudyError(f'aging.distribution must be one of '
                              f'{", ".join(AGING_DISTRIBUTIONS)}, got {distribution!r}')
+        component_tcs = environment.get('component_tcs', 'type')
+        if component_tcs not in COMPONENT_TCS:
+            raise StudyError(f'environment.component_tcs must be one of '
+                             f'{", ".join(COMPONENT_TCS)}, got {component_tcs!r}')
         profile = environment.get('error_profile', 'paper')
         if profile not in ERROR_PROFILES:
             raise StudyError(f'environment.error_profile must be one of '
@@ -222,12 +263,35 @@ class Study:
             aging=Aging(**{k: (v if k == 'distribution' else _number(f'aging.{k}', v, 0.0, 1e5))
                            for k, v in aging.items()}),
             environment=Environment(**{
-                k: (v if k == 'error_profile' or (k == 'magnet_tc_ppm' and v is None)
+                k: (v if k in ('error_profile', 'component_tcs')
+                    or (k == 'magnet_tc_ppm' and v is None)
                     else _number(f'environment.{k}', v,
                                  -1e3 if k in ('room_c', 'magnet_tc_ppm') else 0.0, 1e3))
                 for k, v in environment.items()}))
+        kind = data.get('kind', 'self_calibration')
+        if kind not in KINDS:
+            raise StudyError(f'kind must be one of {", ".join(KINDS)}, got {kind!r}')
+        temperature = dict(_mapping('temperature', data.get('temperature'),
+                                    {f.name for f in fields(TemperatureSettings)}))
+        sensor = {k: _number(f'sensor.{k}', v, *SENSOR_KEYS[k], allow_low=True)
+                  for k, v in _mapping('sensor', data.get('sensor'), SENSOR_KEYS).items()}
+        verification = dict(_mapping('verification', data.get('verification'),
+                                     VERIFICATION_KEYS))
+        if 'temperatures_c' in verification:
+            temps = verification['temperatures_c']
+            if not isinstance(temps, list) or not 2 <= len(temps) <= 50:
+                raise StudyError('verification.temperatures_c must be a list of 2 to 50 '
+                                 f'temperatures, got {temps!r}')
+            verification['temperatures_c'] = [
+                _number('verification.temperatures_c', t, -60.0, 125.0) for t in temps]
+        if 'average_s' in verification:
+            verification['average_s'] = _number('verification.average_s',
+                                                verification['average_s'], 0.01, 600.0)
+        study = replace(study, kind=kind, temperature=temperature, sensor=sensor,
+                        verification=verification)
         try:
             study.schedule_settings()
+            study.temperature_settings()
         except (TypeError, ValueError) as error:
             raise StudyError(f'schedule settings: {error}') from None
         if study.calibrations < 1:

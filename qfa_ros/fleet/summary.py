@@ -72,8 +72,85 @@ def residual_metrics(table):
             'sensor time s': float(np.mean(np.asarray(table.column('schedule_s'))))}
 
 
+ZERO_DRIFT_LIMIT_UG = 30.0
+"""Acceptance of the temperature calibration: zero-drift p2p per attitude and axis [ug]."""
+SCALE_LIMIT_PPM = 20.0
+"""Acceptance of the temperature calibration: scale-factor error per axis [ppm]."""
+
+
+def self_calibration_claim(table):
+    """Return mean, p95, p99 and max of |residual| after self-calibration [ppm] (all axes)."""
+    after = np.abs(_columns(table, 'sf_after_ppm'))
+    return {'mean': float(after.mean()), 'p95': float(np.percentile(after, 95)),
+            'p99': float(np.percentile(after, 99)), 'max': float(after.max()),
+            'count': int(after.size)}
+
+
+def temperature_rows(table):
+    """
+    Return the temperature study's distribution rows per quantity and axis.
+
+    Each row: ``(quantity, axis, median, p95, max, yield %)``: the worst attitude's
+    zero-drift p2p [ug] (yield: <= :data:`ZERO_DRIFT_LIMIT_UG`), the scale factor's p2p
+    and largest |error| over the temperatures [ppm] (yield: <= :data:`SCALE_LIMIT_PPM`).
+    """
+    rows = []
+    for label, stem, limit in (('zero-drift p2p, worst attitude [ug]', 'zd_max_ug',
+                                ZERO_DRIFT_LIMIT_UG),
+                               ('scale-factor p2p [ppm]', 'sf_p2p_ppm', SCALE_LIMIT_PPM),
+                               ('scale-factor max |error| [ppm]', 'sf_max_ppm',
+                                SCALE_LIMIT_PPM)):
+        for axis in AXES:
+            values = np.asarray(table.column(f'{stem}_{axis}'))
+            rows.append((label, axis, float(np.median(values)),
+                         float(np.percentile(values, 95)), float(values.max()),
+                         100.0 * float(np.mean(values <= limit))))
+    return rows
+
+
+def temperature_failures(table):
+    """Return the rows (dicts) of units outside the acceptance on any axis."""
+    failures = []
+    for row in table.to_pylist():
+        if any(row[f'zd_max_ug_{a}'] > ZERO_DRIFT_LIMIT_UG
+               or row[f'sf_p2p_ppm_{a}'] > SCALE_LIMIT_PPM
+               or row[f'sf_max_ppm_{a}'] > SCALE_LIMIT_PPM for a in AXES):
+            failures.append(row)
+    return failures
+
+
+def format_temperature_summary(table):
+    """Return a temperature study's summary as Markdown."""
+    units = table.num_rows
+    failures = temperature_failures(table)
+    cpu = np.asarray(table.column('cpu_s'))
+    lines = [f'{units} units; CPU per unit mean {cpu.mean():.1f} s, max {cpu.max():.1f} s; '
+             f'units within every limit (all axes, attitudes, both scale-factor figures): '
+             f'{units - len(failures)} of {units} ({100.0 * (1 - len(failures) / units):.1f} %)',
+             '', '| quantity | axis | median | p95 | max | yield [%] |',
+             '|---|---|---|---|---|---|']
+    for label, axis, median, p95, worst, share in temperature_rows(table):
+        lines.append(f'| {label} | {axis} | {median:.1f} | {p95:.1f} | {worst:.1f} | '
+                     f'{share:.1f} |')
+    lag = np.abs(np.asarray(table.column('probe_lag_s'))
+                 - np.asarray(table.column('probe_tau_s')))
+    lines += ['', f'probe-lag estimate - truth: median {np.median(lag):.3f} s, max '
+              f'{lag.max():.3f} s']
+    if failures:
+        lines += ['', 'Units outside the limits (unit.seed, probe lag true/estimated, worst '
+                  'zero drift ug / SF p2p / SF max ppm per axis):']
+        for row in failures:
+            cells = ', '.join(f'{a} {row[f"zd_max_ug_{a}"]:.1f}/{row[f"sf_p2p_ppm_{a}"]:.1f}/'
+                              f'{row[f"sf_max_ppm_{a}"]:.1f}' for a in AXES)
+            lines.append(f'- unit {row["unit"]} (seed {row["unit_seed"]}), lag '
+                         f'{row["probe_tau_s"]:.2f}/{row["probe_lag_s"]:.2f} s: {cells}')
+    return '\n'.join(lines)
+
+
 def format_summary(table):
     """Return the summary as a Markdown table."""
+    if 'zd_max_ug_x' in table.column_names:
+        return format_temperature_summary(table)
     units = len(set(np.asarray(table.column('unit')).tolist()))
     calibrations = int(np.asarray(table.column('calibration')).max())
     lines = [f'{units} units x {calibrations} calibrations x {len(AXES)} axes',
@@ -81,6 +158,10 @@ def format_summary(table):
     for label, mean, p95, worst in summary_rows(table):
         cells = [f'{v:.2f}' if np.isfinite(v) else '' for v in (mean, p95, worst)]
         lines.append(f'| {label} | ' + ' | '.join(cells) + ' |')
+    claim = self_calibration_claim(table)
+    lines += ['', f'|residual scale-factor error| after self-calibration over '
+              f'{claim["count"]} unit-axes: mean {claim["mean"]:.2f}, p95 {claim["p95"]:.2f}, '
+              f'p99 {claim["p99"]:.2f}, max {claim["max"]:.2f} ppm']
     return '\n'.join(lines)
 
 
@@ -92,6 +173,21 @@ def draw_figures(table, out_dir, name='study'):
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
+    if 'zd_max_ug_x' in table.column_names:
+        figure, panels = plt.subplots(1, 2, figsize=(9, 4))
+        for panel, stem, limit, label in (
+                (panels[0], 'zd_max_ug', ZERO_DRIFT_LIMIT_UG, 'zero-drift p2p, worst attitude '
+                 '[ug]'), (panels[1], 'sf_p2p_ppm', SCALE_LIMIT_PPM, 'scale-factor p2p [ppm]')):
+            for axis in AXES:
+                panel.hist(np.asarray(table.column(f'{stem}_{axis}')), bins=30, alpha=0.5,
+                           label=axis)
+            panel.axvline(limit, color='k', linestyle='--', label='limit')
+            panel.set_xlabel(label)
+            panel.set_ylabel('units')
+            panel.legend()
+        figure.suptitle(f'{name}: temperature calibration, eight attitudes')
+        written.append(_save(figure, out_dir / 'fleet_temperature_histogram.png', plt))
+        return written
     before, after = _columns(table, 'sf_before_ppm'), _columns(table, 'sf_after_ppm')
     figure, axes = plt.subplots(figsize=(7, 4))
     bins = np.linspace(-max(np.abs(before).max(), 1), max(np.abs(before).max(), 1), 60)

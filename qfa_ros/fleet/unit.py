@@ -39,10 +39,12 @@ from qfa_ros.calibration.experiments import (
 )
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.fleet.temperature_unit import simulate_temperature_unit
 from qfa_ros.model.errors import error_profile, PaperRoom
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.model.unit import COMPONENT_TC_KEY, draw_component_tcs, install_component_tcs
 
 DAYS_PER_YEAR = 365.25
 SECONDS_PER_DAY = 86400.0
@@ -108,7 +110,13 @@ def simulate_unit(study, index):
         room_amplitude_c=environment.wander_c, room_correlation_s=room.room_correlation_s,
         initial_sensor_c=season_c(0.0)))
     triad = QfaTriad(config, rng=np.random.default_rng(model_seed))
-    _profile(environment).apply(triad)
+    if environment.component_tcs == 'drawn':
+        # The unit's own coefficients, from a stream keyed apart from the others.
+        i_ref, forward = draw_component_tcs(np.random.SeedSequence(
+            [study.seed, index], spawn_key=(COMPONENT_TC_KEY,)))
+        install_component_tcs(triad, _profile(environment), i_ref, forward)
+    else:
+        _profile(environment).apply(triad)
     schedule = study.schedule_settings()
     aging = study.aging
     rates = []
@@ -175,7 +183,8 @@ def simulate_unit(study, index):
 
 def simulate_batch(study, start, stop):
     """Return the rows of units ``start`` to ``stop - 1`` in unit order."""
+    simulate = simulate_temperature_unit if study.kind == 'temperature' else simulate_unit
     rows = []
     for index in range(start, stop):
-        rows.extend(simulate_unit(study, index))
+        rows.extend(simulate(study, index))
     return rows

@@ -30,7 +30,19 @@ misalignment (off-diagonal)     normal, sigma 0.3 mrad, clipped to +-1 mrad   es
 bias hysteresis                 uniform in [0, 3] ug (heating vs cooling)     estimate
 temperature-probe lag           uniform in [0.5, 2] s (sensor chip bonded     estimate
                                 to the accelerometer block)
+I_ref temperature coefficient   normal, mean 30, sigma 10 ppm/degC, clipped   estimate
+                                to [0, 60] (a precision reference and sense
+                                resistor; the ``paper`` profile's 30 is the
+                                type's mean)
+forward-chain coefficients      normal around the ``paper`` profile's type     estimate
+(DA1 reference, ``k_tz``,       figures 20, 7, 6 ppm/degC, sigma 7, 3, 3,
+``k_amp``)                      clipped to +-3 sigma
 =============================  ===========================================  ============
+
+The component coefficients act only where the error profile switches the source on
+(:meth:`Unit.install_error_profile`: the profile says which sources act, the unit how
+much); they come from their own generator stream (``SeedSequence([UNIT_STREAM, seed],
+spawn_key=(COMPONENT_TC_KEY,))``), so adding them moved no other draw of a seed.
 """
 
 import dataclasses
@@ -44,6 +56,11 @@ from qfa_ros.model.triad import AXES, QfaTriad
 
 UNIT_STREAM = 0x756E6974
 """First word of the unit draw's seed sequence (keeps it apart from the noise streams)."""
+
+COMPONENT_TC_KEY = 0x746300
+"""Spawn key of the component temperature coefficients' own stream (``tc``)."""
+FORWARD_TC_COMPONENTS = ('v_da1_ref', 'k_tz', 'k_amp')
+"""Forward-chain components whose temperature coefficients a unit draws."""
 
 MICRO_G = 1e-6 * STANDARD_GRAVITY
 _T_LOW, _T_HIGH, _T0 = -40.0, 70.0, 25.0
@@ -74,6 +91,11 @@ class UnitSpread:
     misalignment_max_mrad: float = 1.0
     hysteresis_max_ug: float = 3.0
     probe_tau_range_s: tuple = (0.5, 2.0)
+    i_ref_tc_mean_ppm_per_c: float = 30.0
+    i_ref_tc_sigma_ppm_per_c: float = 10.0
+    forward_tc_mean_ppm_per_c: tuple = (20.0, 7.0, 6.0)
+    forward_tc_sigma_ppm_per_c: tuple = (7.0, 3.0, 3.0)
+    tc_clip_sigmas: float = 3.0
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
@@ -114,6 +136,10 @@ class Unit:
         Second-order coefficient [1/(m/s^2)].
     misalignment : tuple
         3x3 cross-coupling (zero diagonal) [rad].
+    i_ref_tc_ppm_per_c : tuple
+        Temperature coefficient of each axis's I_ref source [ppm/degC].
+    forward_tc_ppm_per_c : tuple
+        Per :data:`FORWARD_TC_COMPONENTS` the coefficient of each axis [ppm/degC].
     """
 
     seed: int
@@ -131,6 +157,8 @@ class Unit:
     sf_aging_ppm_per_year: tuple
     k2: tuple
     misalignment: tuple
+    i_ref_tc_ppm_per_c: tuple = (0.0, 0.0, 0.0)
+    forward_tc_ppm_per_c: tuple = ((0.0, 0.0, 0.0),) * len(FORWARD_TC_COMPONENTS)
 
     def thermal_config(self, base=None):
         """Return ``base`` (default :class:`ThermalConfig`) with this unit's curves."""
@@ -170,6 +198,18 @@ class Unit:
         triad.drift.set_bias_aging(self.bias_aging_per_year)
         for axis in range(len(AXES)):
             triad.drift.set_aging(axis, 'b', self.sf_aging_ppm_per_year[axis])
+
+    def install_error_profile(self, triad, profile):
+        """
+        Write ``profile`` (an ErrorProfile) with this unit's coefficients into ``triad``.
+
+        ``profile`` is a :class:`~qfa_ros.model.errors.ErrorProfile`: it switches the
+        sources on (``ideal`` leaves every one off); each forward-chain component it
+        names and its I_ref source (when its coefficient is not zero) take this unit's
+        coefficients instead of the type figure.
+        """
+        install_component_tcs(triad, profile, self.i_ref_tc_ppm_per_c,
+                              self.forward_tc_ppm_per_c)
 
     def triad(self, config, rng=None, profile=None, extra_misalignment=None, start_ns=0):
         """Return a :class:`QfaTriad` that is this unit (:meth:`configure`, aging)."""
@@ -273,6 +313,9 @@ def draw_unit(seed, spread=None):
     misalignment = np.clip(rng.normal(0.0, spread.misalignment_sigma_mrad, (3, 3)),
                            -spread.misalignment_max_mrad, spread.misalignment_max_mrad) * 1e-3
     np.fill_diagonal(misalignment, 0.0)
+    i_ref_tc, forward_tc = draw_component_tcs(
+        np.random.SeedSequence([UNIT_STREAM, int(seed)], spawn_key=(COMPONENT_TC_KEY,)),
+        spread)
 
     def rows(array):
         return tuple(tuple(float(v) for v in row) for row in array)
@@ -285,4 +328,57 @@ def draw_unit(seed, spread=None):
                 hysteresis_m_s2=tuple(hysteresis.tolist()), probe_tau_s=probe_tau,
                 bias_aging_per_year=tuple(bias_aging.tolist()),
                 sf_aging_ppm_per_year=tuple(sf_aging.tolist()), k2=tuple(k2.tolist()),
-                misalignment=rows(misalignment))
+                misalignment=rows(misalignment), i_ref_tc_ppm_per_c=tuple(i_ref_tc.tolist()),
+                forward_tc_ppm_per_c=rows(forward_tc))
+
+
+def install_component_tcs(triad, profile, i_ref_tc_ppm_per_c, forward_tc_ppm_per_c):
+    """
+    Write ``profile`` into ``triad`` with per-axis component coefficients [ppm/degC].
+
+    ``profile`` (an :class:`~qfa_ros.model.errors.ErrorProfile`) says which sources act:
+    each forward-chain component it names (:data:`FORWARD_TC_COMPONENTS` rows of
+    ``forward_tc_ppm_per_c``) and its I_ref source (when its coefficient is not zero)
+    take the given coefficients instead of the type figure; ``ideal`` leaves all off.
+    """
+    profile.apply(triad)
+    for axis in range(len(AXES)):
+        for component, row in zip(FORWARD_TC_COMPONENTS, forward_tc_ppm_per_c):
+            if component in profile.forward_tc_ppm:
+                triad.drift.set_temperature_coefficient(axis, component, row[axis])
+        if profile.i_ref_tc_ppm != 0.0:
+            triad.drift.set_temperature_coefficient(axis, 'i_ref', i_ref_tc_ppm_per_c[axis])
+
+
+def draw_component_tcs(seed_sequence, spread=None):
+    """
+    Draw the I_ref and forward-chain temperature coefficients of one unit [ppm/degC].
+
+    Parameters
+    ----------
+    seed_sequence : numpy.random.SeedSequence
+        The stream (:func:`draw_unit` uses ``SeedSequence([UNIT_STREAM, seed],
+        spawn_key=(COMPONENT_TC_KEY,))``; a fleet study its unit's own).
+    spread : UnitSpread, optional
+        The spreads.
+
+    Returns
+    -------
+    i_ref : float64[3]
+        Per axis.
+    forward : float64[len(FORWARD_TC_COMPONENTS), 3]
+        Per component and axis.
+    """
+    spread = UnitSpread() if spread is None else spread
+    rng = np.random.default_rng(seed_sequence)
+
+    def clipped(mean, sigma, size):
+        mean, sigma = np.asarray(mean, float), np.asarray(sigma, float)
+        limit = spread.tc_clip_sigmas * sigma
+        return mean + np.clip(rng.normal(0.0, 1.0, size) * sigma, -limit, limit)
+
+    i_ref = clipped(spread.i_ref_tc_mean_ppm_per_c, spread.i_ref_tc_sigma_ppm_per_c, 3)
+    forward = clipped(np.asarray(spread.forward_tc_mean_ppm_per_c)[:, None],
+                      np.asarray(spread.forward_tc_sigma_ppm_per_c)[:, None],
+                      (len(FORWARD_TC_COMPONENTS), 3))
+    return i_ref, forward

@@ -354,7 +354,8 @@ PARAMETERS = (
                   'estimation.feedback.temperature_correction needs)'),
     ParameterSpec('temperature_calibration.m_bits', _CHAMBER.m_bits,
                   'Fraction bits M of the fixed-point CORDIC zero-bias compensator (seed 2: '
-                  '16; the scale factor uses 24)', False,
+                  '16; the scale factor uses 24); at least these: an axis whose fitted terms '
+                  'cancel gets the bits they take beyond the 4 guard bits, up to 27', False,
                   8, 30),
     ParameterSpec('output_dir', '~/.ros/qfa_ros',
                   'Base directory of every trace and recording the node writes (~ expanded '
@@ -589,13 +590,17 @@ def make_triad(values, profile=None):
     Return the :class:`QfaTriad` of the parameter ``values``: the unit, its aging, errors.
 
     The error sources of ``sensor.error_profile`` (:mod:`qfa_ros.model.errors`) act
-    through the thermal model's body temperature.
+    through the thermal model's body temperature, with the drawn unit's own component
+    coefficients (its I_ref and forward-chain temperature coefficients).
     """
     unit = unit_of(values)
     triad = QfaTriad(triad_config(values, unit), rng=values['seed'], profile=profile)
+    errors = error_profile(values['sensor.error_profile'])
     if unit is not None:
         unit.install_aging(triad)
-    error_profile(values['sensor.error_profile']).apply(triad)
+        unit.install_error_profile(triad, errors)
+    else:
+        errors.apply(triad)
     return triad
 
 
