@@ -190,6 +190,8 @@ def test_no_private_attribute_of_a_dependency_is_used():
 LONG_MODULES = {
     'bag/writer.py': (650, 'one writer class: its records, durability and size accounting'),
     'calibration/estimation.py': (850, 'the three schedules share the sensor port and checks'),
+    'calibration/temperature.py': (600, 'the chamber program, its tumble records and their '
+                                   'fit (with the lag estimate) share one block format'),
     'calibration/tempfit.py': (950, 'the fits, their comparison and the compensator'),
     'model/trajectory.py': (700, 'the pose, its exact kinematics and the scripts'),
     'model/trajectory_means.py': (650, 'the fits, their integrals and the mean polynomials'),
