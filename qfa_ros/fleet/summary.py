@@ -178,10 +178,19 @@ def draw_figures(table, out_dir, name='study'):
         for panel, stem, limit, label in (
                 (panels[0], 'zd_max_ug', ZERO_DRIFT_LIMIT_UG, 'zero-drift p2p, worst attitude '
                  '[ug]'), (panels[1], 'sf_p2p_ppm', SCALE_LIMIT_PPM, 'scale-factor p2p [ppm]')):
+            # Common bins up to twice the limit; a unit beyond it counts in the last bin
+            # (one outlier would otherwise squeeze every other unit into one bar).
+            top = 2.0 * limit
+            bins = np.linspace(0.0, top, 41)
+            beyond = 0
             for axis in AXES:
-                panel.hist(np.asarray(table.column(f'{stem}_{axis}')), bins=30, alpha=0.5,
-                           label=axis)
+                values = np.asarray(table.column(f'{stem}_{axis}'), dtype=float)
+                beyond += int(np.sum(values > top))
+                panel.hist(np.minimum(values, top), bins=bins, alpha=0.5, label=axis)
             panel.axvline(limit, color='k', linestyle='--', label='limit')
+            if beyond:
+                panel.annotate(f'{beyond} axis value(s) beyond {top:g}\nin the last bin',
+                               xy=(0.97, 0.45), xycoords='axes fraction', ha='right')
             panel.set_xlabel(label)
             panel.set_ylabel('units')
             panel.legend()
