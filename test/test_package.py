@@ -178,8 +178,12 @@ def test_make_setup_installs_the_ros_wheels_only_without_rclpy(tmp_path):
 
 
 def test_make_test_runs_pytest_and_ci_runs_make_test(tmp_path):
-    dry = subprocess.run(['make', '-n', '-o', '.venv/.qfa-installed', 'test'], cwd=ROOT,
-                         capture_output=True, text=True, check=True, timeout=60)
+    # Under `make test` (CI) this make is a sub-make: without the parent's variables and
+    # with --no-print-directory it prints only the recipe.
+    env = {k: v for k, v in os.environ.items() if k not in ('MAKEFLAGS', 'MAKELEVEL', 'MFLAGS')}
+    dry = subprocess.run(['make', '-n', '--no-print-directory', '-o', '.venv/.qfa-installed',
+                          'test'], cwd=ROOT, env=env, capture_output=True, text=True,
+                         check=True, timeout=60)
     assert dry.stdout.split() == ['.venv/bin/python', '-m', 'pytest']
     fake_make = tmp_path / 'make'
     fake_make.write_text('#!/bin/sh\necho "$*" > "$FAKE_LOG"\n')
