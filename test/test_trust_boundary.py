@@ -14,7 +14,7 @@ from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_calibration
 from qfa_ros.model import trajectory as trajectories
-from qfa_ros.model.files import read_regular_file, UntrustedFileError
+from qfa_ros.model.files import read_regular_file, UntrustedFileError, write_atomically
 from qfa_ros.model.hardware import AxisHardware, nominal_gains
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.bounds import (
@@ -244,3 +244,19 @@ def test_a_node_named_a_hostile_trajectory_file_refuses_to_start_without_quoting
         fatal = [line for line in log.splitlines() if '[FATAL]' in line]
         assert len(fatal) == 1 and 'input.trajectory_file' in fatal[0], log
         assert SECRET not in log and 'hunter2' not in log, log
+
+
+def test_a_failed_atomic_write_leaves_the_old_file_and_no_temporary(tmp_path):
+    path = tmp_path / 'state.json'
+    write_atomically(path, lambda stream: stream.write(b'old'))
+
+    def half_then_fail(stream):
+        stream.write(b'new, half written')
+        raise OSError(28, 'No space left on device')
+
+    with pytest.raises(OSError, match='No space'):
+        write_atomically(path, half_then_fail)
+    assert path.read_bytes() == b'old'
+    assert [p.name for p in tmp_path.iterdir()] == ['state.json']
+    write_atomically(path, lambda stream: stream.write(b'new'))
+    assert path.read_bytes() == b'new'

@@ -10,6 +10,8 @@ durable; :func:`iter_part_messages` salvages what a crash left in a ``.part`` fi
 import errno
 import os
 
+from qfa_ros.model.files import write_atomically
+
 PART_SUFFIX = '.part'
 
 
@@ -67,15 +69,6 @@ class PartFile:
 def os_error_with_context(error, what, path):
     """Re-raise an ``OSError`` as its own subclass with a message that says what failed."""
     return type(error)(error.errno, f'{what}: {error.strerror}', str(path))
-
-
-def fsync_directory(directory):
-    """Make a rename in ``directory`` durable: fsync the directory entry itself."""
-    fd = os.open(directory, os.O_RDONLY | getattr(os, 'O_DIRECTORY', 0))
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def publish_part(part_path, final_path, overwrite):
@@ -139,27 +132,12 @@ def iter_part_messages(path):
 
 def write_text_atomically(path, text):
     """
-    Replace ``path`` with ``text`` atomically and durably (temporary file, fsync, rename).
+    Replace ``path`` with ``text`` atomically and durably (:func:`write_atomically`).
 
     A reader sees the old content or the new one, never a mix; after a crash one of the
     two is on disk.
     """
-    temporary = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
     try:
-        descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC,
-                             0o644)
-        try:
-            data = memoryview(text.encode('utf-8'))
-            while data.nbytes:
-                data = data[os.write(descriptor, data):]
-            os.fsync(descriptor)
-        finally:
-            os.close(descriptor)
-        os.replace(temporary, path)
+        write_atomically(path, lambda stream: stream.write(text.encode('utf-8')))
     except OSError as error:
-        try:
-            os.unlink(temporary)
-        except OSError:
-            pass
         raise os_error_with_context(error, f'cannot write {path.name}', path) from None
-    fsync_directory(path.parent)

@@ -13,9 +13,10 @@ from qfa_ros.bag.bag_directory import (
     split_file_name,
     write_bag_metadata,
 )
-from qfa_ros.bag.files import fsync_directory, os_error_with_context, RecorderError
+from qfa_ros.bag.files import os_error_with_context, RecorderError
 from qfa_ros.bag.types import as_time_ns, canonical_type, definition_of
 from qfa_ros.bag.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE, McapBagWriter
+from qfa_ros.model.files import fsync_directory
 
 
 class FlightRecorder:

@@ -40,7 +40,6 @@ import mcap_ros2
 import yaml
 
 from qfa_ros.bag.files import (
-    fsync_directory,
     PART_SUFFIX,
     PartFile,
     publish_part,
@@ -55,6 +54,7 @@ from qfa_ros.bag.types import (
     encode_message,
     type_hash_of,
 )
+from qfa_ros.model.files import fsync_directory
 
 __all__ = [
     'DEFAULT_CHUNK_SIZE',

@@ -25,6 +25,7 @@ import pyarrow.parquet as pq
 
 from qfa_ros.fleet.study import StudyError
 from qfa_ros.fleet.unit import simulate_batch
+from qfa_ros.model.files import write_atomically
 
 STUDY_FILE = 'study.json'
 SIMULATING_PACKAGES = ('model', 'calibration', 'fleet')
@@ -57,10 +58,8 @@ def _part_path(parts, start, stop):
     return parts / f'batch-{start:07d}-{stop:07d}.parquet'
 
 
-def _write_atomically(table, path):
-    temporary = path.with_name(f'.{path.name}.tmp{os.getpid()}')
-    pq.write_table(table, temporary)
-    os.replace(temporary, path)
+def _write_table(table, path):
+    write_atomically(path, lambda stream: pq.write_table(table, stream))
 
 
 def _prepare(study, parts, code):
@@ -187,7 +186,7 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
             with bar:
                 for future in as_completed(futures):
                     start, stop = bounds[future.key]
-                    _write_atomically(future.result(), _part_path(parts, start, stop))
+                    _write_table(future.result(), _part_path(parts, start, stop))
                     bar.update(stop - start)
                     future.release()
         except KeyboardInterrupt:
@@ -205,7 +204,7 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
     table = table.replace_schema_metadata({
         'qfa_ros.study': json.dumps(study.to_dict(), default=str),
         'qfa_ros.code_digest': code})
-    _write_atomically(table, out_path)
+    _write_table(table, out_path)
     log(f'{study.units} units x {study.calibrations} calibrations -> {out_path} '
         f'({time.perf_counter() - started:.1f} s for {len(pending)} batches)')
     return table

@@ -1,5 +1,5 @@
 """
-Read a file someone else named: a regular file only, bounded in size, never echoed.
+Files: read one someone else named (bounded, never echoed); replace one atomically.
 
 Every file the package reads on a stranger's word (a trajectory CSV, the calibration
 state) goes through :func:`read_regular_file`. It resolves symlinks first, opens without
@@ -7,6 +7,11 @@ blocking on a FIFO (``O_NONBLOCK``), takes regular files only, refuses the kerne
 pseudo file systems (``/proc``, ``/sys``, ``/dev``: their regular-looking files report
 sizes that mean nothing) and reads at most ``max_bytes``. Its errors name the path and
 the problem, never the content.
+
+Every file the package replaces in place (the calibration state, bag metadata, fleet
+results) goes through :func:`write_atomically`: a temporary file beside it, fsynced,
+renamed over it, the directory fsynced, so a reader or a crash sees the old file or the
+new one, never a mix.
 """
 
 import os
@@ -75,6 +80,50 @@ def read_regular_file(path, max_bytes):
         raise UntrustedFileError(f'{name}: cannot read: {_reason(error)}') from None
     finally:
         os.close(descriptor)
+
+
+def fsync_directory(directory):
+    """Make a rename in ``directory`` durable: fsync the directory entry itself."""
+    descriptor = os.open(directory, os.O_RDONLY | getattr(os, 'O_DIRECTORY', 0))
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
+
+
+def write_atomically(path, write):
+    """
+    Replace ``path`` with what ``write(stream)`` writes, atomically and durably.
+
+    The temporary file is ``.<name>.<pid>.tmp`` beside ``path`` (removed if anything
+    fails); it is fsynced and renamed over ``path``, then the directory is fsynced.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The file to replace (its directory must exist).
+    write : callable
+        Called with the temporary file open for binary writing.
+
+    Raises
+    ------
+    OSError
+        The file could not be written or renamed; ``path`` is unchanged.
+    """
+    temporary = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
+    try:
+        with open(temporary, 'wb') as stream:
+            write(stream)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        try:
+            os.unlink(temporary)
+        except OSError:
+            pass
+        raise
+    fsync_directory(path.parent)
 
 
 def _reason(error):

@@ -6,11 +6,14 @@ import glob
 import json
 import os
 from pathlib import Path
-import tempfile
 
-from qfa_ros.bag.files import fsync_directory
 from qfa_ros.calibration.state import CalibrationState
-from qfa_ros.model.files import read_regular_file, UntrustedFileError
+from qfa_ros.model.files import (
+    fsync_directory,
+    read_regular_file,
+    UntrustedFileError,
+    write_atomically,
+)
 
 MAX_STATE_BYTES = 1 << 20
 """Largest state file read [bytes]; a real one is a few kB."""
@@ -112,22 +115,6 @@ class StateStore:
         data = state.to_dict()
         data[COMPENSATION_KEY] = bool(compensation_enabled)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        descriptor, temporary = tempfile.mkstemp(prefix=f'.{self.path.name}.',
-                                                 suffix='.tmp', dir=self.path.parent)
-        try:
-            with os.fdopen(descriptor, 'w', encoding='utf-8') as stream:
-                json.dump(data, stream, indent=2, sort_keys=True)
-                stream.write('\n')
-                stream.flush()
-                os.fsync(stream.fileno())
-            os.replace(temporary, self.path)
-        except BaseException:
-            try:
-                os.unlink(temporary)
-            except OSError:
-                pass
-            raise
-        # Best effort: the file is in place either way.
-        with suppress(OSError):
-            fsync_directory(self.path.parent)
+        text = json.dumps(data, indent=2, sort_keys=True) + '\n'
+        write_atomically(self.path, lambda stream: stream.write(text.encode('utf-8')))
         return self.path
