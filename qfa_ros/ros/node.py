@@ -108,10 +108,15 @@ class QfaNode(Node):
         # The live parameter values, shared (read-only) by every collaborator.
         self._values = {spec.name: self.get_parameter(spec.name).value for spec in PARAMETERS}
         values = self._values
-        # How often each runtime effect was applied (read by the tests; under _lock).
+        # The step that applies each runtime effect of params.RUNTIME_EFFECTS, and how
+        # often each ran (read by the tests; under _lock).
+        self.runtime_effects = {
+            'live': lambda: None, 'drift': self._apply_drift, 'input': self._apply_input,
+            'frame': self._apply_frame_id, 'ambient': self._apply_ambient,
+            'recorder': self._restart_recording}
         self.applied_effects = collections.Counter()
-        # The only file a parameter names that the node reads, read once here, before any
-        # service answers: input.trajectory_file is read-only.
+        # The trajectory file is read once here, before any service answers (the parameter
+        # is read-only); the state file below, also only at start.
         self._trajectory_file = load_trajectory_file(values)
         reason = check_all(values, self._trajectory_file)
         if reason:
@@ -260,12 +265,8 @@ class QfaNode(Node):
                 self._schedules.last_error = f'applying {", ".join(sorted(names))}: {error}'
                 self.get_logger().error(self._schedules.last_error)
 
-    @property
-    def runtime_effects(self):
-        """Return the step that applies each runtime effect of ``params.RUNTIME_EFFECTS``."""
-        return {'live': lambda: None, 'drift': self._apply_drift, 'input': self._apply_input,
-                'frame': lambda: self._stream.set_frame_id(self._values['frame_id']),
-                'ambient': self._apply_ambient, 'recorder': self._restart_recording}
+    def _apply_frame_id(self):
+        self._stream.set_frame_id(self._values['frame_id'])
 
     def _apply_input(self):
         self._triad.profile = input_profile(self._values, self._triad.time,
