@@ -6,6 +6,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.qfa-installed
+NODE_STAMP := $(VENV)/.qfa-node
 DURATION ?= 10
 
 .PHONY: setup run sim test lint docs bench reproducibility bags figures clean
@@ -14,26 +15,33 @@ BAGS := bags/static_10s.mcap bags/paper_2019.mcap bags/temperature_cycle.mcap
 
 setup: $(STAMP)
 
-$(STAMP): requirements/ros.txt requirements/base.txt requirements/test.txt setup.py
+# What the node and qfa-sim need (requirements/base.txt, the ROS 2 wheels unless rclpy is
+# on the system) and the package itself: all `make run` and `make sim` install.
+$(NODE_STAMP): requirements/ros.txt requirements/base.txt setup.py
 	@if $(PYTHON) -c 'import rclpy' >/dev/null 2>&1; then \
 	  echo 'rclpy found on the system: using it, not the ROS 2 wheels'; \
 	  $(PYTHON) -m venv --system-site-packages $(VENV); ros=''; \
 	else \
 	  $(PYTHON) -m venv $(VENV); ros='-r requirements/ros.txt'; \
 	fi; \
-	$(PY) -m pip install -q --disable-pip-version-check \
-	  -r requirements/base.txt -r requirements/test.txt $$ros && \
+	$(PY) -m pip install -q --disable-pip-version-check -r requirements/base.txt $$ros && \
 	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e . && \
 	for script in $(VENV)/lib/qfa_ros/*; do [ -e "$$script" ] && ln -sf "../lib/qfa_ros/$${script##*/}" $(VENV)/bin/; done; \
 	touch $@
 
+# Everything: the fleet and figure tools, the test and documentation tools besides.
+$(STAMP): $(NODE_STAMP) requirements/tools.txt requirements/test.txt
+	@$(PY) -m pip install -q --disable-pip-version-check \
+	  -r requirements/tools.txt -r requirements/test.txt
+	@touch $@
+
 # The emulated sensor on DDS until Ctrl-C (the node finds config/fastdds_discovery.xml).
 # More ROS arguments: make run ARGS='-p state.fresh:=true'
-run: $(STAMP)
+run: $(NODE_STAMP)
 	$(VENV)/bin/qfa_node --ros-args --params-file config/qfa.yaml $(ARGS)
 
 # The offline simulator, no DDS: a static run summarized with its Allan deviation.
-sim: $(STAMP)
+sim: $(NODE_STAMP)
 	$(VENV)/bin/qfa-sim static --duration $(DURATION)
 
 test: $(STAMP)
@@ -56,7 +64,7 @@ reproducibility: $(STAMP)
 	$(PY) bench/reproducibility.py
 
 # Example bags, deterministic for the seeds given here (see bags/README.md).
-bags: $(STAMP)
+bags: $(NODE_STAMP)
 	rm -f $(BAGS)
 	$(VENV)/bin/qfa-sim static --duration 10 --seed 1 --out bags/static_10s.mcap
 	$(VENV)/bin/qfa-sim paper-2019 --seed 0 --out bags/paper_2019.mcap

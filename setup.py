@@ -21,7 +21,10 @@ setup(
     description='Emulated self-calibrating IMU of digital closed-loop quartz flexible '
                 'accelerometers (QFA) for ROS 2.',
     license='Apache-2.0',
-    extras_require={'test': ['pytest', 'pytest-timeout', 'ruff', 'rosbags', 'import-linter']},
+    # requirements/*.txt pin them; `make run` installs base.txt only, `make setup` all.
+    extras_require={'tools': ['matplotlib', 'dask', 'distributed', 'pyarrow'],
+                    'test': ['pytest', 'pytest-timeout', 'ruff', 'import-linter', 'allantools',
+                             'hypothesis']},
     entry_points={
         'console_scripts': [
             'qfa-sim = qfa_ros.cli.sim:main',

@@ -32,7 +32,7 @@ ROSDEP_KEYS = {
     'nav_msgs': 'nav_msgs', 'rosbags': 'python3-rosbags-pip',
 }
 # No rosdep key exists for these (checked in rosdep/python.yaml): only the fleet studies
-# (qfa-fleet) use them, and they come from requirements/base.txt with pip.
+# (qfa-fleet) use them, and they come from requirements/tools.txt with pip.
 PIP_ONLY = {'dask', 'distributed', 'pyarrow'}
 TEST_KEYS = {'pytest': 'python3-pytest', 'pytest-timeout': 'python3-pytest-timeout',
              'ruff': 'python3-ruff-pip', 'hypothesis': 'python3-hypothesis'}
@@ -66,7 +66,7 @@ def test_package_xml_declares_every_import_by_an_existing_rosdep_key():
     # What has no rosdep key stays in the fleet layer and is pinned for pip.
     outside_fleet = [p for p in sources if 'fleet' not in p.parts]
     assert not PIP_ONLY & imported_modules(outside_fleet)
-    pinned = (ROOT / 'requirements' / 'base.txt').read_text()
+    pinned = (ROOT / 'requirements' / 'tools.txt').read_text()
     assert all(f'{name}==' in pinned for name in PIP_ONLY)
     # The keys that turned out not to exist in rosdep are gone.
     assert not {'python3-numba-pip', 'python3-mcap-pip'} & exec_depends
@@ -147,43 +147,71 @@ exit 0
 """A python that logs its arguments, answers ``import rclpy`` with $FAKE_RCLPY, makes venvs."""
 
 
-def make_setup(tmp_path, rclpy_status):
-    """Run ``make setup`` on a copy of the project with a fake python; return its calls."""
+def make_target(tmp_path, target, rclpy_status):
+    """Run ``make TARGET`` on a copy of the project with a fake python; return its calls."""
     project = tmp_path / f'project{rclpy_status}'
-    project.mkdir()
-    for name in ('Makefile', 'setup.py', 'requirements'):
-        (shutil.copytree if (ROOT / name).is_dir() else shutil.copy)(ROOT / name, project / name)
+    if not project.exists():
+        project.mkdir()
+        for name in ('Makefile', 'setup.py', 'requirements'):
+            (shutil.copytree if (ROOT / name).is_dir() else shutil.copy)(
+                ROOT / name, project / name)
     python = tmp_path / 'python'
     python.write_text(FAKE_PYTHON)
     python.chmod(0o755)
     log = project / 'calls.log'
-    subprocess.run(['make', '-s', 'setup', f'PYTHON={python}'], cwd=project, check=True,
+    log.unlink(missing_ok=True)
+    subprocess.run(['make', '-s', target, f'PYTHON={python}'], cwd=project, check=True,
                    capture_output=True, timeout=60,
-                   env={**os.environ, 'FAKE_LOG': str(log), 'FAKE_RCLPY': str(rclpy_status)})
-    return log.read_text().splitlines()
+                   env={**make_environment(), 'FAKE_LOG': str(log),
+                        'FAKE_RCLPY': str(rclpy_status)})
+    return log.read_text().splitlines() if log.exists() else []
 
 
-def test_make_setup_installs_the_ros_wheels_only_without_rclpy(tmp_path):
+def make_environment():
+    """Return this environment without a parent make's variables (CI runs us under make)."""
+    return {k: v for k, v in os.environ.items() if k not in ('MAKEFLAGS', 'MAKELEVEL', 'MFLAGS')}
+
+
+def requirement_files(calls):
+    """Return the ``-r`` files of every ``pip install`` among ``calls``."""
+    files = set()
+    for call in calls:
+        words = call.split()
+        if call.startswith('-m pip install'):
+            files |= {words[i + 1] for i, word in enumerate(words) if word == '-r'}
+    return files
+
+
+def test_make_run_installs_the_node_only_and_make_setup_the_rest(tmp_path):
     for rclpy_status, system, ros in ((1, False, True), (0, True, False)):
-        calls = make_setup(tmp_path, rclpy_status)
+        # What `make run` needs: base.txt, and the ROS 2 wheels only without a system rclpy.
+        calls = make_target(tmp_path, '.venv/.qfa-node', rclpy_status)
         venv = next(call for call in calls if call.startswith('-m venv'))
         assert ('--system-site-packages' in venv.split()) == system, calls
-        pip = next(call.split() for call in calls if call.startswith('-m pip install')
-                   and '-r' in call.split())
-        files = {pip[i + 1] for i, word in enumerate(pip) if word == '-r'}
-        assert files == {'requirements/base.txt', 'requirements/test.txt'} | (
+        assert requirement_files(calls) == {'requirements/base.txt'} | (
             {'requirements/ros.txt'} if ros else set()), calls
         assert any(call.startswith('-m pip install') and call.endswith('-e .')
                    for call in calls), calls
+        # `make setup` afterwards adds the tools and the test packages, and redoes nothing.
+        calls = make_target(tmp_path, 'setup', rclpy_status)
+        assert requirement_files(calls) == {'requirements/tools.txt',
+                                            'requirements/test.txt'}, calls
+        assert not any(call.startswith('-m venv') for call in calls), calls
+    # `make run` and `make sim` wait for the node's set-up only, `make test` for all of it.
+    for target, prerequisite in (('run', '.venv/.qfa-node'), ('sim', '.venv/.qfa-node'),
+                                 ('test', '.venv/.qfa-installed')):
+        database = subprocess.run(['make', '-pnq', target], cwd=ROOT, env=make_environment(),
+                                  timeout=60, capture_output=True, text=True).stdout
+        rule = next(line for line in database.splitlines() if line.startswith(f'{target}:'))
+        assert rule.split(':', 1)[1].split() == [prerequisite], rule
 
 
 def test_make_test_runs_pytest_and_ci_runs_make_test(tmp_path):
     # Under `make test` (CI) this make is a sub-make: without the parent's variables and
     # with --no-print-directory it prints only the recipe.
-    env = {k: v for k, v in os.environ.items() if k not in ('MAKEFLAGS', 'MAKELEVEL', 'MFLAGS')}
     dry = subprocess.run(['make', '-n', '--no-print-directory', '-o', '.venv/.qfa-installed',
-                          'test'], cwd=ROOT, env=env, capture_output=True, text=True,
-                         check=True, timeout=60)
+                          'test'], cwd=ROOT, env=make_environment(), capture_output=True,
+                         text=True, check=True, timeout=60)
     assert dry.stdout.split() == ['.venv/bin/python', '-m', 'pytest']
     fake_make = tmp_path / 'make'
     fake_make.write_text('#!/bin/sh\necho "$*" > "$FAKE_LOG"\n')

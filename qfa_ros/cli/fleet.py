@@ -6,6 +6,7 @@ from pathlib import Path
 import signal
 import sys
 
+from qfa_ros.cli.extras import needs_tools
 from qfa_ros.cli.interrupt import INTERRUPTED_STATUS, stops_quietly
 
 
@@ -30,6 +31,7 @@ def build_parser():
 
 
 @stops_quietly('qfa-fleet')
+@needs_tools('qfa-fleet')
 def main(argv=None):
     """Run the fleet command line; return the exit status (130: stopped by Ctrl-C)."""
     args = build_parser().parse_args(argv)

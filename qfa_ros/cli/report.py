@@ -8,11 +8,12 @@ import argparse
 from pathlib import Path
 import sys
 
+from qfa_ros.cli.extras import needs_tools
 from qfa_ros.cli.interrupt import stops_quietly
-from qfa_ros.report.figures import report
 
 
 @stops_quietly('qfa-report')
+@needs_tools('qfa-report')
 def main(argv=None):
     """Run the report command line; return the exit status."""
     args = sys.argv[1:] if argv is None else list(argv)
@@ -35,6 +36,9 @@ def main(argv=None):
         print(f'qfa-report: no such file: {", ".join(missing)}', file=sys.stderr)
         return 1
     out_dir = Path(args.out or f'{Path(args.bags[0]).stem}_report')
+    # Imported here: matplotlib is one of the tools `make run` does not install.
+    from qfa_ros.report.figures import report
+
     try:
         written = report(args.bags, out_dir)
     except (OSError, ValueError) as error:
