@@ -331,3 +331,41 @@ def test_a_cancelling_fit_gets_the_fraction_bits_it_loses():
     # A well-conditioned fit keeps the requested bits.
     plain = calibrate_zero_bias(v, 1e-3 * np.exp(2.0 * v), m_bits=16, n_bins=60)
     assert plain.cancellation_bits < 4 and plain.m_bits == 16
+
+
+def test_a_fit_cancelling_beyond_any_word_is_refitted_within_the_words():
+    # Population unit 63 y: a bias fit whose terms cancelled by 29.7 bits, beyond the
+    # widest words (27 fraction bits), compensated garbage (2321 ug). The calibration now
+    # refits such an axis with the cancellation bounded by what the words absorb.
+    from qfa_ros.calibration.tempfit import cancellation_bits, max_m_bits
+    v = np.linspace(0.35, 1.2, 2000)
+    y = 1e-3 * ((v - 0.75) / 0.45) ** 3
+    v_bins = np.linspace(0.36, 1.19, 50)
+    free = fit_double_exponential(v_bins, 1e-3 * ((v_bins - 0.75) / 0.45) ** 3, baseline=True)
+    m_bits = max_m_bits(4) - 2          # words that absorb 2 + 4 guard bits only
+    budget = max_m_bits(4) - m_bits + 4
+    basis = np.column_stack([np.exp(np.outer(v_bins, free.beta)), np.ones_like(v_bins),
+                             v_bins])
+    assert cancellation_bits(basis, np.array([*free.alpha, free.offset, free.slope])) > budget
+    calibration = calibrate_zero_bias(v, y, m_bits=m_bits, n_bins=60, baseline=True)
+    assert calibration.cancellation_bits <= budget
+    exact = calibration.fit.evaluate(v_bins)
+    # What the words hold is what the fit says, to the output's last bits...
+    npt.assert_allclose(calibration.compensator().evaluate_fixed(v_bins), exact,
+                        atol=1e-6 * np.ptp(y))
+    # ...and the constrained fit still takes the curve out (2 % of its p2p left).
+    assert calibration.p2p_after < 0.02 * calibration.p2p_before
+
+
+def test_a_constrained_fit_keeps_its_bound_and_validates_it():
+    from qfa_ros.calibration.tempfit import cancellation_bits
+    v = np.linspace(0.35, 1.2, 60)
+    y = 1e-3 * ((v - 0.75) / 0.45) ** 3
+    for bound in (2.0, 5.0, 8.0):
+        fit = fit_double_exponential(v, y, baseline=True, max_cancellation_bits=bound)
+        basis = np.column_stack([np.exp(np.outer(v, fit.beta)), np.ones_like(v), v])
+        assert cancellation_bits(basis, np.array([*fit.alpha, fit.offset, fit.slope])) \
+            <= bound + 1e-9
+    for bad in (-1.0, math.nan, 'five'):
+        with pytest.raises(ValueError, match='max_cancellation_bits'):
+            fit_double_exponential(v, y, max_cancellation_bits=bad)

@@ -83,16 +83,44 @@ def _solve_alpha(u, y, s, baseline=False):
     return alpha, residual, basis
 
 
-def _grid_start(u, y, baseline=False):
+def cancellation_bits(basis, alpha):
+    """
+    Return how many bits the fit's terms cancel by over its points.
+
+    ``log2(largest |term| / largest |sum|)``, each exponential and the linear baseline
+    being one term: a fixed-point evaluation of the sum loses these bits.
+
+    Parameters
+    ----------
+    basis : ndarray, shape (n, 2) or (n, 4)
+        The exponentials at the points, then (with a baseline) the columns ``1`` and ``V``.
+    alpha : ndarray, shape (2,) or (4,)
+        The coefficients of the columns.
+    """
+    terms = basis[:, :2] * alpha[None, :2]
+    if basis.shape[1] > 2:
+        terms = np.column_stack([terms, basis[:, 2:] @ alpha[2:]])
+    sum_peak = float(np.abs(terms.sum(axis=1)).max())
+    term_peak = float(np.abs(terms).max())
+    return math.log2(term_peak / sum_peak) if sum_peak > 0 else math.inf
+
+
+def _grid_start(u, y, baseline=False, max_cancellation_bits=None):
     """Return the scaled exponent pair of a small grid with the lowest projected SSE."""
-    if baseline:
+    if baseline or max_cancellation_bits is not None:
         best, pair = math.inf, None
         for i in range(_START_GRID.size):
             for j in range(i + 1, _START_GRID.size):
                 s = _START_GRID[[i, j]]
-                residual = _solve_alpha(u, y, s, True)[1]
+                alpha, residual, basis = _solve_alpha(u, y, s, baseline)
+                if max_cancellation_bits is not None \
+                        and cancellation_bits(basis, alpha) > max_cancellation_bits:
+                    continue
                 if residual @ residual < best:
                     best, pair = float(residual @ residual), s
+        if pair is None:
+            raise ValueError('no start exponents fit within max_cancellation_bits='
+                             f'{max_cancellation_bits}')
         return np.array(pair)
     exps = np.exp(np.outer(_START_GRID, u))
     gram = exps @ exps.T
@@ -195,9 +223,9 @@ def _make_fit(v, y, alpha, beta, iterations, converged, history, line=(0.0, 0.0)
     return dataclasses.replace(fit, rmse=rmse, r_squared=r_squared)
 
 
-def _start_exponents(scaling, beta0, baseline=False):
+def _start_exponents(scaling, beta0, baseline=False, max_cancellation_bits=None):
     if beta0 is None:
-        return _grid_start(scaling.u, scaling.y, baseline)
+        return _grid_start(scaling.u, scaling.y, baseline, max_cancellation_bits)
     beta0 = np.asarray(beta0, dtype=float)
     if beta0.shape != (2,) or not np.all(np.isfinite(beta0)):
         raise ValueError(f'beta0 must be two finite exponents [1/V], got {beta0!r}')
@@ -205,7 +233,7 @@ def _start_exponents(scaling, beta0, baseline=False):
 
 
 def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
-                           baseline=False):
+                           baseline=False, max_cancellation_bits=None):
     r"""
     Fit ``v_out = a1 e^(b1 v_temp) + a2 e^(b2 v_temp)`` by alternating iteration.
 
@@ -233,6 +261,10 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
         not always the double exponential's own shape (a polynomial trend under a
         curvature), and without it the fit drifts into near-equal betas with huge
         cancelling alphas that no fixed-point datapath can evaluate.
+    max_cancellation_bits : float, optional
+        Constrain the fit to terms that cancel by at most this many bits
+        (:func:`cancellation_bits`): the start is the best admissible grid pair and a step
+        that leaves the bound is refused. ``ValueError`` if no grid pair is admissible.
 
     Returns
     -------
@@ -240,12 +272,17 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
     """
     if not (math.isfinite(tol) and tol > 0):
         raise ValueError(f'tol must be finite and > 0, got {tol!r}')
+    if max_cancellation_bits is not None and not (
+            isinstance(max_cancellation_bits, (int, float))
+            and math.isfinite(max_cancellation_bits) and max_cancellation_bits >= 0):
+        raise ValueError('max_cancellation_bits must be a finite number >= 0, got '
+                         f'{max_cancellation_bits!r}')
     if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
         raise ValueError(f'max_iter must be an integer >= 1, got {max_iter!r}')
     v, y = _as_data(v_temp, v_out, 5)
     scaling = _Scaling(v, y)
     u, ys = scaling.u, scaling.y
-    s = _start_exponents(scaling, beta0, baseline)
+    s = _start_exponents(scaling, beta0, baseline, max_cancellation_bits)
     alpha, residual, basis = _solve_alpha(u, ys, s, baseline)
     mse = float(residual @ residual) / u.size
     history = [mse * scaling.y_scale ** 2]
@@ -271,7 +308,9 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
             alpha_new, residual_new, basis_new = _solve_alpha(u, ys, s_new, baseline)
             mse_new = float(residual_new @ residual_new) / u.size
             if np.all(np.isfinite(s_new)) and mse_new <= mse and (
-                    not baseline or _well_separated(s_new)):
+                    not baseline or _well_separated(s_new)) and (
+                    max_cancellation_bits is None
+                    or cancellation_bits(basis_new, alpha_new) <= max_cancellation_bits):
                 accepted = True
                 break
             damping *= 10.0
@@ -706,6 +745,12 @@ def max_m_bits(guard_bits):
     return (63 - guard_bits - 4) // 2
 
 
+def _fit_cancellation(fit, v):
+    """Return the bits the terms of ``fit`` cancel by at the voltages ``v`` [V]."""
+    basis = np.column_stack([np.exp(np.outer(v, fit.beta)), np.ones_like(v), v])
+    return cancellation_bits(basis, np.array([*fit.alpha, fit.offset, fit.slope]))
+
+
 def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
                         v_range=None, guard_bits=4, baseline=False):
     """
@@ -725,7 +770,9 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
     m_bits : int
         Fixed-point fraction bits of the compensator: at least these; a fit whose terms
         cancel by more than ``guard_bits`` gets the bits the cancellation takes on top
-        (up to :func:`max_m_bits`), so a degenerate fit keeps its precision.
+        (up to :func:`max_m_bits`), so a degenerate fit keeps its precision; a fit
+        cancelling by more than those words can absorb is refitted with
+        ``max_cancellation_bits`` at that bound (:func:`fit_double_exponential`).
     n_bins, min_count : int
         Number of V_temp bins and the least samples a bin needs to be used.
     v_range : pair of float, optional
@@ -754,10 +801,20 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
         # a unipolar temperature ADC never reads below 0 V
         v_range = (max(low, 0.0) if v_bins.min() >= 0 else low,
                    float(v_bins.max()) + 0.25 * span)
-    term_peak = max([np.abs(a * np.exp(b * v_bins)).max() for a, b in zip(fit.alpha, fit.beta)]
-                    + [np.abs(fit.offset + fit.slope * v_bins).max()])
-    sum_peak = np.abs(fit.evaluate(v_bins)).max()
-    cancellation = math.log2(term_peak / sum_peak) if sum_peak > 0 else math.inf
+    cancellation = _fit_cancellation(fit, v_bins)
+    # The most the widened words below can absorb; a fit cancelling more is refitted
+    # under that bound (a slightly worse float fit the fixed-point datapath evaluates
+    # exactly beats a better one it cannot).
+    budget = max_m_bits(guard_bits) - m_bits + guard_bits
+    if cancellation > budget:
+        try:
+            constrained = fit_double_exponential(v_bins, y_bins, baseline=baseline,
+                                                 max_cancellation_bits=budget)
+        except ValueError:
+            constrained = None
+        if constrained is not None:
+            fit, cancellation = constrained, _fit_cancellation(constrained, v_bins)
+        fit_seconds = time.perf_counter() - started
     # Terms that cancel by c bits cost the fixed-point output c bits: beyond the guard
     # bits, widen the words by what the cancellation takes (within the 63-bit datapath).
     widen = max(0, math.ceil(min(cancellation, 64.0)) - guard_bits)
