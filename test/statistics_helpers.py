@@ -39,6 +39,13 @@ def allan_edf_white(samples, m):
                                           overlapping=True))
 
 
+def allan_edf_flicker(samples, m):
+    """Return Greenhall's equivalent degrees of freedom of an overlapping AVAR, flicker FM."""
+    import allantools
+    return float(allantools.edf_greenhall(alpha=-1, d=2, m=int(m), N=int(samples),
+                                          overlapping=True))
+
+
 def mean_sd(values):
     """Return (mean, its standard error) of a sample."""
     n = len(values)
