@@ -58,3 +58,12 @@ def t_bound(df, checks, probability=FALSE_FAILURE):
     """Return t with P(|T| > t) = probability / checks for Student's T with ``df``."""
     from scipy.stats import t
     return float(t.isf(probability / checks / 2.0, df))
+
+
+def clipped_normal_moments(c):
+    """Return E[X^2] and E[X^4] of a standard normal clipped to [-c, c]."""
+    normal = NormalDist()
+    inside, density, tail = 2.0 * normal.cdf(c) - 1.0, normal.pdf(c), 1.0 - normal.cdf(c)
+    second = inside - 2.0 * c * density + 2.0 * c ** 2 * tail
+    fourth = 3.0 * inside - 2.0 * (c ** 3 + 3.0 * c) * density + 2.0 * c ** 4 * tail
+    return second, fourth
