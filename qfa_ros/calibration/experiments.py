@@ -22,6 +22,7 @@ from qfa_ros.calibration.estimation import (
 )
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.model import streams
 from qfa_ros.model.errors import ErrorProfile, PaperRoom
 from qfa_ros.model.hardware import STANDARD_GRAVITY
 from qfa_ros.model.noise import MICRO_G
@@ -116,11 +117,10 @@ def paper_experiment(seed=0, trials=6, forward_ppm=-200.0, feedback_ppm=200.0,
     """
     results = []
     root = np.random.SeedSequence(seed)
-    for number, trial_seed in enumerate(tqdm(root.spawn(trials), desc='paper trials',
-                                             disable=not progress)):
+    for number in tqdm(range(trials), desc='paper trials', disable=not progress):
         record = recorder if number == 0 else None
         triad = QfaTriad(TriadConfig(thermal=room.thermal_config()),
-                         rng=np.random.default_rng(trial_seed), start_ns=start_ns)
+                         rng=streams.generator(root, 'paper.trial', number), start_ns=start_ns)
         profile.apply(triad)
         state = CalibrationState()
         idle(triad, room.warm_up_s)

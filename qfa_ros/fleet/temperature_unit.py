@@ -21,6 +21,7 @@ from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_calibration
 from qfa_ros.calibration.verification import ATTITUDES, verify_attitudes
+from qfa_ros.model import streams
 from qfa_ros.model.errors import error_profile
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.thermal import ThermalConfig
@@ -63,8 +64,8 @@ def simulate_temperature_unit(study, index):
         ambient_profile='constant', ambient_c=study.environment.room_c,
         initial_sensor_c=study.environment.room_c, sensor_tau_s=sensor['sensor_tau_s']),
         **rates)
-    triad = unit.triad(config, rng=np.random.default_rng(
-        np.random.SeedSequence([study.seed, index]).spawn(1)[0]))
+    triad = unit.triad(config, rng=streams.generator(
+        np.random.SeedSequence([study.seed, index]), 'unit.model'))
     unit.install_error_profile(triad, error_profile(study.environment.error_profile))
     settings = study.temperature_settings()
     state = CalibrationState()

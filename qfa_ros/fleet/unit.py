@@ -40,11 +40,12 @@ from qfa_ros.calibration.experiments import (
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.fleet.temperature_unit import simulate_temperature_unit
+from qfa_ros.model import streams
 from qfa_ros.model.errors import error_profile, PaperRoom
 from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
-from qfa_ros.model.unit import COMPONENT_TC_KEY, draw_component_tcs, install_component_tcs
+from qfa_ros.model.unit import draw_component_tcs, install_component_tcs
 
 DAYS_PER_YEAR = 365.25
 SECONDS_PER_DAY = 86400.0
@@ -92,8 +93,8 @@ def simulate_unit(study, index):
         feedback_std_ppm_a, forward_truth_ppm_a, feedback_truth_ppm_a``, plus
         ``schedule_s`` (sensor time of the self-calibration).
     """
-    model_seed, draw_seed = np.random.SeedSequence([study.seed, index]).spawn(2)
-    rng = np.random.default_rng(draw_seed)
+    root = np.random.SeedSequence([study.seed, index])
+    rng = streams.generator(root, 'unit.draws')
     environment = study.environment
     room = PaperRoom()
     phase = rng.uniform(0.0, 2.0 * math.pi)
@@ -103,17 +104,16 @@ def simulate_unit(study, index):
             2.0 * math.pi * days / DAYS_PER_YEAR + phase)
 
     # No gyro triad: a study scores the accelerometers, and the gyros' random stream is
-    # spawned apart from theirs (QfaTriad), so leaving them out changes no accelerometer
-    # sample and saves a quarter of the unit's cost.
+    # a named child apart from theirs (QfaTriad), so leaving them out changes no
+    # accelerometer sample and saves a quarter of the unit's cost.
     config = TriadConfig(gyro=None, thermal=ThermalConfig(
         ambient_profile='room', ambient_c=season_c(0.0) + room.self_heating_c,
         room_amplitude_c=environment.wander_c, room_correlation_s=room.room_correlation_s,
         initial_sensor_c=season_c(0.0)))
-    triad = QfaTriad(config, rng=np.random.default_rng(model_seed))
+    triad = QfaTriad(config, rng=streams.generator(root, 'unit.model'))
     if environment.component_tcs == 'drawn':
         # The unit's own coefficients, from a stream keyed apart from the others.
-        i_ref, forward = draw_component_tcs(np.random.SeedSequence(
-            [study.seed, index], spawn_key=(COMPONENT_TC_KEY,)))
+        i_ref, forward = draw_component_tcs(streams.seed_sequence(root, 'unit.component_tcs'))
         install_component_tcs(triad, _profile(environment), i_ref, forward)
     else:
         _profile(environment).apply(triad)

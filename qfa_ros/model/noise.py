@@ -5,6 +5,8 @@ import math
 
 import numpy as np
 
+from qfa_ros.model import streams
+
 MICRO_G = 9.80665e-6
 """One micro-g [m/s^2]."""
 
@@ -92,8 +94,9 @@ class NoiseSource:
     instability processes advance at the sample rate, ``b[k] = phi b[k-1] + v[k]``,
     ``phi = exp(-dt/T)``, ``v ~ N(0, q^2 (1 - phi^2))``, and are held over each
     decimation block; ADC noise ``n ~ N(0, sigma_adc^2)`` per loop step [count].
-    Every random number of axis ``i`` comes from ``streams[i]``, a child of ``rng``
-    (``rng.spawn``): :func:`qfa_ros.model.kernel.run_axis` draws them in a fixed order,
+    Every random number of axis ``i`` comes from ``streams[i]``, the child
+    ``'triad.noise'`` ``i`` of ``rng`` (:mod:`qfa_ros.model.streams`):
+    :func:`qfa_ros.model.kernel.run_axis` draws them in a fixed order,
     so the output depends on the seed only, not on the chunk lengths or on which thread
     runs which axis. This object holds the parameters and the Gauss-Markov states.
 
@@ -118,7 +121,7 @@ class NoiseSource:
         self.config = config
         self.n_axes = n_axes
         self.decimation = int(round(loop_rate_hz / sample_rate_hz))
-        self.streams = rng.spawn(n_axes)
+        self.streams = [streams.generator(rng, 'triad.noise', axis) for axis in range(n_axes)]
         self.white_std = config.noise_density * math.sqrt(loop_rate_hz)
         self.adc_std = float(config.adc_noise)
         # The bias instability steps once per block of samples (a tenth of the shortest

@@ -13,6 +13,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from qfa_ros.model import streams
+
 STANDARD_GRAVITY = 9.80665
 """Standard gravity [m/s^2] (1 g); 1 mg = 9.80665e-3 m/s^2."""
 
@@ -264,10 +266,11 @@ class ThermalModel:
     Chunk-wise thermal model of the triad: ambient, body, temperature sensor, bias.
 
     See :class:`ThermalConfig` for every equation and unit.  Random numbers (room
-    wander, temperature-sensor noise) come from a private stream spawned from the
-    injected generator at construction, two normals per sample drawn row-wise, so a
-    run split into chunks equals one long run and the parent generator's other users
-    do not shift it; :meth:`reset` replays it from the start.
+    wander, temperature-sensor noise) come from a private stream, the injected
+    generator's child ``'thermal.environment'`` (:mod:`qfa_ros.model.streams`), two
+    normals per sample drawn row-wise, so a run split into chunks equals one long run
+    and the parent generator's other users do not shift it; :meth:`reset` replays it
+    from the start.
 
     Parameters
     ----------
@@ -285,7 +288,7 @@ class ThermalModel:
         if not isinstance(rng, np.random.Generator):
             raise ValueError(f'rng must be a numpy.random.Generator, got {type(rng).__name__}')
         self.config = config
-        self._rng = rng.spawn(1)[0]
+        self._rng = streams.generator(rng, 'thermal.environment')
         self._rng_start = self._rng.bit_generator.state
         self._alpha = np.asarray(config.bias_alpha, dtype=float)
         self._beta = np.asarray(config.bias_beta, dtype=float)

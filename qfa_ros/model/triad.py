@@ -12,7 +12,7 @@ import numbers
 
 import numpy as np
 
-from qfa_ros.model import kernel
+from qfa_ros.model import kernel, streams
 from qfa_ros.model.axis import AxisLoop, start_axes
 from qfa_ros.model.drift import DriftModel
 from qfa_ros.model.gyro import GyroConfig, GyroTriad
@@ -26,8 +26,6 @@ AXES = ('x', 'y', 'z')
 NS_PER_S = 1_000_000_000
 FLAG_DA2_CLIPPED, FLAG_ADC_CLIPPED, FLAG_OVER_RANGE = 1, 2, 4
 MAX_CONTROLLER_GAIN = 4.0
-GYRO_SPAWN_KEY = 0x6779726F
-"""Spawn key of the gyro triad's random stream ('gyro')."""
 
 
 @dataclass(frozen=True)
@@ -262,16 +260,13 @@ class QfaTriad:
         self.drift.clock = lambda: self.time
         self.thermal = None
         if self.config.thermal is not None:
-            self.thermal = ThermalModel(self.config.thermal, rng.spawn(1)[0])
+            self.thermal = ThermalModel(self.config.thermal,
+                                        streams.generator(rng, 'triad.thermal'))
         self.gyro = None
         if self.config.gyro is not None:
-            # A child keyed apart from rng.spawn()'s counter: every stream the
-            # accelerometer model spawns, now or later, stays what it was without gyros.
-            seq = rng.bit_generator.seed_seq
-            gyro_seq = np.random.SeedSequence(seq.entropy, pool_size=seq.pool_size,
-                                              spawn_key=seq.spawn_key + (GYRO_SPAWN_KEY,))
+            # A named child: the accelerometers' streams are the same with or without gyros.
             self.gyro = GyroTriad(self.config.gyro, self.config.sample_rate_hz,
-                                  np.random.default_rng(gyro_seq))
+                                  streams.generator(rng, 'triad.gyro'))
         # Gyro bias correction [rad/s] the firmware subtracts from the published rate
         # (a gyro bias schedule estimates it); zero until one ran.
         self.gyro_bias_correction = np.zeros(3)

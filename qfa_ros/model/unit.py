@@ -41,8 +41,9 @@ forward-chain coefficients      normal around the ``paper`` profile's type     e
 
 The component coefficients act only where the error profile switches the source on
 (:meth:`Unit.install_error_profile`: the profile says which sources act, the unit how
-much); they come from their own generator stream (``SeedSequence([UNIT_STREAM, seed],
-spawn_key=(COMPONENT_TC_KEY,))``), so adding them moved no other draw of a seed.
+much); they come from their own generator stream (the child ``'unit.component_tcs'`` of
+``SeedSequence([UNIT_STREAM, seed])``, :mod:`qfa_ros.model.streams`), so adding them moved
+no other draw of a seed.
 """
 
 import dataclasses
@@ -50,6 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from qfa_ros.model import streams
 from qfa_ros.model.hardware import STANDARD_GRAVITY
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
@@ -57,8 +59,6 @@ from qfa_ros.model.triad import AXES, QfaTriad
 UNIT_STREAM = 0x756E6974
 """First word of the unit draw's seed sequence (keeps it apart from the noise streams)."""
 
-COMPONENT_TC_KEY = 0x746300
-"""Spawn key of the component temperature coefficients' own stream (``tc``)."""
 FORWARD_TC_COMPONENTS = ('v_da1_ref', 'k_tz', 'k_amp')
 """Forward-chain components whose temperature coefficients a unit draws."""
 
@@ -314,7 +314,8 @@ def draw_unit(seed, spread=None):
                            -spread.misalignment_max_mrad, spread.misalignment_max_mrad) * 1e-3
     np.fill_diagonal(misalignment, 0.0)
     i_ref_tc, forward_tc = draw_component_tcs(
-        np.random.SeedSequence([UNIT_STREAM, int(seed)], spawn_key=(COMPONENT_TC_KEY,)),
+        streams.seed_sequence(np.random.SeedSequence([UNIT_STREAM, int(seed)]),
+                              'unit.component_tcs'),
         spread)
 
     def rows(array):
@@ -357,8 +358,8 @@ def draw_component_tcs(seed_sequence, spread=None):
     Parameters
     ----------
     seed_sequence : numpy.random.SeedSequence
-        The stream (:func:`draw_unit` uses ``SeedSequence([UNIT_STREAM, seed],
-        spawn_key=(COMPONENT_TC_KEY,))``; a fleet study its unit's own).
+        The stream (the child ``'unit.component_tcs'`` of the unit's seed sequence:
+        :func:`draw_unit`'s ``SeedSequence([UNIT_STREAM, seed])``, a fleet unit's own).
     spread : UnitSpread, optional
         The spreads.
 
