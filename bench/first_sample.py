@@ -27,7 +27,8 @@ shares the machine's conditions. One start of each command runs untimed first (n
 cache written after a source change, the sources' bytecode, the page cache;
 ``PYTHONDONTWRITEBYTECODE`` is removed from the environment). ``--busy`` keeps one core busy
 (``while True: pass``) for the whole run. ``--phases`` instead times when each phase of the
-node's start ends (imports, model, warm-up, first publication), tree after tree.
+node's start ends (imports, model, warm-up, first publication), by wall time since
+Popen and by the CPU time (all threads) the process had used by then, tree after tree.
 """
 
 import argparse
@@ -84,7 +85,7 @@ marks = {}
 
 
 def mark(name):
-    marks.setdefault(name, time.time() - T0)
+    marks.setdefault(name, (time.time() - T0, time.process_time()))
 
 
 mark('interpreter up')
@@ -172,14 +173,15 @@ def phases(trees, starts, directory, env):
             if n and line:
                 seen[label].append(json.loads(line[0].split(' ', 1)[1]))
     names = list(next(iter(seen.values()))[0])
-    lines = ['| Phase ends (wall s since Popen, p50) | '
+    lines = ['| Phase ends: wall s since Popen (CPU s of the process), p50 | '
              + ' | '.join(label for label, _ in trees) + ' |',
              '|---|' + '---:|' * len(trees)]
     for name in names:
         cells = []
         for label, _ in trees:
             values = [run[name] for run in seen[label] if name in run]
-            cells.append(f'{statistics.median(values):.3f}' if values else '')
+            cells.append(f'{statistics.median(v[0] for v in values):.3f} '
+                         f'({statistics.median(v[1] for v in values):.2f})' if values else '')
         lines.append(f'| {name} | ' + ' | '.join(cells) + ' |')
     return lines, {label: len(runs) for label, runs in seen.items()}
 

@@ -253,11 +253,13 @@ class SampleStream:
         first_batch_s = per_sample_s * lead_s * self._values['sample_rate_hz']
         self._first_margin_ns = int(min(lead_s, FIRST_MARGIN_S
                                         + FIRST_MARGIN_FACTOR * first_batch_s) * NS_PER_S)
-        # rclpy, numba and the model leave ~1.4e5 long-lived objects: a full collection
+        # rclpy, numba and the model leave ~1.3e5 long-lived objects: a full collection
         # walks them all holding the GIL (~90 ms here, every sample of it late), and one
         # comes whenever enough new objects survive (the recorder's). Frozen, they are
         # left out of every collection; this process runs one node, so they live as long.
-        gc.collect()
+        # Only the young generations are collected first: a full collection here walks
+        # them all too, before the first sample, and finds no more garbage.
+        gc.collect(1)
         gc.freeze()
 
     def _step(self):
