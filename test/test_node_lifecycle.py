@@ -214,6 +214,24 @@ def start_line(node, client):
     return logged()
 
 
+def test_start_up_lines_come_even_when_no_sample_is_due(tmp_path):
+    # The start-up lines wait for the first samples (off their path), but not for ever: with
+    # the topic input and nothing publishing it no sample is due, and they still come.
+    domain = domain_id('start-line-no-sample')
+    node = NodeProcess(domain, tmp_path, {'state_file': str(tmp_path / 'calibration.json'),
+                                          'output_dir': str(tmp_path), 'input.mode': 'topic'})
+    client = Client(domain)
+    try:
+        collector = ImuCollector(client)
+        lines = start_line(node, client)
+        assert len(lines) == 1, node.log()
+        assert 'Hz on imu/data_raw' in node.log() and 'input topic' in node.log()
+        assert not collector.samples
+    finally:
+        client.close()
+        assert node.stop(signal.SIGINT) == 0, node.log()
+
+
 def test_start_up_says_which_state_it_loaded_and_state_fresh_ignores_it(tmp_path):
     from std_msgs.msg import Bool
 
