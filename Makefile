@@ -30,7 +30,7 @@ $(STAMP): requirements/ros.txt requirements/base.txt requirements/test.txt setup
 
 # The emulated sensor on DDS until Ctrl-C (the node finds config/fastdds_discovery.xml).
 # More ROS arguments: make run ARGS='-p state.fresh:=true'. The module, not the qfa_node
-# console script (the same main): the script's entry-point lookup costs ~40 ms at start.
+# console script (the same main), which first looks its entry point up in the metadata.
 run: $(STAMP)
 	$(PY) -m qfa_ros.cli.node --ros-args --params-file config/qfa.yaml $(ARGS)
 
