@@ -25,6 +25,7 @@ $(STAMP): requirements/ros.txt requirements/base.txt requirements/test.txt setup
 	  -r requirements/base.txt -r requirements/test.txt $$ros && \
 	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e . && \
 	$(PY) -m compileall -q qfa_ros && \
+	$(PY) -m qfa_ros.cli.warm_cache && \
 	for script in $(VENV)/lib/qfa_ros/*; do [ -e "$$script" ] && ln -sf "../lib/qfa_ros/$${script##*/}" $(VENV)/bin/; done; \
 	touch $@
 
