@@ -26,6 +26,8 @@ $(NODE_STAMP): requirements/ros.txt requirements/base.txt setup.py
 	fi; \
 	$(PY) -m pip install -q --disable-pip-version-check -r requirements/base.txt $$ros && \
 	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e . && \
+	$(PY) -m compileall -q qfa_ros && \
+	$(PY) -m qfa_ros.cli.warm_cache && \
 	for script in $(VENV)/lib/qfa_ros/*; do [ -e "$$script" ] && ln -sf "../lib/qfa_ros/$${script##*/}" $(VENV)/bin/; done; \
 	touch $@
 
@@ -36,9 +38,10 @@ $(STAMP): $(NODE_STAMP) requirements/tools.txt requirements/test.txt
 	@touch $@
 
 # The emulated sensor on DDS until Ctrl-C (the node finds config/fastdds_discovery.xml).
-# More ROS arguments: make run ARGS='-p state.fresh:=true'
+# More ROS arguments: make run ARGS='-p state.fresh:=true'. The module, not the qfa_node
+# console script (the same main), which first looks its entry point up in the metadata.
 run: $(NODE_STAMP)
-	$(VENV)/bin/qfa_node --ros-args --params-file config/qfa.yaml $(ARGS)
+	$(PY) -m qfa_ros.cli.node --ros-args --params-file config/qfa.yaml $(ARGS)
 
 # The offline simulator, no DDS: a static run summarized with its Allan deviation.
 sim: $(NODE_STAMP)

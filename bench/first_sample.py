@@ -10,9 +10,11 @@ in this process for the whole run, on a ROS domain of its own, with the localhos
 discovery and the Fast DDS profile the node uses (``config/fastdds_discovery.xml``).
 Alternately, it starts
 
-* the node as ``make run`` starts it (``.venv/bin/qfa_node --ros-args --params-file
-  config/qfa.yaml``, the source tree first on ``PYTHONPATH``), fresh: ``output_dir``
-  and ``state_file`` in an empty temporary directory, so no stored state is loaded;
+* the node as the tree's ``make run`` starts it (``.venv/bin/python -m qfa_ros.cli.node
+  --ros-args --params-file config/qfa.yaml``, or the ``qfa_node`` console script in
+  trees whose ``make run`` used it; the source tree first on ``PYTHONPATH``), fresh:
+  ``output_dir`` and ``state_file`` in an empty temporary directory, so no stored state
+  is loaded;
 * a bare rclpy publisher of ``sensor_msgs/Imu`` at 1 kHz (the script at the end of this
   file) with the same interpreter, environment and publisher QoS as the node's;
 
@@ -22,9 +24,11 @@ where the wall time is not); each process is then stopped (SIGINT, SIGKILL after
 before the next one starts. ``--tree LABEL=DIR`` adds the node of another source tree
 (e.g. an export of an earlier commit) to the rotation, so that a before/after comparison
 shares the machine's conditions. One start of each command runs untimed first (numba's
-cache written after a source change, the page cache). ``--busy`` keeps one core busy
+cache written after a source change, the sources' bytecode, the page cache;
+``PYTHONDONTWRITEBYTECODE`` is removed from the environment). ``--busy`` keeps one core busy
 (``while True: pass``) for the whole run. ``--phases`` instead times when each phase of the
-node's start ends (imports, model, warm-up, first publication), tree after tree.
+node's start ends (imports, model, warm-up, first publication), by wall time since
+Popen and by the CPU time (all threads) the process had used by then, tree after tree.
 """
 
 import argparse
@@ -81,7 +85,7 @@ marks = {}
 
 
 def mark(name):
-    marks.setdefault(name, time.time() - T0)
+    marks.setdefault(name, (time.time() - T0, time.process_time()))
 
 
 mark('interpreter up')
@@ -169,14 +173,15 @@ def phases(trees, starts, directory, env):
             if n and line:
                 seen[label].append(json.loads(line[0].split(' ', 1)[1]))
     names = list(next(iter(seen.values()))[0])
-    lines = ['| Phase ends (wall s since Popen, p50) | '
+    lines = ['| Phase ends: wall s since Popen (CPU s of the process), p50 | '
              + ' | '.join(label for label, _ in trees) + ' |',
              '|---|' + '---:|' * len(trees)]
     for name in names:
         cells = []
         for label, _ in trees:
             values = [run[name] for run in seen[label] if name in run]
-            cells.append(f'{statistics.median(values):.3f}' if values else '')
+            cells.append(f'{statistics.median(v[0] for v in values):.3f} '
+                         f'({statistics.median(v[1] for v in values):.2f})' if values else '')
         lines.append(f'| {name} | ' + ' | '.join(cells) + ' |')
     return lines, {label: len(runs) for label, runs in seen.items()}
 
@@ -189,6 +194,9 @@ def environment(domain):
     env['FASTDDS_DEFAULT_PROFILES_FILE'] = str(PROFILES_FILE)
     env['PYTHONUNBUFFERED'] = '1'
     env.pop('PYTHONPATH', None)
+    # As in a user's shell: the untimed first start caches the sources' bytecode (which
+    # `make setup` also compiles), instead of every start compiling the project's sources.
+    env.pop('PYTHONDONTWRITEBYTECODE', None)
     return env
 
 
@@ -257,9 +265,12 @@ def stop(process):
 
 def node_command(tree, directory):
     """Return ``(argv, cwd, env additions)`` of the node of source tree ``tree``, fresh."""
-    # The console script `make run` starts (.venv/bin/qfa_node), else the module.
+    # What the tree's `make run` starts: the module, or the console script (.venv/bin/qfa_node).
     script = Path(sys.executable).parent / 'qfa_node'
-    start = [str(script)] if script.exists() else [sys.executable, '-m', 'qfa_ros.cli.node']
+    recipe = (Path(tree) / 'Makefile').read_text()
+    start = [sys.executable, '-m', 'qfa_ros.cli.node']
+    if '-m qfa_ros.cli.node' not in recipe and script.exists():
+        start = [str(script)]
     return ([*start, '--ros-args', '--params-file',
              str(Path(tree) / 'config' / 'qfa.yaml'),
              '-p', f'output_dir:={directory}',

@@ -138,7 +138,11 @@ def run_process(duration, tree=None):
     the installed one.
     """
     command = [sys.executable, '-m', 'qfa_ros.cli.sim', 'static', '--duration', str(duration)]
-    env = None if tree is None else {**os.environ, 'PYTHONPATH': str(tree)}
+    env = None
+    if tree is not None:
+        # As in a user's shell: the sources' bytecode is cached (by the first, untimed run).
+        env = {**os.environ, 'PYTHONPATH': str(tree)}
+        env.pop('PYTHONDONTWRITEBYTECODE', None)
     start = time.perf_counter()
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                env=env, cwd=tree)

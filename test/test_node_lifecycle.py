@@ -214,6 +214,51 @@ def start_line(node, client):
     return logged()
 
 
+def test_after_the_setup_warm_up_neither_make_run_nor_make_sim_compiles(tmp_path,
+                                                                         monkeypatch):
+    # make setup runs qfa_ros.cli.warm_cache: a fresh clone's first start then loads every
+    # kernel from numba's cache instead of compiling for seconds before its first sample.
+    monkeypatch.setenv('NUMBA_CACHE_DIR', str(tmp_path / 'numba'))  # empty, as when cloned
+    monkeypatch.setenv('NUMBA_DEBUG_CACHE', '1')
+    warm = subprocess.run([sys.executable, '-m', 'qfa_ros.cli.warm_cache'], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)
+    assert warm.returncode == 0, warm.stderr
+    assert 'data saved' in warm.stdout
+    simulated = subprocess.run([sys.executable, '-m', 'qfa_ros.cli.sim', 'static',
+                                '--duration', '1'], cwd=ROOT, capture_output=True, text=True,
+                               timeout=300)
+    assert simulated.returncode == 0, simulated.stderr
+    assert 'data loaded' in simulated.stdout and 'data saved' not in simulated.stdout
+    domain = domain_id('warm-cache')
+    node = NodeProcess(domain, tmp_path / 'node', {
+        'state_file': str(tmp_path / 'calibration.json'), 'output_dir': str(tmp_path)})
+    client = Client(domain)
+    try:
+        start_line(node, client)  # logged once the first samples are published
+    finally:
+        client.close()
+        assert node.stop(signal.SIGINT) == 0, node.log()
+    assert 'data loaded' in node.log() and 'data saved' not in node.log()
+
+
+def test_start_up_lines_come_even_when_no_sample_is_due(tmp_path):
+    # The start-up lines wait for the first samples (off their path), but not for ever: with
+    # the topic input and nothing publishing it no sample is due, and they still come.
+    domain = domain_id('start-line-no-sample')
+    node = NodeProcess(domain, tmp_path, {'state_file': str(tmp_path / 'calibration.json'),
+                                          'output_dir': str(tmp_path), 'input.mode': 'topic'})
+    client = Client(domain)
+    try:
+        collector = ImuCollector(client)
+        lines = start_line(node, client)
+        assert len(lines) == 1, node.log()
+        assert 'Hz on imu/data_raw' in node.log() and 'input topic' in node.log()
+        assert not collector.samples
+    finally:
+        client.close()
+        assert node.stop(signal.SIGINT) == 0, node.log()
+
+
 def test_start_up_says_which_state_it_loaded_and_state_fresh_ignores_it(tmp_path):
     from std_msgs.msg import Bool
 

@@ -14,6 +14,7 @@ from geometry_msgs.msg import AccelStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidParameterTypeException, ParameterException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -60,6 +61,9 @@ from qfa_ros.ros.stream import offered_qos, SampleStream
 from qfa_ros.ros.truth import TruthPublisher
 
 PPM = 1e-6
+
+ANNOUNCE_AFTER_S = 1.0
+"""The start-up lines are logged at the latest this long after construction [s, steady]."""
 
 
 class QfaNode(Node):
@@ -215,19 +219,33 @@ class QfaNode(Node):
 
         self.create_timer(1.0 / values['diagnostics_rate_hz'], self.diagnostics_callback)
         self.publish_calibrated()
-        self._stream.start()
         thermal = self._triad.thermal
-        self.get_logger().info(
+        unit = values['unit.seed'] if values['unit.seed'] >= 0 else values['seed']
+        self._start_lines = [
             f'{values["sample_rate_hz"]:g} Hz on imu/data_raw (frame {values["frame_id"]}), '
             f'loop {values["loop_rate_hz"]:g} Hz, input {values["input.mode"]}, thermal '
             f'{values["thermal.ambient_profile"] if thermal else "off"}, '
             f'calibration state {self._keeper.store.path or "in memory only"}, files only '
-            f'under {output_directory(values)}')
-        unit = values['unit.seed'] if values['unit.seed'] >= 0 else values['seed']
-        self.get_logger().info(
+            f'under {output_directory(values)}',
             f'{self._keeper.startup_summary()}; unit '
             f'{f"drawn, seed {unit}" if values["unit.draw"] else "nominal"}; to start fresh '
-            f'(uncompensated): -p state.fresh:=true')
+            f'(uncompensated): -p state.fresh:=true']
+        # The start-up lines are logged (executor thread) once the first samples are out,
+        # or ANNOUNCE_AFTER_S of steady time after construction should none come (a topic
+        # input not yet arrived, no /clock): rclpy's logger finds its caller through
+        # inspect, whose first call resolves the path of every loaded module, ~70 ms that
+        # would otherwise delay the first sample.
+        self._stream.on_publishing = self.create_guard_condition(self.announce_start).trigger
+        self._announce_timer = self.create_timer(
+            ANNOUNCE_AFTER_S, self.announce_start, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._stream.start()
+
+    def announce_start(self):
+        """Log what the node runs and which calibration state it loaded (once)."""
+        lines, self._start_lines = self._start_lines, []
+        self._announce_timer.cancel()
+        for line in lines:
+            self.get_logger().info(line)
 
     # Parameters ------------------------------------------------------------------------
     def validate_parameters_callback(self, parameters):

@@ -170,12 +170,15 @@ class Pacer:
         time_ns)`` after each publication (the recording hook), or None.
     :param on_empty: Called on the pacer thread when it has published everything it was
         given (it asks the sensor thread for more), or None.
+    :param on_started: Called once on the pacer thread after the first messages it was
+        given are published, or None.
     """
 
-    def __init__(self, node, on_published=None, on_empty=None):
+    def __init__(self, node, on_published=None, on_empty=None, on_started=None):
         self._node = node
         self._on_published = on_published
         self._on_empty = on_empty
+        self._on_started = on_started
         # _condition protects _queue and _generation (sensor thread puts and clears, the
         # pacer thread takes); everything else is written by the pacer thread only.
         self._condition = threading.Condition()
@@ -245,6 +248,9 @@ class Pacer:
                 generation = self._generation
             self._publish_hand(clock, generation)
             self._hand, self._hand_index = (), 0
+            if self._on_started is not None and self.published:
+                on_started, self._on_started = self._on_started, None
+                on_started()
             if self._on_empty is not None and not self._queue:
                 self._on_empty()
 

@@ -132,6 +132,9 @@ class SampleStream:
         self.saturated = np.zeros(len(AXES), dtype=np.int64)
         self.last_temperature = None
         self.on_schedule_end = None
+        # Called (pacer thread) once the first batch is published: the node logs its
+        # start-up lines then, off the first sample's path.
+        self.on_publishing = None
         # How long the first sample's instant follows the anchoring of the grid [ns]; the
         # warm-up measures what the first batch costs and shortens it (at most lead_s).
         self._first_margin_ns = int(values['stream.lead_s'] * NS_PER_S)
@@ -139,7 +142,8 @@ class SampleStream:
         # Set by the pacer when it runs dry and by a ground-truth input: compute now.
         self._wake = threading.Event()
         self.recording_queue = RecordingQueue(recording)
-        self.pacer = Pacer(node, self.recording_queue.append, self._wake.set)
+        self.pacer = Pacer(node, self.recording_queue.append, self._wake.set,
+                           self._started_publishing)
         self._thread = threading.Thread(target=self._loop, name='qfa_sensor', daemon=True)
 
     def start(self):
@@ -147,6 +151,10 @@ class SampleStream:
         self.recording_queue.start()
         self.pacer.start()
         self._thread.start()
+
+    def _started_publishing(self):
+        if self.on_publishing is not None:
+            self.on_publishing()
 
     def stop(self, timeout_s=10.0):
         """Stop the threads (at most ``timeout_s`` each); record what was published."""
@@ -245,11 +253,13 @@ class SampleStream:
         first_batch_s = per_sample_s * lead_s * self._values['sample_rate_hz']
         self._first_margin_ns = int(min(lead_s, FIRST_MARGIN_S
                                         + FIRST_MARGIN_FACTOR * first_batch_s) * NS_PER_S)
-        # rclpy, numba and the model leave ~1.4e5 long-lived objects: a full collection
+        # rclpy, numba and the model leave ~1.3e5 long-lived objects: a full collection
         # walks them all holding the GIL (~90 ms here, every sample of it late), and one
         # comes whenever enough new objects survive (the recorder's). Frozen, they are
         # left out of every collection; this process runs one node, so they live as long.
-        gc.collect()
+        # Only the young generations are collected first: a full collection here walks
+        # them all too, before the first sample, and finds no more garbage.
+        gc.collect(1)
         gc.freeze()
 
     def _step(self):
