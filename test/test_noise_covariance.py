@@ -16,8 +16,9 @@ import numpy as np
 from scipy import signal
 
 from qfa_ros.model.design import design_controller, LinearLoop, published_acceleration_variance
-from qfa_ros.model.noise import allan_deviation_model, MICRO_G, NoiseConfig
+from qfa_ros.model.noise import allan_deviation_model, NoiseConfig
 from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.units import MICRO_G
 
 SECONDS = 60.0
 

@@ -33,6 +33,7 @@ from qfa_ros.calibration.gyro_bias import gyro_bias_schedule
 from qfa_ros.calibration.temperature import temperature_calibration
 from qfa_ros.model.design import published_acceleration_variance
 from qfa_ros.model.triad import AXES, NS_PER_S
+from qfa_ros.model.units import PPM
 from qfa_ros.ros.bounds import output_directory
 from qfa_ros.ros.calibration import CalibrationKeeper
 from qfa_ros.ros.diagnostics import Diagnostics, DIAGNOSTICS_TYPE, temperature_status
@@ -58,8 +59,6 @@ from qfa_ros.ros.recording import StreamRecording
 from qfa_ros.ros.schedules import ScheduleService
 from qfa_ros.ros.stream import offered_qos, SampleStream
 from qfa_ros.ros.truth import TruthPublisher
-
-PPM = 1e-6
 
 
 class QfaNode(Node):

@@ -16,8 +16,8 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.task import Future
 
 from qfa_ros.calibration.schedule import EstimationError
-from qfa_ros.model.gyro import DEG_PER_HOUR
 from qfa_ros.model.triad import AXES, concatenate
+from qfa_ros.model.units import DEG_PER_HOUR
 from qfa_ros.ros.bounds import confined_directory
 from qfa_ros.ros.params import feedback_settings, forward_settings
 from qfa_ros.ros.recording import FreeSpaceGuard
