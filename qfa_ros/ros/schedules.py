@@ -132,7 +132,7 @@ class ScheduleService:
 
     def __init__(self, node, lock, values, stream, keeper):
         self._node = node
-        self._lock = lock
+        self._lock = lock  # the node lock: the model, the stream's schedule, the state
         self._values = values
         self._stream = stream
         self._keeper = keeper

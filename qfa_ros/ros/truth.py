@@ -81,7 +81,7 @@ class TruthPublisher:
 
     def __init__(self, node, lock, triad, values, stream):
         self._node = node
-        self._lock = lock
+        self._lock = lock  # the node lock: the model and the stream's grid are read under it
         self._triad = triad
         self._values = values
         self._stream = stream
