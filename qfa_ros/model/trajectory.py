@@ -84,16 +84,6 @@ def dcm_to_quaternion(dcm):
     return np.stack([x, y, z, w], axis=-1)
 
 
-def quaternion_to_dcm(quaternion):
-    """Return the rotation matrix of unit quaternions (x, y, z, w), shape (..., 3, 3)."""
-    x, y, z, w = np.moveaxis(np.asarray(quaternion, dtype=float), -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)],
-        -2)
-
-
 def ecef_to_enu_matrix(latitude, longitude):
     """Return C_e^n, the rotation from ECEF to the local ENU frame, shape (..., 3, 3)."""
     sl, cl = np.sin(latitude), np.cos(latitude)
