@@ -16,6 +16,8 @@ import time
 
 import numpy as np
 
+from qfa_ros.model.units import STANDARD_GRAVITY
+
 COMPILE_SNIPPET = """
 import time
 t = time.perf_counter()
@@ -61,9 +63,9 @@ def main():
         rates = []
         for _ in range(args.repeat):
             start, cpu = time.perf_counter(), time.thread_time()
-            kernel.run_axis(loop.rng, np.array([9.80665]), np.ones(1), np.zeros(1), loop.gm_phi,
-                            loop.gm_drive, loop.gm_state, 10, loop.params_f, loop.params_i,
-                            loop.state_f, loop.state_i, mean, flags)
+            kernel.run_axis(loop.rng, np.array([STANDARD_GRAVITY]), np.ones(1), np.zeros(1),
+                            loop.gm_phi, loop.gm_drive, loop.gm_state, 10, loop.params_f,
+                            loop.params_i, loop.state_f, loop.state_i, mean, flags)
             rates.append((samples * 10 / (time.perf_counter() - start),
                           samples * 10 / (time.thread_time() - cpu)))
         kernel_rates[label] = rates

@@ -30,6 +30,7 @@ from qfa_ros.bag.imu_cdr import ImuEncoder  # noqa: E402
 from qfa_ros.bag.qos import QOS_SENSOR_DATA
 from qfa_ros.bag.types import encode_message, stamp
 from qfa_ros.bag.writer import DEFAULT_CHUNK_SIZE, McapBagWriter
+from qfa_ros.model.units import STANDARD_GRAVITY
 
 TOPIC = '/imu/data_raw'
 MSGTYPE = 'sensor_msgs/msg/Imu'
@@ -40,7 +41,7 @@ PERIOD_NS = 1_000_000
 def imu_messages(count, seed=0):
     """Return ``count`` Imu mappings of a static sensor with 50 µg/√Hz-like noise."""
     rng = np.random.default_rng(seed)
-    accel = np.array([0.0, 0.0, 9.80665]) + rng.normal(0.0, 5e-4, size=(count, 3))
+    accel = np.array([0.0, 0.0, STANDARD_GRAVITY]) + rng.normal(0.0, 5e-4, size=(count, 3))
     covariance = [2.5e-7, 0.0, 0.0, 0.0, 2.5e-7, 0.0, 0.0, 0.0, 2.5e-7]
     unknown = [-1.0] + [0.0] * 8
     return [

@@ -28,9 +28,9 @@ from node_helpers import (  # noqa: E402
 )
 
 from qfa_ros.model.earth import normal_gravity  # noqa: E402
+from qfa_ros.model.units import MICRO_G
 
 G = float(normal_gravity(np.radians(45.0)))
-MICRO_G = 9.80665e-6
 
 
 def static(client, imu, label):

@@ -36,6 +36,8 @@ import time
 from numba import njit
 import numpy as np
 
+from qfa_ros.model.units import STANDARD_GRAVITY
+
 
 @njit(cache=True, nogil=True)
 def limit_loop(rng, n_samples, draw, decimation, level, white_std, adc_std, phi, drive,
@@ -87,7 +89,7 @@ def limit_arguments(noise_on):
     loop, noise = triad.axes[2], triad.noise
     pf, pi = loop.params_f, loop.params_i
     limit = (int(pi[kernel.Q_DA2_FULL_SCALE]) << 8) << 20
-    return (config.decimation, 9.80665, noise.white_std, noise.adc_std, noise.phi.copy(),
+    return (config.decimation, STANDARD_GRAVITY, noise.white_std, noise.adc_std, noise.phi.copy(),
             noise.drive_std.copy(), noise.bias_state[2].copy(), noise.gm_block,
             pf[kernel.P_AD00:kernel.P_AD11 + 1].copy(), pf[kernel.P_BD0:kernel.P_BD1 + 1].copy(),
             pf[kernel.P_PENDULOSITY], pf[kernel.P_K_SENSE], pf[kernel.P_K_FB],
@@ -118,7 +120,7 @@ def run_kernel(n_samples):
 
     triad = QfaTriad(TriadConfig(), rng=0)
     loop = triad.axes[2]
-    sensed, scale, offset = np.array([9.80665]), np.ones(1), np.zeros(1)
+    sensed, scale, offset = np.array([STANDARD_GRAVITY]), np.ones(1), np.zeros(1)
     out = np.empty(n_samples)
     flags = np.empty(n_samples, dtype=np.int8)
 

@@ -40,11 +40,11 @@ from qfa_ros.calibration.tempfit import (  # noqa: E402
     fit_double_exponential_reference,
 )
 from qfa_ros.calibration.verification import verify_cycle  # noqa: E402
-from qfa_ros.model.thermal import STANDARD_GRAVITY, ThermalConfig, ThermalModel  # noqa: E402
+from qfa_ros.model.thermal import ThermalConfig, ThermalModel  # noqa: E402
 from qfa_ros.model.triad import TriadConfig  # noqa: E402
 from qfa_ros.model.unit import draw_unit  # noqa: E402
+from qfa_ros.model.units import MICRO_G  # noqa: E402
 
-MICRO_G = 1e-6 * STANDARD_GRAVITY
 SEED = 20240611
 THERMAL_DT = 0.1
 AVERAGE = 10

@@ -24,8 +24,8 @@ from qfa_ros.calibration import temperature
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.verification import verify_attitudes
-from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.unit import draw_unit
+from qfa_ros.model.units import MICRO_G
 from qfa_ros.ros.params import make_triad, PARAMETERS, temperature_settings
 
 SEED = 218566

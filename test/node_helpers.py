@@ -18,6 +18,7 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from qfa_ros.model.unit import draw_unit
+from qfa_ros.model.units import MICRO_G
 from qfa_ros.ros.bounds import LARGEST_CHAMBER, LARGEST_FEEDBACK, LARGEST_FORWARD
 from qfa_ros.ros.params import PARAMETERS
 
@@ -39,7 +40,7 @@ def unit_output(specific_force, seed=1, temperature_c=25.0, bias_ug=(0.0, 0.0, 0
     """
     unit = draw_unit(seed)
     a = (np.eye(3) + np.asarray(unit.misalignment)) @ np.asarray(specific_force, dtype=float)
-    sensed = np.asarray(bias_ug) * 9.80665e-6 + a + np.asarray(unit.k2) * a * a
+    sensed = np.asarray(bias_ug) * MICRO_G + a + np.asarray(unit.k2) * a * a
     return sensed * (1.0 + unit.scale_factor_error(temperature_c)) \
         + unit.zero_bias(temperature_c)
 

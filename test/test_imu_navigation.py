@@ -12,11 +12,10 @@ from statistics_helpers import allan_edf_flicker, allan_edf_white, variance_rati
 from qfa_ros.model import earth
 from qfa_ros.model import trajectory as tr
 from qfa_ros.model.allan import allan_deviation
-from qfa_ros.model.gyro import DEG_PER_HOUR, GyroConfig, GyroTriad
+from qfa_ros.model.gyro import GyroConfig, GyroTriad
 from qfa_ros.model.noise import (
     flicker_component_variance,
     gauss_markov_allan_variance,
-    MICRO_G,
     NoiseConfig,
 )
 from qfa_ros.model.triad import QfaTriad, TriadConfig
@@ -24,6 +23,8 @@ from qfa_ros.model.triad import QfaTriad, TriadConfig
 sys.path.insert(0, os.path.dirname(__file__))
 import ins_errors  # noqa: E402
 import strapdown  # noqa: E402
+
+from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G
 
 LAT45 = math.radians(45.0)
 

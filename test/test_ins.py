@@ -20,7 +20,7 @@ from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.errors import ERROR_PROFILES, ideal_config, sensor_config
 from qfa_ros.model.geodetic import enu_to_geodetic
 from qfa_ros.model.gyro import GyroConfig
-from qfa_ros.model.noise import MICRO_G, NoiseConfig
+from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad, TriadConfig
 from qfa_ros.model.unit import draw_unit
@@ -28,6 +28,8 @@ from qfa_ros.ros.params import make_triad, PARAMETERS
 
 sys.path.insert(0, os.path.dirname(__file__))
 import strapdown  # noqa: E402
+
+from qfa_ros.model.units import MICRO_G
 
 ROOT = Path(__file__).resolve().parents[1]
 

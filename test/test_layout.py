@@ -224,3 +224,14 @@ def long_module_offences(package=PACKAGE, limit=LONG_MODULE_LINES, allowed=LONG_
 def test_long_modules_are_the_reviewed_few():
     offences = long_module_offences()
     assert not offences, '\n'.join(offences)
+
+
+NODE_MODULE_LINES = 300
+"""Line budget of ``ros/node.py``: the node class wires its collaborators; parameter,
+service, input and diagnostics plumbing lives in a collaborator of ``ros/``."""
+
+
+def test_the_node_module_stays_within_its_budget():
+    lines = len((PACKAGE / 'ros' / 'node.py').read_text().splitlines())
+    assert lines <= NODE_MODULE_LINES, \
+        f'ros/node.py: {lines} lines > {NODE_MODULE_LINES}: move plumbing to a collaborator'

@@ -27,9 +27,8 @@ from qfa_ros.model.hardware import (
     DRIFT_COMPONENTS,
     loop_gains,
     nominal_gains,
-    STANDARD_GRAVITY,
 )
-from qfa_ros.model.noise import allan_deviation_model, MICRO_G, NoiseConfig
+from qfa_ros.model.noise import allan_deviation_model, NoiseConfig
 from qfa_ros.model.parallel import run_chains
 from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig, ThermalModel
@@ -41,6 +40,7 @@ from qfa_ros.model.triad import (
     TriadConfig,
     TriadOutput,
 )
+from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 
 ROOT = Path(__file__).resolve().parents[1]
 

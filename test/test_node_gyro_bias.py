@@ -10,8 +10,9 @@ import numpy as np
 from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
 
+from qfa_ros.model.units import DEG_PER_HOUR
+
 NODE = '/qfa_node'
-DEG_PER_HOUR = math.pi / 180.0 / 3600.0
 LATITUDE = math.radians(45.0)  # the default latitude_deg
 # Level, x east (input.yaw 0): the Earth rate 15.041 deg/h in the body axes.
 EARTH = 15.041 * DEG_PER_HOUR * np.array([0.0, math.cos(LATITUDE), math.sin(LATITUDE)])

@@ -14,7 +14,7 @@ from sensor_msgs.msg import Imu, NavSatFix
 from std_srvs.srv import SetBool, Trigger
 
 from qfa_ros.model import trajectory as tr
-from qfa_ros.model.noise import MICRO_G
+from qfa_ros.model.units import MICRO_G
 
 NODE = '/qfa_node'
 ROLL, PITCH, YAW = 0.4, -0.3, 1.1

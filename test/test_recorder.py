@@ -44,6 +44,7 @@ from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSet
 from qfa_ros.calibration.tempfit import DoubleExpCompensator, DoubleExpFit
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.model.units import STANDARD_GRAVITY
 
 REPO = Path(__file__).resolve().parents[1]
 T0 = 1_700_000_000_123_456_789
@@ -218,7 +219,7 @@ def test_serialized_path_matches_rclpy_serialization(tmp_path):
     imu = msg_module.Imu()
     imu.header.stamp.sec, imu.header.stamp.nanosec = 17, 250
     imu.header.frame_id = 'imu_link'
-    imu.linear_acceleration.x, imu.linear_acceleration.z = 0.125, -9.80665
+    imu.linear_acceleration.x, imu.linear_acceleration.z = 0.125, -STANDARD_GRAVITY
     imu.linear_acceleration_covariance[4] = 3.5e-9
     path = tmp_path / 'rclpy.mcap'
     with McapBagWriter(path) as bag:
@@ -228,7 +229,7 @@ def test_serialized_path_matches_rclpy_serialization(tmp_path):
                                     'linear_acceleration': {'x': 0.125}}, 18_000_000_000)
     (_, _, t1, first, raw1), (_, _, t2, second, raw2) = _read_all(path)
     assert t1 == 17_000_000_250 and first.header.frame_id == 'imu_link'
-    assert first.linear_acceleration.z == -9.80665
+    assert first.linear_acceleration.z == -STANDARD_GRAVITY
     assert first.linear_acceleration_covariance[4] == 3.5e-9
     # And the dict path produces bytes rclpy itself decodes.
     decoded = serialization.deserialize_message(raw2, msg_module.Imu)

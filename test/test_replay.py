@@ -39,6 +39,7 @@ from qfa_ros.bag.qos import QOS_LATCHED, QOS_SENSOR_DATA
 from qfa_ros.bag.reader import BagError, BagSource
 from qfa_ros.bag.types import register_message_definition, stamp
 from qfa_ros.bag.writer import McapBagWriter
+from qfa_ros.model.units import STANDARD_GRAVITY
 from qfa_ros.ros.fastdds import shipped_fastdds_profile, use_shipped_fastdds_profile
 from qfa_ros.ros.replay import import_message_type, qos_from_offers, ReplaySummary
 
@@ -70,7 +71,8 @@ def _imu(time_ns, index):
         'header': {'stamp': stamp(time_ns), 'frame_id': 'imu_link'},
         'orientation_covariance': unknown,
         'angular_velocity_covariance': unknown,
-        'linear_acceleration': {'x': 0.001 * index, 'y': -0.5, 'z': 9.80665 + 1e-6 * index},
+        'linear_acceleration': {'x': 0.001 * index, 'y': -0.5,
+                                'z': STANDARD_GRAVITY + 1e-6 * index},
         'linear_acceleration_covariance': [1e-8, 0, 0, 0, 1e-8, 0, 0, 0, 1e-8],
     }
 

@@ -24,9 +24,9 @@ from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
 from qfa_ros.cli.report import main
-from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.model.units import MICRO_G
 from qfa_ros.report.figures import build_figures, load_bag, report
 
 FORWARD = ForwardSettings(points=5, average_s=0.1)

@@ -20,11 +20,12 @@ from qfa_ros.calibration.tempfit import ThermalCompensation
 from qfa_ros.calibration.verification import verify_attitudes, verify_cycle
 from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.model.errors import ErrorProfile
-from qfa_ros.model.noise import MICRO_G, NoiseConfig
+from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad, TriadConfig
 from qfa_ros.model.unit import draw_unit
+from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 
 # Reduced cost where physics allows: the steady-state output depends on the feedback
 # gain only, so a 2 kHz loop (crossover 100 Hz, settles to 1 ug in 0.2 s) at 100 Hz
@@ -137,9 +138,9 @@ def test_the_output_path_applies_the_compensator():
 def test_fixture_replaces_any_input_and_is_removed_afterwards():
     triad = QfaTriad(TriadConfig(thermal=ThermalConfig(ambient_profile='constant'), **FAST),
                      rng=2)
-    triad.fixture = StaticProfile((0.0, -9.80665, 0.0))
-    out = triad.run(10, np.tile([0.0, 0.0, 9.80665], (10, 1)))
-    assert_allclose(out.truth, np.tile([0.0, -9.80665, 0.0], (10, 1)))
+    triad.fixture = StaticProfile((0.0, -STANDARD_GRAVITY, 0.0))
+    out = triad.run(10, np.tile([0.0, 0.0, STANDARD_GRAVITY], (10, 1)))
+    assert_allclose(out.truth, np.tile([0.0, -STANDARD_GRAVITY, 0.0], (10, 1)))
     # a short, narrow program: the soak back is refused at once with its reason
     settings = TemperatureSettings(low_c=15.0, high_c=35.0, step_c=20.0, period_s=60.0,
                                    block_s=0.5, max_soak_s=0.0)

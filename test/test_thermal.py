@@ -7,15 +7,8 @@ import numpy.testing as npt
 import pytest
 from statistics_helpers import clipped_normal_moments, normal_bound
 
-from qfa_ros.model.thermal import (
-    AMBIENT_PROFILES,
-    STANDARD_GRAVITY,
-    ThermalChunk,
-    ThermalConfig,
-    ThermalModel,
-)
-
-MICRO_G = 1e-6 * STANDARD_GRAVITY
+from qfa_ros.model.thermal import AMBIENT_PROFILES, ThermalChunk, ThermalConfig, ThermalModel
+from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 
 
 def _run_chunked(model, total, dt, rng):
@@ -257,7 +250,7 @@ def test_the_same_seed_is_the_same_unit_and_two_seeds_differ():
 
 def test_drawn_units_stay_within_the_datasheet_spreads():
     from qfa_ros.model.unit import draw_unit
-    g = 9.80665
+    g = STANDARD_GRAVITY
     slopes, turn_on = [], []
     for seed in range(30):
         unit = draw_unit(seed)

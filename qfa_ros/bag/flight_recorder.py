@@ -105,6 +105,8 @@ class FlightRecorder:
         # (topic, msgtype) pairs registered in the current file: add_topic once per file.
         self._registered = set()
         self._file_start_ns = None
+        # Protects the current writer and file, _registered, _file_start_ns, _index, the
+        # file list, the metadata and _closed: record and close may come from two threads.
         self._lock = threading.Lock()
         self._closed = False
         self.files = []

@@ -62,7 +62,7 @@ def canonical_type(msgtype):
 _DEFINITIONS = dict(MESSAGE_DEFINITIONS)
 _HASHES = dict(TYPE_HASHES)
 _ENCODERS = {}
-_CACHE_LOCK = threading.Lock()
+_CACHE_LOCK = threading.Lock()  # protects _DEFINITIONS, _HASHES and _ENCODERS
 
 
 def supported_types():

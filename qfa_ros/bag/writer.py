@@ -149,6 +149,9 @@ class McapBagWriter:
         self._first_time_ns = None
         self._last_time_ns = None
         self._message_count = 0
+        # Protects the MCAP writer, the topics and schema ids, the message count and times,
+        # the size accounting and _state: adding, finishing and aborting may come from
+        # several threads.
         self._lock = threading.Lock()
         self._state = 'open'
         # For size_estimate(): bytes buffered in the chunk in progress, and what the

@@ -20,10 +20,8 @@ import numpy as np
 
 from qfa_ros.calibration.schedule import EstimationError, SensorPort
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED
+from qfa_ros.model.units import MICRO_G, PPM
 
-MICRO_G = 9.80665e-6
-
-PPM = 1e-6
 FORWARD_ORDERS = ('ascending', 'bidirectional', 'interleaved')
 FEEDBACK_ORDERS = ('single', 'chopped')
 

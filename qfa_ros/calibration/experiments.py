@@ -17,16 +17,14 @@ from qfa_ros.calibration.estimation import (
     capture_reference,
     FeedbackSettings,
     ForwardSettings,
-    PPM,
     self_calibrate,
 )
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model import streams
 from qfa_ros.model.errors import ErrorProfile, PaperRoom
-from qfa_ros.model.hardware import STANDARD_GRAVITY
-from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 
 OBSERVABLE_FORWARD = ('v_da1_ref', 'k_tz', 'k_amp', 'v_ad_ref')
 OBSERVABLE_FEEDBACK = ('v_da2_ref', 'k_vi')

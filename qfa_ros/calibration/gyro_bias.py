@@ -31,9 +31,8 @@ import numpy as np
 from qfa_ros.calibration.schedule import EstimationError, require_closed, SensorPort
 from qfa_ros.model.earth import EARTH_RATE
 from qfa_ros.model.triad import AXES
+from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G
 
-DEG_PER_HOUR = math.pi / 180.0 / 3600.0
-MICRO_G = 9.80665e-6
 BLOCK_S = 1.0
 """Averaging block of the motion check and the standard error [s]."""
 

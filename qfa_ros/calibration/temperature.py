@@ -41,10 +41,9 @@ from qfa_ros.calibration.schedule import (
     sensor_time_ns,
 )
 from qfa_ros.calibration.tempfit import calibrate_zero_bias, ThermalCompensation
-from qfa_ros.model.hardware import STANDARD_GRAVITY
-from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED, TriadConfig
+from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 
 AMBIENT_FIELDS = ('ambient_profile', 'ambient_c', 'cycle_low_c', 'cycle_high_c',
                   'cycle_period_s', 'cycle_shape', 'cycle_dwell_fraction')
@@ -52,7 +51,6 @@ AMBIENT_FIELDS = ('ambient_profile', 'ambient_c', 'cycle_low_c', 'cycle_high_c',
 POSITIONS = ((0, 1), (1, 1), (2, 1), (2, -1), (1, -1), (0, -1))
 """Tumble order as (axis up, sign): +x, +y, +z, -z, -y, -x."""
 
-PPM = 1e-6
 
 
 def position_force(axis, sign):

@@ -16,8 +16,8 @@ import numpy as np
 from qfa_ros.calibration.chamber import idle
 from qfa_ros.calibration.schedule import samples_for
 from qfa_ros.calibration.temperature import AMBIENT_FIELDS, fixture_profile, POSITIONS
-from qfa_ros.model.hardware import STANDARD_GRAVITY
 from qfa_ros.model.profiles import StaticProfile
+from qfa_ros.model.units import STANDARD_GRAVITY
 
 
 @dataclass

@@ -9,6 +9,7 @@ arguments or parameters) end in one line through the ROS logger and a non-zero s
 """
 
 import faulthandler
+import gc
 import os
 import re
 import signal
@@ -30,6 +31,12 @@ EXIT_MIDDLEWARE = 1
 """Exit status when the middleware cannot start (DDS Security, arguments, ...)."""
 EXIT_PARAMETERS = 2
 """Exit status of an invalid start configuration."""
+
+SWITCH_INTERVAL_S = 0.00005
+"""Python's GIL switch interval while the node runs [s]. A thread waiting for the GIL waits
+this long before it asks the holder to drop it, and a busy thread that drops the GIL
+briefly (numba kernels, ctypes) mostly takes it back first; so this is about how long a
+batch holds the pacer up (the default 5 ms would hold it that long; see docs/node.md)."""
 
 SECURITY_HINT = ('DDS Security (SROS2) needs a ROS 2 installation whose Fast DDS was built '
                  'with security; the Kilted pip wheels are not')
@@ -111,6 +118,33 @@ def init_rclpy(args, secured):
     return None
 
 
+class ProcessTuning:
+    """
+    The interpreter settings of a process that runs one node; its sensor thread applies them.
+
+    Both are process-wide, so the entry point asks for them (:func:`create_node`) and a
+    node created inside another program (a test, a launch composition) does without.
+    """
+
+    def warmed(self):
+        """
+        Freeze the start-up objects out of the garbage collector (before the grid starts).
+
+        rclpy, numba and the model leave ~1.4e5 long-lived objects: a full collection walks
+        them all holding the GIL (~90 ms, every sample of it late), and one comes whenever
+        enough new objects survive (the recorder's). Frozen, they are left out of every
+        collection; the process runs one node, so they live as long as it. Only the young
+        generations are collected first: a full collection would walk them all too, before
+        the first sample, and find no more garbage.
+        """
+        gc.collect(1)
+        gc.freeze()
+
+    def streaming(self):
+        """Shorten the GIL switch interval to :data:`SWITCH_INTERVAL_S` (first batch done)."""
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+
+
 def create_node(secured):
     """Create the node; return ``(node, None)`` or ``(None, status)`` after a one-line report."""
     # Imported only now: the model takes seconds to load, a middleware refusal does not.
@@ -119,7 +153,7 @@ def create_node(secured):
         with warnings.catch_warnings():
             # rclpy warns about the half-made rosout publisher of a node that failed.
             warnings.simplefilter('ignore', RuntimeWarning)
-            return QfaNode(NODE_NAME), None
+            return QfaNode(NODE_NAME, process_tuning=ProcessTuning()), None
     except (rclpy_implementation.RCLError, ValueError) as error:
         return None, startup_failure('creating the node', error, secured)
 

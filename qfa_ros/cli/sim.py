@@ -30,12 +30,11 @@ from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom, sensor_config
-from qfa_ros.model.gyro import DEG_PER_HOUR
-from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.parallel import run_chains
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 from qfa_ros.model.unit import draw_unit
+from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G
 
 CHUNK_SECONDS = 30.0
 """Sensor time per chunk of the static and trajectory scenarios [s]: long enough for the

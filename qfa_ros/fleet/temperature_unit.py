@@ -23,12 +23,11 @@ from qfa_ros.calibration.temperature import temperature_calibration
 from qfa_ros.calibration.verification import ATTITUDES, verify_attitudes
 from qfa_ros.model import streams
 from qfa_ros.model.errors import error_profile
-from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, TriadConfig
 from qfa_ros.model.unit import draw_unit
+from qfa_ros.model.units import MICRO_G, PPM
 
-PPM = 1e-6
 SOAK_TIME_CONSTANTS = 10.0
 """Soak before each verification temperature, in body time constants."""
 

@@ -25,12 +25,7 @@ import math
 import numpy as np
 
 from qfa_ros.calibration.chamber import ChamberBench, idle
-from qfa_ros.calibration.estimation import (
-    capture_reference,
-    PPM,
-    reference_tc_schedule,
-    self_calibrate,
-)
+from qfa_ros.calibration.estimation import capture_reference, reference_tc_schedule, self_calibrate
 from qfa_ros.calibration.experiments import (
     measure_scale,
     OBSERVABLE_FEEDBACK,
@@ -42,10 +37,10 @@ from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.fleet.temperature_unit import simulate_temperature_unit
 from qfa_ros.model import streams
 from qfa_ros.model.errors import error_profile, PaperRoom
-from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
 from qfa_ros.model.unit import draw_component_tcs, install_component_tcs
+from qfa_ros.model.units import MICRO_G, PPM
 
 DAYS_PER_YEAR = 365.25
 SECONDS_PER_DAY = 86400.0

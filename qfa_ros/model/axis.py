@@ -6,8 +6,9 @@ import numpy as np
 
 from qfa_ros.model import kernel
 from qfa_ros.model.design import design_controller, pendulum_matrices
-from qfa_ros.model.hardware import counts_to_accel, loop_gains, STANDARD_GRAVITY
+from qfa_ros.model.hardware import counts_to_accel, loop_gains
 from qfa_ros.model.parallel import ChainRun, start_chains
+from qfa_ros.model.units import STANDARD_GRAVITY
 
 PARALLEL_MIN_STEPS = 20_000
 """Loop steps per axis from which :func:`start_axes` spreads the axes over threads."""

@@ -5,9 +5,9 @@ import math
 import numpy as np
 
 from qfa_ros.model.hardware import DRIFT_COMPONENTS
+from qfa_ros.model.units import PPM
 
 SECONDS_PER_YEAR = 365.25 * 86400.0
-PPM = 1e-6
 
 
 class DriftModel:

@@ -33,8 +33,8 @@ import dataclasses
 from dataclasses import dataclass, field
 
 from qfa_ros.model.thermal import ThermalConfig
+from qfa_ros.model.units import PPM
 
-PPM = 1e-6
 N_AXES = 3
 ERROR_PROFILES = ('paper', 'ideal')
 """Names of :func:`error_profile` and of :func:`sensor_config` (the sensor-wide switch)."""

@@ -34,13 +34,7 @@ import numpy as np
 
 from qfa_ros.model import streams
 from qfa_ros.model.noise import flicker_component_variance
-
-DEG_PER_HOUR = math.pi / 180.0 / 3600.0
-"""One degree per hour [rad/s]."""
-PPM = 1e-6
-ARCSEC = math.pi / 180.0 / 3600.0
-"""One arc second [rad]."""
-G0 = 9.80665
+from qfa_ros.model.units import ARCSEC, DEG_PER_HOUR, DEG_PER_ROOT_HOUR, PPM, STANDARD_GRAVITY
 
 
 @dataclass(frozen=True)
@@ -84,7 +78,7 @@ class GyroConfig:
         was measured, as ``TriadConfig.bias`` for the accelerometers); default none.
     """
 
-    arw: float = 0.002 * (math.pi / 180.0 / 60.0)
+    arw: float = 0.002 * DEG_PER_ROOT_HOUR
     bias_instability: float = 0.003 * DEG_PER_HOUR
     correlation_times: tuple = (1.0, 10.0, 100.0, 1000.0, 10000.0)
     rate_random_walk: float = 0.003 * DEG_PER_HOUR / 60.0
@@ -92,7 +86,7 @@ class GyroConfig:
     scale_factor: float = 5.0 * PPM
     scale_factor_asymmetry: float = 1.0 * PPM
     misalignment: float = 5.0 * ARCSEC
-    g_sensitivity: float = 0.001 * DEG_PER_HOUR / G0
+    g_sensitivity: float = 0.001 * DEG_PER_HOUR / STANDARD_GRAVITY
     bias_tc: float = 0.0003 * DEG_PER_HOUR
     scale_factor_tc: float = 0.5 * PPM
     reference_c: float = 25.0

@@ -4,8 +4,7 @@ from dataclasses import asdict, dataclass, fields, replace
 import math
 import numbers
 
-STANDARD_GRAVITY = 9.80665
-"""Standard gravity g0 [m/s^2]."""
+from qfa_ros.model.units import STANDARD_GRAVITY
 
 FORWARD_COMPONENTS = ('k1', 'c_ref', 'v_da1_ref', 'k_tz', 'k_amp', 'v_ad_ref')
 """Forward-channel drift terms of seed 1 eq. 6-8 (relative, dimensionless)."""

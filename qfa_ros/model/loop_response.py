@@ -31,8 +31,9 @@ from scipy import signal
 
 from qfa_ros.model.axis import AxisLoop
 from qfa_ros.model.design import LinearLoop
-from qfa_ros.model.hardware import counts_to_accel, STANDARD_GRAVITY
+from qfa_ros.model.hardware import counts_to_accel
 from qfa_ros.model.noise import NoiseSource
+from qfa_ros.model.units import STANDARD_GRAVITY
 
 
 @dataclass(frozen=True)

@@ -6,9 +6,7 @@ import math
 import numpy as np
 
 from qfa_ros.model import streams
-
-MICRO_G = 9.80665e-6
-"""One micro-g [m/s^2]."""
+from qfa_ros.model.units import MICRO_G
 
 
 @dataclass(frozen=True)

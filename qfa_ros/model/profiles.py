@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from qfa_ros.model.hardware import STANDARD_GRAVITY
+from qfa_ros.model.units import STANDARD_GRAVITY
 
 
 def gravity_in_sensor_frame(roll, pitch, gravity=STANDARD_GRAVITY):

@@ -14,20 +14,16 @@ import numba
 import numpy as np
 
 from qfa_ros.model import streams
-
-STANDARD_GRAVITY = 9.80665
-"""Standard gravity [m/s^2] (1 g); 1 mg = 9.80665e-3 m/s^2."""
+from qfa_ros.model.units import MILLI_G, PPM
 
 AMBIENT_PROFILES = ('constant', 'ramp', 'cycle', 'room')
 CYCLE_SHAPES = ('trapezoid', 'sine')
 BIAS_MODELS = ('double_exp', 'polynomial', 'mixed', 'none')
 N_AXES = 3
 
-_MG = 1e-3 * STANDARD_GRAVITY
-
-DEFAULT_BIAS_ALPHA = ((0.08 * _MG, 0.90 * _MG),
-                      (-0.12 * _MG, -0.25 * _MG),
-                      (0.05 * _MG, 0.60 * _MG))
+DEFAULT_BIAS_ALPHA = ((0.08 * MILLI_G, 0.90 * MILLI_G),
+                      (-0.12 * MILLI_G, -0.25 * MILLI_G),
+                      (0.05 * MILLI_G, 0.60 * MILLI_G))
 """Default double-exponential alphas per axis [m/s^2] (see :class:`ThermalConfig`)."""
 
 DEFAULT_BIAS_BETA = ((2.0, -0.6), (1.5, -1.2), (2.4, -0.3))
@@ -294,10 +290,10 @@ class ThermalModel:
         self._beta = np.asarray(config.bias_beta, dtype=float)
         self._poly = np.asarray(config.bias_poly, dtype=float)
         self._hysteresis_amplitude = np.asarray(config.hysteresis_m_s2, dtype=float)
-        self._sf_tc = np.asarray(config.sf_tc_ppm_per_c, dtype=float) * 1e-6
-        self._sf_tc2 = np.asarray(config.sf_tc2_ppm_per_c2, dtype=float) * 1e-6
-        self._sf_tc3 = np.asarray(config.sf_tc3_ppm_per_c3, dtype=float) * 1e-6
-        self._sf_offset = np.asarray(config.sf_offset_ppm, dtype=float) * 1e-6
+        self._sf_tc = np.asarray(config.sf_tc_ppm_per_c, dtype=float) * PPM
+        self._sf_tc2 = np.asarray(config.sf_tc2_ppm_per_c2, dtype=float) * PPM
+        self._sf_tc3 = np.asarray(config.sf_tc3_ppm_per_c3, dtype=float) * PPM
+        self._sf_offset = np.asarray(config.sf_offset_ppm, dtype=float) * PPM
         self.reset()
 
     def reset(self):

@@ -52,6 +52,7 @@ import numpy as np
 from qfa_ros.model import earth
 from qfa_ros.model.files import read_regular_file
 from qfa_ros.model.trajectory_means import PiecewiseMeans
+from qfa_ros.model.units import DEGREE
 
 MAX_CSV_BYTES = 16 << 20
 """Largest trajectory file read [bytes]: 16 MiB, about 250 000 poses (7 h at 10 Hz)."""
@@ -81,16 +82,6 @@ def dcm_to_quaternion(dcm):
     y = np.copysign(y, m[..., 0, 2] - m[..., 2, 0])
     z = np.copysign(z, m[..., 1, 0] - m[..., 0, 1])
     return np.stack([x, y, z, w], axis=-1)
-
-
-def quaternion_to_dcm(quaternion):
-    """Return the rotation matrix of unit quaternions (x, y, z, w), shape (..., 3, 3)."""
-    x, y, z, w = np.moveaxis(np.asarray(quaternion, dtype=float), -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)],
-        -2)
 
 
 def ecef_to_enu_matrix(latitude, longitude):
@@ -421,7 +412,7 @@ def vehicle_drive(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, yaw=math.p
     commands = np.zeros((len(t), 3))
     previous = np.zeros(3)
     for (start, row) in zip(bounds[:-1], script):
-        target = row[1:] * np.array([1.0, math.pi / 180, math.pi / 180])
+        target = row[1:] * np.array([1.0, DEGREE, DEGREE])
         s = np.clip((t - start) / ramp_s, 0.0, 1.0)
         blend = s * s * (3 - 2 * s)
         active = t >= start

@@ -16,11 +16,12 @@ from qfa_ros.model import kernel, streams
 from qfa_ros.model.axis import AxisLoop, start_axes
 from qfa_ros.model.drift import DriftModel
 from qfa_ros.model.gyro import GyroConfig, GyroTriad
-from qfa_ros.model.hardware import AxisHardware, counts_to_accel, STANDARD_GRAVITY
-from qfa_ros.model.noise import MICRO_G, NoiseConfig, NoiseSource
+from qfa_ros.model.hardware import AxisHardware, counts_to_accel
+from qfa_ros.model.noise import NoiseConfig, NoiseSource
 from qfa_ros.model.parallel import available_cores
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalModel
+from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 
 AXES = ('x', 'y', 'z')
 NS_PER_S = 1_000_000_000

@@ -52,9 +52,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from qfa_ros.model import streams
-from qfa_ros.model.hardware import STANDARD_GRAVITY
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
+from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 
 UNIT_STREAM = 0x756E6974
 """First word of the unit draw's seed sequence (keeps it apart from the noise streams)."""
@@ -62,7 +62,6 @@ UNIT_STREAM = 0x756E6974
 FORWARD_TC_COMPONENTS = ('v_da1_ref', 'k_tz', 'k_amp')
 """Forward-chain components whose temperature coefficients a unit draws."""
 
-MICRO_G = 1e-6 * STANDARD_GRAVITY
 _T_LOW, _T_HIGH, _T0 = -40.0, 70.0, 25.0
 _HALF = 55.0
 """Half the -40..70 degC range: the polynomial shapes are drawn in ``x = (T - 25)/55``."""
@@ -229,7 +228,7 @@ class Unit:
         d = np.asarray(temperature_c, dtype=float)[..., None] - _T0
         tc1, tc2, tc3 = (np.asarray(c) for c in (self.sf_tc_ppm_per_c, self.sf_tc2_ppm_per_c2,
                                                   self.sf_tc3_ppm_per_c3))
-        return 1e-6 * (np.asarray(self.sf_offset_ppm) + d * (tc1 + d * (tc2 + d * tc3)))
+        return PPM * (np.asarray(self.sf_offset_ppm) + d * (tc1 + d * (tc2 + d * tc3)))
 
 
 def _voltage(temperature_c):

@@ -37,8 +37,8 @@ from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 
 from qfa_ros.bag.trace import key_values_to_dict
-from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.triad import AXES
+from qfa_ros.model.units import MICRO_G
 
 # Headless: figures are only ever written to files.
 matplotlib.use('Agg')

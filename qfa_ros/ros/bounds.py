@@ -15,6 +15,7 @@ from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model.hardware import AxisHardware, nominal_gains
 from qfa_ros.model.triad import TriadConfig
+from qfa_ros.model.units import PPM
 
 # Ranges of the schedule parameters. They bound what one service call can cost, whoever
 # makes it: the sensor time it takes (imu/data_raw is withheld meanwhile) and the model
@@ -69,7 +70,7 @@ def forward_sweep_problem(settings, hardware, forward_drift_ppm=(0.0,)):
     :param forward_drift_ppm: Injected forward-gain drift per axis [ppm]; the largest
         raises the open-loop output.
     """
-    gain_factor = 1.0 + max(0.0, max(forward_drift_ppm)) * 1e-6
+    gain_factor = 1.0 + max(0.0, max(forward_drift_ppm)) * PPM
     span = forward_max_span(hardware, gain_factor)
     if settings.points * settings.step <= span:
         return None

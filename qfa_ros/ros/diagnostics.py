@@ -26,17 +26,27 @@ def temperature_status(triad, keeper, last_reading_c):
 
 class Diagnostics:
     """
-    Gather the ``stream``, ``calibration``, ``temperature`` and ``input`` statuses.
+    Publish the ``stream``, ``calibration``, ``temperature`` and ``input`` statuses.
 
-    :param node: The node (name, clock).
-    :param values: The node's live parameter values (``hardware_id``).
+    Creates the ``/diagnostics`` publisher (depth 10) and the timer at
+    ``diagnostics_rate_hz`` that publishes and records them.
+
+    :param node: The node (publisher, timer, name, clock).
+    :param lock: The node lock (every status is read under it).
+    :param values: The node's live parameter values (``hardware_id``,
+        ``diagnostics_rate_hz``; read only).
+    :param recording: :class:`~qfa_ros.ros.recording.StreamRecording` (publishes and records).
     :param sources: ``(topic, callable returning (level, message, key values))`` pairs.
     """
 
-    def __init__(self, node, values, sources):
+    def __init__(self, node, lock, values, recording, sources):
         self._node = node
+        self._lock = lock  # the node lock: every status is read under it
         self._values = values
+        self._recording = recording
         self._sources = sources
+        self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        node.create_timer(1.0 / values['diagnostics_rate_hz'], self.timer_callback)
 
     def array(self):
         """Return a :class:`DiagnosticArray` of every status (call with the node lock held)."""
@@ -52,3 +62,11 @@ class Diagnostics:
                 hardware_id=self._values['hardware_id'],
                 values=[KeyValue(key=k, value=str(v)) for k, v in values]))
         return array
+
+    def timer_callback(self):
+        """Publish the stream, calibration, temperature and input status (about 1 Hz)."""
+        with self._lock:
+            array = self.array()
+        # Published and recorded outside the node lock: the recording's lock may wait for
+        # the disk, and the sensor thread must not wait behind it.
+        self._recording.publish(self._publisher, array, DIAGNOSTICS_TYPE)

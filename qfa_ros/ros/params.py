@@ -28,13 +28,13 @@ from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.errors import error_profile, ERROR_PROFILES, PaperRoom, sensor_config
-from qfa_ros.model.gyro import DEG_PER_HOUR, GyroConfig
-from qfa_ros.model.hardware import STANDARD_GRAVITY
-from qfa_ros.model.noise import MICRO_G, NoiseConfig
+from qfa_ros.model.gyro import GyroConfig
+from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.profiles import SineProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad, TriadConfig
 from qfa_ros.model.unit import draw_unit
+from qfa_ros.model.units import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G, STANDARD_GRAVITY
 from qfa_ros.ros.bounds import (
     budget_problem,
     CHAMBER_BOUND,
@@ -220,7 +220,7 @@ PARAMETERS = (
     ParameterSpec('gyro.enabled', True,
                   'Gyro triad (IEEE 952 FOG model): angular_velocity of imu/data_raw; false: '
                   'angular_velocity_covariance[0] = -1', True),
-    ParameterSpec('gyro.arw_deg_per_rthr', _GYRO.arw / (math.pi / 180.0 / 60.0),
+    ParameterSpec('gyro.arw_deg_per_rthr', _GYRO.arw / DEG_PER_ROOT_HOUR,
                   'Gyro angle random walk [deg/sqrt(h)]', True, 0.0, 100.0),
     ParameterSpec('gyro.bias_instability_deg_per_hr', _GYRO.bias_instability / DEG_PER_HOUR,
                   'Gyro bias instability, flicker floor of the Allan deviation [deg/h]', True,
@@ -622,7 +622,7 @@ def triad_config(values, unit=False):
     if values['gyro.enabled']:
         with _named('gyro'):
             gyro = _GYRO.with_errors(
-                arw=values['gyro.arw_deg_per_rthr'] * (math.pi / 180.0 / 60.0),
+                arw=values['gyro.arw_deg_per_rthr'] * DEG_PER_ROOT_HOUR,
                 bias_instability=values['gyro.bias_instability_deg_per_hr'] * DEG_PER_HOUR,
                 rate_random_walk=values['gyro.rate_random_walk_deg_per_hr_per_rthr']
                 * DEG_PER_HOUR / 60.0,

@@ -16,8 +16,8 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.task import Future
 
 from qfa_ros.calibration.schedule import EstimationError
-from qfa_ros.model.gyro import DEG_PER_HOUR
 from qfa_ros.model.triad import AXES, concatenate
+from qfa_ros.model.units import DEG_PER_HOUR
 from qfa_ros.ros.bounds import confined_directory
 from qfa_ros.ros.params import feedback_settings, forward_settings
 from qfa_ros.ros.recording import FreeSpaceGuard
@@ -132,7 +132,7 @@ class ScheduleService:
 
     def __init__(self, node, lock, values, stream, keeper):
         self._node = node
-        self._lock = lock
+        self._lock = lock  # the node lock: the model, the stream's schedule, the state
         self._values = values
         self._stream = stream
         self._keeper = keeper

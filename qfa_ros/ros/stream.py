@@ -11,9 +11,7 @@ computes when an input arrives and the pacer publishes at once.
 
 import bisect
 import copy
-import gc
 from itertools import repeat
-import sys
 import threading
 import time
 
@@ -45,12 +43,6 @@ FIRST_MARGIN_S = 0.01
 
 FIRST_MARGIN_FACTOR = 4.0
 """The first batch is given this many times its cost, as measured on the warm copy."""
-
-SWITCH_INTERVAL_S = 0.00005
-"""Python's GIL switch interval while the node runs [s]. A thread waiting for the GIL waits
-this long before it asks the holder to drop it, and a busy thread that drops the GIL
-briefly (numba kernels, ctypes) mostly takes it back first; so this is about how long a
-batch holds the pacer up (the default 5 ms would hold it that long; see docs/node.md)."""
 
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 TEMPERATURE_TYPE = 'sensor_msgs/msg/Temperature'
@@ -99,12 +91,18 @@ class SampleStream:
     :param imu_publisher: Publisher of ``imu/data_raw``.
     :param temperature_publisher: Publisher of ``imu/temperature``.
     :param acceleration_covariance: Row-major 3x3 covariance [(m/s^2)^2].
+    :param process_tuning: None, or the process's interpreter settings: an object whose
+        ``warmed()`` the sensor thread calls after its warm-up (before the grid is
+        anchored) and ``streaming()`` after its first batch (before the first sample is
+        due). Process-wide, so only the process entry point passes one
+        (:class:`qfa_ros.cli.node.ProcessTuning`); a node run inside another program
+        leaves its interpreter as it is.
     """
 
     def __init__(self, node, lock, triad, values, ground_truth, recording, imu_publisher,
-                 temperature_publisher, acceleration_covariance):
+                 temperature_publisher, acceleration_covariance, process_tuning=None):
         self._node = node
-        self._lock = lock
+        self._lock = lock  # the node lock: each batch and each schedule slice holds it
         self._triad = triad
         self._values = values
         self._ground_truth = ground_truth
@@ -112,6 +110,7 @@ class SampleStream:
         self._imu_publisher = imu_publisher
         self._temperature_publisher = temperature_publisher
         self._acceleration_covariance = acceleration_covariance
+        self._process_tuning = process_tuning
         self._rate_covariance = None
         self._temperature = Temperature()
         if triad.thermal is not None:
@@ -204,7 +203,8 @@ class SampleStream:
         """Compute a batch every ``stream.batch_s`` until stopped (thread target)."""
         # The warm-up and the first batch run at the process's priority and with Python's
         # default switch interval: the first sample waits for them, and the pacer has
-        # nothing to publish yet. From then on this thread yields to the pacer.
+        # nothing to publish yet. From then on this thread yields to the pacer (and the
+        # process, if it asked for it, switches the GIL sooner: process_tuning).
         yielding = False
         try:
             self._warm_up()
@@ -223,7 +223,8 @@ class SampleStream:
                                                   throttle_duration_sec=5.0)
             if not yielding:
                 # Before the first sample's instant (the margin of the first batch).
-                sys.setswitchinterval(SWITCH_INTERVAL_S)
+                if self._process_tuning is not None:
+                    self._process_tuning.streaming()
                 lower_thread_priority()
                 yielding = True
             if fast:
@@ -253,14 +254,10 @@ class SampleStream:
         first_batch_s = per_sample_s * lead_s * self._values['sample_rate_hz']
         self._first_margin_ns = int(min(lead_s, FIRST_MARGIN_S
                                         + FIRST_MARGIN_FACTOR * first_batch_s) * NS_PER_S)
-        # rclpy, numba and the model leave ~1.3e5 long-lived objects: a full collection
-        # walks them all holding the GIL (~90 ms here, every sample of it late), and one
-        # comes whenever enough new objects survive (the recorder's). Frozen, they are
-        # left out of every collection; this process runs one node, so they live as long.
-        # Only the young generations are collected first: a full collection here walks
-        # them all too, before the first sample, and finds no more garbage.
-        gc.collect(1)
-        gc.freeze()
+        # Before the grid is anchored: a process running only this node freezes its
+        # start-up objects here (ProcessTuning.warmed), a collection that holds the GIL.
+        if self._process_tuning is not None:
+            self._process_tuning.warmed()
 
     def _step(self):
         """Compute one batch, or one slice of a fast schedule; return True for the latter."""

@@ -27,9 +27,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
 from qfa_ros.model.error_truth import error_truth
-from qfa_ros.model.gyro import DEG_PER_HOUR
-from qfa_ros.model.noise import MICRO_G
 from qfa_ros.model.triad import NS_PER_S
+from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G, PPM
 
 TRUTH_FRAME_ID = 'enu_origin'
 """Frame of ``truth/odometry``: the ENU tangent plane at ``truth/origin``."""
@@ -82,7 +81,7 @@ class TruthPublisher:
 
     def __init__(self, node, lock, triad, values, stream):
         self._node = node
-        self._lock = lock
+        self._lock = lock  # the node lock: the model and the stream's grid are read under it
         self._triad = triad
         self._values = values
         self._stream = stream
@@ -185,7 +184,7 @@ class TruthPublisher:
         if index is not None:
             stamp_ns = int(self._stream.grid.stamp_ns(index))
         kind = marked_kind or self._last_kind or _changed(self._fingerprint, words)
-        scale = (np.diag(truth.accel_matrix) - np.diag(before.accel_matrix)) / 1e-6
+        scale = (np.diag(truth.accel_matrix) - np.diag(before.accel_matrix)) / PPM
         bias = (truth.accel_bias - before.accel_bias) / MICRO_G
         gyro = np.nan_to_num(truth.gyro_bias - before.gyro_bias) / DEG_PER_HOUR
         values = [('kind', kind), ('stamp_ns', str(stamp_ns)),
