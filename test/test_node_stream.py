@@ -189,6 +189,9 @@ def test_sigterm_closes_the_recording_cleanly(setup):
         assert counts['/imu/data_raw'] > 10000
         assert counts['/imu/temperature'] > 100
         assert counts['/diagnostics'] >= 10
+        # The truth an INS developer replays the recording against (truth.rate_hz 10 Hz).
+        assert counts['/truth/imu_errors'] > 50 and counts['/truth/odometry'] > 50
+        assert counts['/truth/origin'] >= 1  # and again at each new input (orientation)
         connection = next(c for c in reader.connections if c.topic == '/imu/data_raw')
         _, _, raw = next(reader.messages(connections=[connection]))
         message = reader.deserialize(raw, connection.msgtype)
@@ -200,6 +203,9 @@ def test_sigterm_closes_the_recording_cleanly(setup):
     offered = BagSource(files[0]).topics['/imu/data_raw'].offered_qos
     assert [(q['history'], q['depth'], q['reliability']) for q in offered] == \
         [('keep_last', 10000, 'reliable')]
+    # A late subscriber of the replayed origin still gets it: latched as published.
+    origin, = BagSource(files[0]).topics['/truth/origin'].offered_qos
+    assert (origin['durability'], origin['depth']) == ('transient_local', 1)
 
 
 @pytest.mark.parametrize('parameters, words', [

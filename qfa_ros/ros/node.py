@@ -110,7 +110,6 @@ class QfaNode(Node):
             temperature_publisher.topic_name: offered_qos(temperature_publisher.qos_profile),
             '/diagnostics': QosProfile(depth=10),
             self._calibrated_publisher.topic_name: QOS_LATCHED})
-        self._recording.restart()
 
         self._ground_truth = GroundTruthInput(values)
         variance = published_acceleration_variance(self._triad.config)
@@ -132,7 +131,11 @@ class QfaNode(Node):
                                                        self._stream.last_temperature)),
             ('input', lambda: self._ground_truth.status(self.get_clock().now().nanoseconds)),
         ])
-        self._truth = TruthPublisher(self, self._lock, self._triad, values, self._stream)
+        self._truth = TruthPublisher(self, self._lock, self._triad, values, self._stream,
+                                     self._recording)
+        # Opened once every recorded topic is known (the truth's too).
+        self._recording.offer(self._truth.offered_qos())
+        self._recording.restart()
         services = CalibrationServices(self, self._lock, values, self._schedules, self._keeper,
                                        self._truth, self.publish_calibrated)
         self._stream.on_schedule_end = self._truth.chain(services.schedule_done.trigger)

@@ -92,6 +92,11 @@ class StreamRecording:
         """Return the file being written, or None between files."""
         return None if self.recorder is None else self.recorder.current_path
 
+    def offer(self, qos):
+        """Add the offered QoS of more topics (``{topic: QosProfile}``), from the next file on."""
+        with self.lock:
+            self._qos = {**self._qos, **qos}
+
     def _stop(self, problem, level):
         self.problem, self.problem_level = problem, level
         self._node.get_logger().error(problem)

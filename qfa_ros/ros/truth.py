@@ -26,6 +26,7 @@ import numpy as np
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
+from qfa_ros.bag.qos import QOS_LATCHED, QosProfile
 from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G, PPM
@@ -36,6 +37,9 @@ POSE_MODES = ('static', 'trajectory')
 """Input modes with a pose on the Earth (``profile`` scripts a specific force only)."""
 EVENT_DEPTH = 20
 """Calibration events a late subscriber still gets (transient local)."""
+TYPES = {'events': 'diagnostic_msgs/msg/DiagnosticStatus', 'odometry': 'nav_msgs/msg/Odometry',
+         'origin': 'sensor_msgs/msg/NavSatFix', 'errors': 'sensor_msgs/msg/Imu'}
+"""The message type of each truth publisher, as the flight recorder writes it."""
 
 
 def _stamp(message_stamp, time_ns):
@@ -77,10 +81,14 @@ class TruthPublisher:
     :param values: The node's live parameter values (``truth.*``, ``frame_id``,
         ``input.mode``, ``hardware_id``).
     :param stream: The :class:`~qfa_ros.ros.stream.SampleStream` (its grid and schedule).
+    :param recording: The :class:`~qfa_ros.ros.recording.StreamRecording`: what is published
+        is recorded too, while a flight recording runs (:meth:`offered_qos` gives it the
+        topics' QoS).
     """
 
-    def __init__(self, node, lock, triad, values, stream):
+    def __init__(self, node, lock, triad, values, stream, recording):
         self._node = node
+        self._recording = recording
         self._lock = lock  # the node lock: the model and the stream's grid are read under it
         self._triad = triad
         self._values = values
@@ -171,12 +179,22 @@ class TruthPublisher:
                         profile, t, stamp_ns, frame_id)))
         # Published outside the lock: the middleware must not hold up the sensor thread.
         for kind, message in messages:
-            if kind == 'event':
-                self.events.publish(message)
+            kind = 'events' if kind == 'event' else kind
+            self._recording.publish(getattr(self, kind), message, TYPES[kind])
+            if kind == 'events':
                 self.event_count += 1
             else:
-                getattr(self, kind).publish(message)
                 self.published += 1
+
+    def offered_qos(self):
+        """Return the QoS (:class:`~qfa_ros.bag.qos.QosProfile`) of each truth topic."""
+        topics = {self.events.topic_name: QosProfile(depth=EVENT_DEPTH,
+                                                     durability='transient_local')}
+        if self.enabled:
+            topics[self.odometry.topic_name] = QosProfile(depth=10)
+            topics[self.errors.topic_name] = QosProfile(depth=10)
+            topics[self.origin.topic_name] = QOS_LATCHED
+        return topics
 
     def _event(self, words, truth, stamp_ns):
         before = self._before
