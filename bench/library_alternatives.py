@@ -27,23 +27,8 @@ from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
 from qfa_ros.model.design import COEF_FRAC_BITS, design_controller, LinearLoop
-from qfa_ros.model.trajectory import dcm_to_quaternion, euler_to_dcm
+from qfa_ros.model.trajectory import dcm_to_quaternion, euler_to_dcm, quaternion_to_dcm
 from qfa_ros.model.triad import TriadConfig
-
-
-def quaternion_to_dcm(quaternion):
-    """
-    Return the rotation matrix of unit quaternions (x, y, z, w), shape (..., 3, 3).
-
-    The helper model/trajectory.py had until the node took scipy's instead (kept here to
-    repeat the comparison).
-    """
-    x, y, z, w = np.moveaxis(np.asarray(quaternion, dtype=float), -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)],
-        -2)
 
 
 def per_call_us(function, repeat):
@@ -73,8 +58,11 @@ def rotations(repeat, rng):
     half = np.column_stack([near * math.cos(5e-10), np.full(count, math.sin(5e-10))])
     angles = rng.uniform(-math.pi, math.pi, size=(count, 3))
     angles[:, 1] /= 2.0
+    # Exact half turns: w = 0 (the copysign formula read the signs off vanishing differences).
+    exact_half = np.column_stack([near, np.zeros(count)])
     rows = []
-    for name, q in (('random', reference), ('near a half turn', half)):
+    for name, q in (('random', reference), ('near a half turn', half),
+                    ('exact half turn', exact_half)):
         matrix = Rotation.from_quat(q).as_matrix()
         rows.append((f'DCM -> quaternion, {name}', same_rotation_error(
             dcm_to_quaternion(matrix), q), same_rotation_error(
@@ -86,6 +74,8 @@ def rotations(repeat, rng):
     scipy_euler = Rotation.from_euler('ZYX', angles[:, ::-1]).as_matrix()
     rows.append(('Euler -> DCM, random (difference between the two)',
                  float(np.max(np.abs(euler - scipy_euler))), 0.0))
+    print(f'importing scipy.spatial.transform after numpy, scipy.linalg, numba and rclpy '
+          f'(median of 5 fresh interpreters): {spatial_import_seconds():.3f} s\n')
     print('| rotation | hand-written: largest error | scipy Rotation: largest error |')
     print('|---|---|---|')
     for name, own, library in rows:
@@ -150,6 +140,15 @@ class AnalyticLoop:
 
         corner = brentq(excess, math.pi / 3, math.pi, xtol=1e-15)  # |T| > 0.71 below
         return (w * hz, 90.0 - 1.5 * math.degrees(w), -20.0 * math.log10(k), corner * hz)
+
+
+def spatial_import_seconds():
+    """Return what importing scipy.spatial.transform adds to the node's imports [s]."""
+    script = ('import time, numpy, scipy.linalg, numba, rclpy\nstart = time.perf_counter()\n'
+              'import scipy.spatial.transform\nprint(time.perf_counter() - start)')
+    times = [float(subprocess.run([sys.executable, '-c', script], capture_output=True,
+                                  text=True, check=True).stdout) for _ in range(5)]
+    return float(np.median(times))
 
 
 def import_seconds(module):

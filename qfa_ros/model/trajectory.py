@@ -72,16 +72,42 @@ def euler_to_dcm(roll, pitch, yaw):
 
 
 def dcm_to_quaternion(dcm):
-    """Return the unit quaternion (x, y, z, w) of rotation matrices (..., 3, 3)."""
+    """
+    Return the unit quaternion (x, y, z, w), ``w >= 0``, of rotation matrices (..., 3, 3).
+
+    Shepperd's method: the component of largest magnitude comes from the diagonal, the
+    other three from sums and differences of the off-diagonal pairs divided by it, so
+    every rotation, a half turn included, keeps full precision and its signs (reading
+    each sign off a difference that vanishes at a half turn gives another rotation).
+    """
     m = np.asarray(dcm, dtype=float)
-    w = 0.5 * np.sqrt(np.maximum(0.0, 1.0 + m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]))
-    x = 0.5 * np.sqrt(np.maximum(0.0, 1.0 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2]))
-    y = 0.5 * np.sqrt(np.maximum(0.0, 1.0 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2]))
-    z = 0.5 * np.sqrt(np.maximum(0.0, 1.0 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]))
-    x = np.copysign(x, m[..., 2, 1] - m[..., 1, 2])
-    y = np.copysign(y, m[..., 0, 2] - m[..., 2, 0])
-    z = np.copysign(z, m[..., 1, 0] - m[..., 0, 1])
-    return np.stack([x, y, z, w], axis=-1)
+    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    # 4 x^2, 4 y^2, 4 z^2, 4 w^2
+    squares = np.stack([1.0 + 2.0 * m[..., 0, 0] - trace, 1.0 + 2.0 * m[..., 1, 1] - trace,
+                        1.0 + 2.0 * m[..., 2, 2] - trace, 1.0 + trace], axis=-1)
+    xy, xz, yz = m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0], \
+        m[..., 1, 2] + m[..., 2, 1]
+    xw, yw, zw = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], \
+        m[..., 1, 0] - m[..., 0, 1]
+    # Row k: 4 q_k (x, y, z, w), for k = x, y, z, w.
+    rows = np.stack([np.stack([squares[..., 0], xy, xz, xw], axis=-1),
+                     np.stack([xy, squares[..., 1], yz, yw], axis=-1),
+                     np.stack([xz, yz, squares[..., 2], zw], axis=-1),
+                     np.stack([xw, yw, zw, squares[..., 3]], axis=-1)], axis=-2)
+    largest = np.argmax(squares, axis=-1)[..., None, None]
+    q = np.take_along_axis(rows, largest, axis=-2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., 3:] < 0.0, -q, q)
+
+
+def quaternion_to_dcm(quaternion):
+    """Return the rotation matrix of unit quaternions (x, y, z, w), shape (..., 3, 3)."""
+    x, y, z, w = np.moveaxis(np.asarray(quaternion, dtype=float), -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)],
+        -2)
 
 
 def ecef_to_enu_matrix(latitude, longitude):

@@ -4,9 +4,9 @@ import math
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from qfa_ros.model import earth
+from qfa_ros.model.trajectory import quaternion_to_dcm
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.params import static_profile
 
@@ -115,7 +115,9 @@ class GroundTruthInput:
             self.rejected += 1
             self.problem = f'bad ground-truth odometry rejected: {values}'
             return
-        dcm = Rotation.from_quat(np.asarray(orientation) / norm).as_matrix()
+        # Hand-written, not scipy's Rotation: importing scipy.spatial costs the node's
+        # start-up 0.1 s (bench/results/library_alternatives.md).
+        dcm = quaternion_to_dcm(np.asarray(orientation) / norm)
         velocity = dcm @ np.asarray(linear, dtype=float)
         acceleration = np.zeros(3)
         if self._odometry is not None and time_ns > self._odometry[0]:
