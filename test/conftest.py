@@ -3,10 +3,14 @@
 The header also names the ROS domain range of the node tests (``QFA_TEST_DOMAINS``,
 default 1-100; ``node_helpers.domain_id``).
 
+The suite runs on up to two pytest-xdist workers, one test file at a time each
+(``pytest.ini``: ``-n auto --maxprocesses 2 --dist loadfile``; ``-n 0`` runs it in one
+process); each worker gets its own share of the domain range.
+
 A shared CI machine is often busy. ``--busy-cores 1`` (or ``QFA_TEST_BUSY_CORES=1``)
 starts one pure-Python busy loop per core in its own process before the first test and
-kills it at the end of the session, so that the timing and DDS tests can be checked
-under that load on any machine.
+kills it at the end of the session (the controller does, not each xdist worker), so that
+the timing and DDS tests can be checked under that load on any machine.
 """
 
 import os
@@ -44,6 +48,8 @@ def pytest_configure(config):
     if not 0 <= low <= high <= 232:
         raise pytest.UsageError(f'QFA_TEST_DOMAINS must be LOW-HIGH with 0 <= LOW <= HIGH '
                                 f'<= 232 (ROS domain ids), not {text!r}')
+    if hasattr(config, 'workerinput'):
+        return  # a pytest-xdist worker: the controller keeps the cores busy for the run
     for _ in range(busy_cores(config)):
         _BUSY_LOOPS.append(subprocess.Popen(
             [sys.executable, '-c', 'while True: pass'],

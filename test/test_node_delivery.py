@@ -1,6 +1,7 @@
 """Delivery as a sensor-data subscriber sees it: each sample at its instant, skips announced."""
 
 import ctypes
+import os
 from pathlib import Path
 import signal
 import struct
@@ -120,22 +121,27 @@ def test_sensor_data_subscriber_loses_no_sample(setup):
 
 def test_the_threads_that_work_ahead_yield_the_cpu_to_the_pacer(setup):
     # The sensor and recording threads run at niceness + BACKGROUND_NICE; the pacer and
-    # the executor (the process's main thread) do not.
+    # the executor (the process's main thread) do not. The node inherits the niceness of
+    # this process (a suite run under `nice` starts above 0); the kernel caps it at 19.
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    if base + 1 > 19:
+        pytest.skip(f'this process runs at niceness {base}: nothing can run nicer')
     pid = setup['node'].process.pid
     setup['client'].spin_until(lambda: len(setup['everything'].stamps) > 10, 60, 'the stream')
     niceness = {}
     for task in Path(f'/proc/{pid}/task').iterdir():
         fields = (task / 'stat').read_text().rsplit(')', 1)[1].split()
         niceness[int(task.name)] = int(fields[16])
-    assert niceness[pid] == 0
-    assert sorted(niceness.values()).count(BACKGROUND_NICE) >= 2, niceness
-    # The pacer (niceness 0) asked for the shortest time slice, where the kernel has them.
+    assert niceness[pid] == base
+    assert sorted(niceness.values()).count(min(base + BACKGROUND_NICE, 19)) >= 2, niceness
+    # The pacer (the base niceness) asked for the shortest time slice, where the kernel has
+    # them.
     if not kernel_grants_short_slices():
         pytest.skip('this kernel has no per-thread time slice (Linux < 6.12)')
     slices = {tid: time_slice_ns(Path(f'/proc/{pid}/task/{tid}')) for tid in niceness}
     short = [tid for tid, value in slices.items() if value == PACER_SLICE_NS]
     assert len(short) == 1, slices
-    assert niceness[short[0]] == 0
+    assert niceness[short[0]] == base
 
 
 def time_slice_ns(task):
