@@ -3,6 +3,10 @@
 The header also names the ROS domain range of the node tests (``QFA_TEST_DOMAINS``,
 default 1-100; ``node_helpers.domain_id``).
 
+Every numba kernel is compiled into its cache once at the start of the session
+(``kernel_warmup.py``, two processes beside the workers' collection); each test process
+waits for that before its first test.
+
 The suite runs on up to two pytest-xdist workers, one test file at a time each
 (``pytest.ini``: ``-n auto --maxprocesses 2 --dist loadfile``; ``-n 0`` runs it in one
 process); each worker gets its own share of the domain range.
@@ -14,12 +18,19 @@ the timing and DDS tests can be checked under that load on any machine.
 """
 
 import os
+from pathlib import Path
+import shutil
 import subprocess
 import sys
+import tempfile
 
+from kernel_warmup import PARTS, wait_for_warmup
 import pytest
 
 _BUSY_LOOPS = []
+_WARMUP = []
+WARMUP_ENV = 'QFA_TEST_WARMUP_DIR'
+"""Where the kernel warm-up's done files go (set by the controller, read by the workers)."""
 
 
 def pytest_addoption(parser):
@@ -54,6 +65,22 @@ def pytest_configure(config):
         _BUSY_LOOPS.append(subprocess.Popen(
             [sys.executable, '-c', 'while True: pass'],
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    # The numba kernels compiled once into their cache, while the workers collect.
+    directory = tempfile.mkdtemp(prefix='qfa_kernel_warmup_')
+    os.environ[WARMUP_ENV] = directory
+    script = Path(__file__).with_name('kernel_warmup.py')
+    for part in PARTS:
+        _WARMUP.append(subprocess.Popen(
+            [sys.executable, str(script), part, str(Path(directory) / f'{part}.done')],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+
+
+@pytest.fixture(scope='session', autouse=True)
+def compiled_kernels():
+    """Wait for the kernel warm-up of the session (kernel_warmup.py) before the first test."""
+    directory = os.environ.get(WARMUP_ENV)
+    if directory:
+        wait_for_warmup(directory)
 
 
 def pytest_report_header(config):
@@ -71,3 +98,9 @@ def pytest_unconfigure(config):
         process = _BUSY_LOOPS.pop()
         process.kill()
         process.wait()
+    while _WARMUP:
+        process = _WARMUP.pop()
+        process.kill()
+        process.wait()
+    if os.environ.get(WARMUP_ENV) and not hasattr(config, 'workerinput'):
+        shutil.rmtree(os.environ.pop(WARMUP_ENV), ignore_errors=True)

@@ -1,0 +1,66 @@
+"""
+Compile every numba kernel into its on-disk cache once, before the tests need them.
+
+``python test/kernel_warmup.py PART DONE_FILE`` runs one part and then writes its exit
+status to ``DONE_FILE``. The suite's controller (``conftest.py``) starts both parts side
+by side at the start of the session; each test process waits for them before its first
+test (:func:`wait_for_warmup`), so that on a fresh checkout the kernels are compiled
+once, not by each pytest-xdist worker and each node or ``qfa-sim`` subprocess that
+happened to start before another had written the cache (the trajectory kernels alone
+take ~14 CPU-s). Nothing here is a test: a failed warm-up only means the tests compile
+the kernels themselves, and fail there if a kernel is broken.
+
+Parts (each the suite's host-CPU signatures; ``bench/suite_time.py`` shows the gain):
+
+- ``trajectory``: a trajectory run (the ``trajectory_means`` kernels, the loop, gyros);
+- ``static``: a static run with its Allan summary (loop, gyros, thermal) and the CORDIC.
+"""
+
+import os
+from pathlib import Path
+import sys
+import time
+
+PARTS = ('trajectory', 'static')
+
+
+def run(part):
+    """Run the workload of ``part``, which calls each of its kernels once."""
+    from qfa_ros.cli.sim import main
+    if part == 'trajectory':
+        return main(['trajectory', '--duration', '60', '--rate', '100'])
+    import numpy as np
+
+    from qfa_ros.calibration.cordic import CordicExp
+    status = main(['static', '--duration', '1'])
+    CordicExp(m_bits=16, n_bits=8).exp_parts_array(np.arange(5))
+    return status
+
+
+def done_files(directory):
+    """Return the done file of each part in ``directory``."""
+    return [Path(directory) / f'{part}.done' for part in PARTS]
+
+
+def wait_for_warmup(directory, timeout_s=300.0):
+    """Wait until every part has written its done file (or ``timeout_s`` passed)."""
+    deadline = time.monotonic() + timeout_s
+    while not all(path.exists() for path in done_files(directory)):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.1)
+    return True
+
+
+if __name__ == '__main__':
+    name, done = sys.argv[1], Path(sys.argv[2])
+    status = 1
+    try:
+        with open(os.devnull, 'w') as quiet:
+            sys.stdout = quiet  # the summaries are not wanted
+            status = run(name)
+    finally:
+        sys.stdout = sys.__stdout__
+        temporary = done.with_suffix('.tmp')
+        temporary.write_text(f'{status}\n')
+        temporary.rename(done)
