@@ -9,7 +9,8 @@ waits for that before its first test.
 
 The suite runs on up to two pytest-xdist workers, one test file at a time each
 (``pytest.ini``: ``-n auto --maxprocesses 2 --dist loadfile``; ``-n 0`` runs it in one
-process); each worker gets its own share of the domain range.
+process), the longest files first (:data:`LONGEST_FIRST`); each worker gets its own share
+of the domain range.
 
 A shared CI machine is often busy. ``--busy-cores 1`` (or ``QFA_TEST_BUSY_CORES=1``)
 starts one pure-Python busy loop per core in its own process before the first test and
@@ -73,6 +74,23 @@ def pytest_configure(config):
         _WARMUP.append(subprocess.Popen(
             [sys.executable, str(script), part, str(Path(directory) / f'{part}.done')],
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+
+
+LONGEST_FIRST = (
+    'test_ins.py', 'test_node_services.py', 'test_node_lifecycle.py', 'test_node_fuzz.py',
+    'test_fleet.py', 'test_replay.py', 'test_bags.py', 'test_node_stream.py',
+    'test_recorder.py', 'test_node_delivery.py', 'test_loop_model.py',
+    'test_node_security.py', 'test_trust_boundary.py', 'test_node_truth.py',
+    'test_report.py', 'test_tempfit.py', 'test_node_gyro_bias.py', 'test_docs.py')
+"""The files that take longest, longest first (bench/results/suite_time.md): started first,
+so that no worker is left alone with one at the end (``--no-loadscope-reorder`` keeps this
+order). A stale list costs time, never a test."""
+
+
+def pytest_collection_modifyitems(session, config, items):
+    rank = {name: index for index, name in enumerate(LONGEST_FIRST)}
+    # A stable sort: the tests of one file stay in the order written.
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 
 
 @pytest.fixture(scope='session', autouse=True)
