@@ -15,7 +15,8 @@ of the domain range.
 A shared CI machine is often busy. ``--busy-cores 1`` (or ``QFA_TEST_BUSY_CORES=1``)
 starts one pure-Python busy loop per core in its own process before the first test and
 kills it at the end of the session (the controller does, not each xdist worker), so that
-the timing and DDS tests can be checked under that load on any machine.
+the timing and DDS tests can be checked under that load on any machine; the busy cores
+are not given xdist workers (:func:`pytest_xdist_auto_num_workers`).
 """
 
 import os
@@ -74,6 +75,15 @@ def pytest_configure(config):
         _WARMUP.append(subprocess.Popen(
             [sys.executable, str(script), part, str(Path(directory) / f'{part}.done')],
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+
+
+def pytest_xdist_auto_num_workers(config):
+    """Use the cores that ``--busy-cores`` leaves free (at least one; pytest.ini caps at 2).
+
+    Two workers on two cores already give each timing test one busy core beside it, the
+    load the suite is checked under; a busy loop on top would make it two.
+    """
+    return max(1, (os.cpu_count() or 1) - busy_cores(config))
 
 
 LONGEST_FIRST = (
