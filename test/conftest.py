@@ -33,6 +33,8 @@ _BUSY_LOOPS = []
 _WARMUP = []
 WARMUP_ENV = 'QFA_TEST_WARMUP_DIR'
 """Where the kernel warm-up's done files go (set by the controller, read by the workers)."""
+WARMUP_PIDS_ENV = 'QFA_TEST_WARMUP_PIDS'
+"""The warm-up processes: a worker stops waiting for one that ended without its file."""
 
 
 def pytest_addoption(parser):
@@ -75,6 +77,7 @@ def pytest_configure(config):
         _WARMUP.append(subprocess.Popen(
             [sys.executable, str(script), part, str(Path(directory) / f'{part}.done')],
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    os.environ[WARMUP_PIDS_ENV] = ' '.join(str(process.pid) for process in _WARMUP)
 
 
 def pytest_xdist_auto_num_workers(config):
@@ -108,7 +111,7 @@ def compiled_kernels():
     """Wait for the kernel warm-up of the session (kernel_warmup.py) before the first test."""
     directory = os.environ.get(WARMUP_ENV)
     if directory:
-        wait_for_warmup(directory)
+        wait_for_warmup(directory, [int(pid) for pid in os.environ[WARMUP_PIDS_ENV].split()])
 
 
 def pytest_report_header(config):
@@ -132,3 +135,4 @@ def pytest_unconfigure(config):
         process.wait()
     if os.environ.get(WARMUP_ENV) and not hasattr(config, 'workerinput'):
         shutil.rmtree(os.environ.pop(WARMUP_ENV), ignore_errors=True)
+        os.environ.pop(WARMUP_PIDS_ENV, None)

@@ -52,14 +52,28 @@ def done_files(directory):
     return [Path(directory) / f'{part}.done' for part in PARTS]
 
 
-def wait_for_warmup(directory, timeout_s=300.0):
-    """Wait until every part has written its done file (or ``timeout_s`` passed)."""
+def running(pid):
+    """Return whether process ``pid`` is running (not gone, not a zombie)."""
+    try:
+        state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != 'Z'
+
+
+def wait_for_warmup(directory, pids, timeout_s=300.0):
+    """
+    Wait until each part has written its done file or ended without one (it crashed).
+
+    Give up after ``timeout_s``; return whether every part wrote its done file.
+    """
     deadline = time.monotonic() + timeout_s
-    while not all(path.exists() for path in done_files(directory)):
-        if time.monotonic() > deadline:
-            return False
+    while time.monotonic() < deadline:
+        done = [path.exists() for path in done_files(directory)]
+        if all(done) or not any(running(pid) for pid in pids):
+            return all(path.exists() for path in done_files(directory))
         time.sleep(0.1)
-    return True
+    return False
 
 
 if __name__ == '__main__':
