@@ -73,11 +73,33 @@ def domain_id(tag):
     on one machine (two work trees) never share a domain. Tags get consecutive ids in the
     order they are first asked for (a hash of the tag collided in a range of 13), so the
     nodes of one test never share a domain while the run uses fewer tags than the range.
+    Each pytest-xdist worker draws from its own part of the range (:func:`worker_domains`).
     """
-    low, high = (int(part) for part in os.environ.get('QFA_TEST_DOMAINS', '1-100').split('-'))
+    low, high = worker_domains()
     span = high - low + 1
     index = _DOMAIN_TAGS.setdefault(tag, len(_DOMAIN_TAGS))
     return low + (os.getpid() * 7 + index) % span
+
+
+def worker_domains():
+    """
+    Return ``(low, high)``: the domain ids this test process may use.
+
+    ``QFA_TEST_DOMAINS`` split into equal disjoint parts, one per pytest-xdist worker
+    (``PYTEST_XDIST_WORKER`` ``gw<i>`` of ``PYTEST_XDIST_WORKER_COUNT``), so that two
+    workers' nodes never meet; the whole range without xdist.
+    """
+    low, high = (int(part) for part in os.environ.get('QFA_TEST_DOMAINS', '1-100').split('-'))
+    worker = os.environ.get('PYTEST_XDIST_WORKER')
+    if worker:
+        count = int(os.environ['PYTEST_XDIST_WORKER_COUNT'])
+        share = (high - low + 1) // count
+        if share < 1:
+            raise ValueError(f'QFA_TEST_DOMAINS {low}-{high} has fewer ids than the '
+                             f'{count} pytest-xdist workers')
+        low += int(worker.removeprefix('gw')) * share
+        high = low + share - 1
+    return low, high
 
 
 _DOMAIN_TAGS = {}

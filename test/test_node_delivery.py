@@ -121,9 +121,11 @@ def test_sensor_data_subscriber_loses_no_sample(setup):
 
 def test_the_threads_that_work_ahead_yield_the_cpu_to_the_pacer(setup):
     # The sensor and recording threads run at niceness + BACKGROUND_NICE; the pacer and
-    # the executor (the process's main thread) keep the niceness the node inherited from
-    # this process (the suite may run under `nice`; niceness stops at 19).
+    # the executor (the process's main thread) do not. The node inherits the niceness of
+    # this process (a suite run under `nice` starts above 0); the kernel caps it at 19.
     base = os.getpriority(os.PRIO_PROCESS, 0)
+    if base + 1 > 19:
+        pytest.skip(f'this process runs at niceness {base}: nothing can run nicer')
     pid = setup['node'].process.pid
     setup['client'].spin_until(lambda: len(setup['everything'].stamps) > 10, 60, 'the stream')
     niceness = {}
@@ -132,7 +134,8 @@ def test_the_threads_that_work_ahead_yield_the_cpu_to_the_pacer(setup):
         niceness[int(task.name)] = int(fields[16])
     assert niceness[pid] == base
     assert sorted(niceness.values()).count(min(base + BACKGROUND_NICE, 19)) >= 2, niceness
-    # The pacer (niceness 0) asked for the shortest time slice, where the kernel has them.
+    # The pacer (the base niceness) asked for the shortest time slice, where the kernel has
+    # them.
     if not kernel_grants_short_slices():
         pytest.skip('this kernel has no per-thread time slice (Linux < 6.12)')
     slices = {tid: time_slice_ns(Path(f'/proc/{pid}/task/{tid}')) for tid in niceness}

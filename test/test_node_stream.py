@@ -208,13 +208,39 @@ def test_sigterm_closes_the_recording_cleanly(setup):
     assert (origin['durability'], origin['depth']) == ('transient_local', 1)
 
 
-@pytest.mark.parametrize('parameters, words', [
+INVALID_STARTS = [
     ({'sample_rate_hz': -1000.0}, 'sample_rate_hz'),
     ({'sample_rate_hz': 3000.0, 'loop_rate_hz': 10000.0}, 'integer multiple'),
-])
-def test_invalid_start_parameters_stop_the_node_with_the_reason(tmp_path, parameters, words):
+]
+
+
+def test_invalid_start_parameters_stop_the_node_with_the_reason(tmp_path):
+    # One real start (the process's exit path); each refusal's reason in process below.
+    parameters, words = INVALID_STARTS[0]
     node = NodeProcess(domain_id('start' + str(parameters)), tmp_path, parameters)
     status = node.wait(60)
     assert status == 2
     assert words in node.log()
     assert '[FATAL]' in node.log(), 'not through the ROS logger'
+
+
+@pytest.mark.parametrize('parameters, words', INVALID_STARTS)
+def test_invalid_start_parameters_are_refused_by_the_node_with_the_reason(
+        tmp_path, parameters, words):
+    # What the process above reports: the ValueError of the node's constructor (qfa_node
+    # turns it into status 2 and one [FATAL] line).
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+
+    from qfa_ros.ros.node import QfaNode
+
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id('start in process'))
+    try:
+        with pytest.raises(ValueError, match=words):
+            QfaNode(context=context, parameter_overrides=[
+                Parameter('output_dir', value=str(tmp_path)), Parameter('state_file', value=''),
+                *(Parameter(name, value=value) for name, value in parameters.items())])
+    finally:
+        rclpy.try_shutdown(context=context)

@@ -35,7 +35,8 @@ ROSDEP_KEYS = {
 # (qfa-fleet) use them, and they come from requirements/tools.txt with pip.
 PIP_ONLY = {'dask', 'distributed', 'pyarrow'}
 TEST_KEYS = {'pytest': 'python3-pytest', 'pytest-timeout': 'python3-pytest-timeout',
-             'ruff': 'python3-ruff-pip', 'hypothesis': 'python3-hypothesis'}
+             'pytest-xdist': 'python3-pytest-xdist', 'ruff': 'python3-ruff-pip',
+             'hypothesis': 'python3-hypothesis'}
 
 
 def imported_modules(paths):
@@ -95,6 +96,8 @@ def test_test_dependencies_are_declared_as_the_tests_use_them():
     ini.read(ROOT / 'pytest.ini')
     if int(ini['pytest'].get('timeout', '0')) > 0:
         used.add('pytest-timeout')  # the plugin enforces pytest.ini's timeout
+    if '-n' in ini['pytest'].get('addopts', '').split():
+        used.add('pytest-xdist')  # the plugin runs pytest.ini's workers
     assert set(TEST_KEYS) <= used, f'declared, not used: {set(TEST_KEYS) - used}'
 
 
