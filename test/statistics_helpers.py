@@ -32,6 +32,23 @@ def variance_ratio_bounds(edf, checks, probability=FALSE_FAILURE):
     return float(chi2.ppf(tail, edf) / edf), float(chi2.isf(tail, edf) / edf)
 
 
+def assert_variance_ratios(ratios, edf, checks):
+    """
+    Check estimated over true variances, each and pooled, against their chi-square bounds.
+
+    ``ratios`` has one row per estimate (a seed and axis) and one column per ``edf``
+    entry (a tau); every estimate is checked with its column's ``edf``, the column mean
+    with ``edf`` times the rows. ``checks`` is the number of checks the test makes in all.
+    """
+    import numpy as np
+    ratios = np.asarray(ratios, dtype=float).reshape(len(ratios), -1)
+    for column, dof in zip(ratios.T, np.broadcast_to(edf, ratios.shape[1:])):
+        low, high = variance_ratio_bounds(dof, checks)
+        assert np.all((low < column) & (column < high)), (dof, low, high, column)
+        low, high = variance_ratio_bounds(dof * len(column), checks)
+        assert low < column.mean() < high, (dof, low, high, column.mean())
+
+
 def allan_edf_white(samples, m):
     """Return Greenhall's equivalent degrees of freedom of an overlapping AVAR, white FM."""
     import allantools
