@@ -30,6 +30,10 @@ from qfa_ros.model.design import COEF_FRAC_BITS, design_controller, LinearLoop
 from qfa_ros.model.trajectory import dcm_to_quaternion, euler_to_dcm, quaternion_to_dcm
 from qfa_ros.model.triad import TriadConfig
 
+SPATIAL = 'scipy.spatial.transform'
+NODE_IMPORTS = 'numpy, scipy.linalg, numba, rclpy'
+"""What the node process has imported by the time it would import scipy.spatial."""
+
 
 def per_call_us(function, repeat):
     """Return the median time of ``function()`` over ``repeat`` calls [us]."""
@@ -75,7 +79,7 @@ def rotations(repeat, rng):
     rows.append(('Euler -> DCM, random (difference between the two)',
                  float(np.max(np.abs(euler - scipy_euler))), 0.0))
     print(f'importing scipy.spatial.transform after numpy, scipy.linalg, numba and rclpy '
-          f'(median of 5 fresh interpreters): {spatial_import_seconds():.3f} s\n')
+          f'(median of 5 fresh interpreters): {import_seconds(SPATIAL, NODE_IMPORTS, 5):.3f} s\n')
     print('| rotation | hand-written: largest error | scipy Rotation: largest error |')
     print('|---|---|---|')
     for name, own, library in rows:
@@ -142,22 +146,18 @@ class AnalyticLoop:
         return (w * hz, 90.0 - 1.5 * math.degrees(w), -20.0 * math.log10(k), corner * hz)
 
 
-def spatial_import_seconds():
-    """Return what importing scipy.spatial.transform adds to the node's imports [s]."""
-    script = ('import time, numpy, scipy.linalg, numba, rclpy\nstart = time.perf_counter()\n'
-              'import scipy.spatial.transform\nprint(time.perf_counter() - start)')
-    times = [float(subprocess.run([sys.executable, '-c', script], capture_output=True,
-                                  text=True, check=True).stdout) for _ in range(5)]
-    return float(np.median(times))
+def import_seconds(module, after='numpy, scipy.signal', repeat=1):
+    """
+    Return how long importing ``module`` takes in a fresh interpreter [s].
 
-
-def import_seconds(module):
-    """Return how long importing ``module`` takes in a fresh interpreter [s]."""
-    script = (f'import time, numpy, scipy.signal\nstart = time.perf_counter()\n'
+    ``after`` is imported first (what the caller already has loaded); the median of
+    ``repeat`` interpreters.
+    """
+    script = (f'import time, {after}\nstart = time.perf_counter()\n'
               f'import {module}\nprint(time.perf_counter() - start)')
-    result = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
-                            check=True)
-    return float(result.stdout)
+    times = [float(subprocess.run([sys.executable, '-c', script], capture_output=True,
+                                  text=True, check=True).stdout) for _ in range(repeat)]
+    return float(np.median(times))
 
 
 def margins(repeat):
