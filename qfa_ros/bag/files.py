@@ -2,17 +2,24 @@
 Durable MCAP files: written under ``NAME.mcap.part``, published atomically.
 
 A :class:`PartFile` is the unbuffered stream the mcap ``Writer`` writes into, so the
-operating system holds every complete chunk; :func:`publish_part` gives a finished file
-its final name without replacing anything; :func:`fsync_directory` makes that rename
-durable; :func:`iter_part_messages` salvages what a crash left in a ``.part`` file.
+operating system holds every complete chunk, and holds an exclusive ``flock`` on it while
+it is written, so that no recovery (:mod:`qfa_ros.bag.recovery`) touches a file someone
+is still writing; :func:`make_durable` fsyncs what was written so far without any lock of
+the writer's; :func:`publish_part` gives a finished file its final name without replacing
+anything; :func:`fsync_directory` makes that rename durable; :func:`iter_part_messages`
+salvages what a crash left in a ``.part`` file.
 """
 
 import errno
+import fcntl
 import os
+import stat
 
 from qfa_ros.model.files import write_atomically
 
 PART_SUFFIX = '.part'
+METADATA_FILE = 'metadata.yaml'
+"""A rosbag2 bag directory's metadata file."""
 
 
 class RecorderError(OSError):
@@ -30,6 +37,8 @@ class PartFile:
             self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
         except OSError as error:
             raise os_error_with_context(error, 'cannot create MCAP file', path) from None
+        # Held until the file is closed (or the process dies): a recovery leaves it alone.
+        lock_exclusively(self._fd, wait=True)
 
     def write(self, data):
         view = memoryview(data)
@@ -64,6 +73,48 @@ class PartFile:
     def __del__(self):
         # An abandoned writer must not leak its descriptor; the .part file stays as is.
         self.close()
+
+
+def lock_exclusively(descriptor, wait):
+    """
+    Take an exclusive ``flock`` on ``descriptor``; return whether it is held.
+
+    The lock is the writer's mark "in use": the kernel drops it when the descriptor is
+    closed or the process dies, so a killed writer leaves no stale lock behind. With
+    ``wait`` false, a lock someone else holds returns False at once. A file system without
+    ``flock`` (some network file systems) returns True: nothing can be told there.
+    """
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+    except BlockingIOError:
+        return False
+    except OSError as error:
+        if error.errno in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL):
+            return True
+        raise
+    return True
+
+
+def make_durable(paths):
+    """
+    Make what was written to ``paths`` so far durable (``fdatasync``, ``fsync`` for a directory).
+
+    Each path is opened anew (no symlink followed), so the call needs no lock of the
+    writer's and may run beside it; a path already gone (a ``.part`` renamed by
+    ``finish()``, which synced it itself) is skipped.
+    """
+    for path in paths:
+        try:
+            descriptor = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+        except FileNotFoundError:
+            continue
+        try:
+            if stat.S_ISDIR(os.fstat(descriptor).st_mode):
+                os.fsync(descriptor)
+            else:
+                os.fdatasync(descriptor)
+        finally:
+            os.close(descriptor)
 
 
 def os_error_with_context(error, what, path):

@@ -13,7 +13,7 @@ from qfa_ros.bag.bag_directory import (
     split_file_name,
     write_bag_metadata,
 )
-from qfa_ros.bag.files import os_error_with_context, RecorderError
+from qfa_ros.bag.files import lock_exclusively, os_error_with_context, RecorderError
 from qfa_ros.bag.types import as_time_ns, canonical_type, definition_of
 from qfa_ros.bag.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE, McapBagWriter
 from qfa_ros.model.files import fsync_directory
@@ -30,10 +30,16 @@ class FlightRecorder:
     complete, standalone rosbag2 MCAP file, written and published like ``McapBagWriter``
     writes them (``NAME_i.mcap.part`` until finished). Every time a file is finished,
     ``metadata.yaml`` is replaced atomically by one listing every finished file, so the
-    directory is a valid bag of all finished files at any moment (after a crash too; the
-    ``.part`` of the file in progress can be salvaged with ``iter_part_messages``). A
-    file is opened on the first message after the previous one closed, so no empty
-    files; a session without messages leaves no directory.
+    directory is a valid bag of all finished files at any moment. A file is opened on the
+    first message after the previous one closed, so no empty files; a session without
+    messages leaves no directory.
+
+    Crash safety: whoever records calls :meth:`flush` every fraction of a second (the
+    node: every 0.25 s), which writes the chunk in progress and names what to fsync, so
+    after a kill or a power cut the ``.part`` holds every message up to the last flush
+    (the last fsync). ``qfa-report recover DIR`` (:mod:`qfa_ros.bag.recovery`) then
+    finishes it and rewrites ``metadata.yaml``. The bag directory is ``flock``-ed from its
+    creation to :meth:`close`, so that no recovery touches a recording in progress.
 
     Parameters
     ----------
@@ -106,8 +112,13 @@ class FlightRecorder:
         self._registered = set()
         self._file_start_ns = None
         # Protects the current writer and file, _registered, _file_start_ns, _index, the
-        # file list, the metadata and _closed: record and close may come from two threads.
+        # file list, the metadata, _unsynced_directory, _directory_lock and _closed:
+        # record, flush and close may come from several threads.
         self._lock = threading.Lock()
+        # The locked bag directory's descriptor (held from its creation to close()).
+        self._directory_lock = None
+        # Whether a file was created since the last flush(): its directory entry is synced.
+        self._unsynced_directory = False
         self._closed = False
         self.files = []
 
@@ -219,6 +230,16 @@ class FlightRecorder:
                 continue
             except OSError as error:
                 raise os_error_with_context(error, 'cannot create bag directory', path) from None
+            # Locked before any file is in it: a recovery that finds it unlocked finds it
+            # empty (and leaves it so).
+            descriptor = os.open(path, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW
+                                 | os.O_CLOEXEC)
+            try:
+                lock_exclusively(descriptor, wait=True)
+            except BaseException:
+                os.close(descriptor)
+                raise
+            self._directory_lock = descriptor
             fsync_directory(self.directory)
             self.bag_directory = path
             return
@@ -236,6 +257,7 @@ class FlightRecorder:
         self._index += 1
         self._registered = set()
         self._file_start_ns = time_ns
+        self._unsynced_directory = True
 
     def _finish_current(self):
         writer, self._writer = self._writer, None
@@ -243,6 +265,26 @@ class FlightRecorder:
         self._file_metadata.append(writer.bag_metadata())
         write_bag_metadata(self.bag_directory, merge_bag_metadata(
             self._file_metadata, self._storage_metadata))
+
+    def flush(self):
+        """
+        Write the chunk in progress of the current file; return what to fsync.
+
+        Returns
+        -------
+        list of pathlib.Path
+            The ``.part`` file (and the bag directory after a new file appeared in it),
+            for :func:`~qfa_ros.bag.files.make_durable`, called once no lock is held;
+            empty between files.
+        """
+        with self._lock:
+            if self._writer is None:
+                return []
+            paths = [self._writer.flush()]
+            if self._unsynced_directory:
+                self._unsynced_directory = False
+                paths.append(self.bag_directory)
+            return paths
 
     def close(self):
         """Finish the current file and the bag's ``metadata.yaml``; idempotent.
@@ -255,6 +297,11 @@ class FlightRecorder:
         with self._lock:
             if not self._closed:
                 self._closed = True
-                if self._writer is not None:
-                    self._finish_current()
+                try:
+                    if self._writer is not None:
+                        self._finish_current()
+                finally:
+                    if self._directory_lock is not None:
+                        descriptor, self._directory_lock = self._directory_lock, None
+                        os.close(descriptor)
             return list(self.files)

@@ -131,6 +131,8 @@ class TraceWriter:
     -----
     Leaving the ``with`` block by an exception aborts the trace (only the
     ``.part`` file remains), so a trace under its final name is always complete.
+    The settings, each table and the result end a chunk: a trace cut short by a
+    kill keeps every one written before it (``qfa-report recover``).
     """
 
     def __init__(self, path, *, namespace='/qfa/trace', source='qfa_ros', compression='zstd',
@@ -204,6 +206,7 @@ class TraceWriter:
         self._bag.add_topic(topic, 'diagnostic_msgs/msg/DiagnosticArray', QOS_LATCHED)
         self._bag.write(topic, self._status_array(name, mapping, time_ns, level, summary),
                         time_ns)
+        self._bag.flush()
 
     def write_settings(self, settings, time_ns, *, summary='settings'):
         """Record the estimation settings as KeyValue pairs on ``<ns>/settings``.
@@ -280,6 +283,7 @@ class TraceWriter:
         }
         for row, row_time in zip(matrix.tolist(), times.tolist()):
             self._bag.write(topic, {'layout': layout, 'data': row}, row_time)
+        self._bag.flush()
         return rows
 
     def write_message(self, name, msgtype, message, time_ns, *, qos=None):

@@ -17,7 +17,12 @@ Durability rules (:mod:`qfa_ros.bag.files`):
 - Data reaches the operating system one whole chunk at a time (the MCAP writer
   buffers a chunk in memory and this module writes with unbuffered ``os.write``),
   so after a crash the ``.part`` file holds every complete chunk and is readable
-  with a streaming MCAP reader (or ``mcap recover``) up to the last one.
+  with a streaming MCAP reader up to the last one; ``qfa-report recover``
+  (:mod:`qfa_ros.bag.recovery`) makes it a finished file. A chunk ends at
+  ``chunk_size`` or at ``flush()``, which a continuous recording calls every fraction
+  of a second so that a crash loses no more than that.
+- The ``.part`` file is ``flock``-ed while it is written: a recovery never touches
+  a file in use.
 - Creation, write and finish failures raise ``OSError`` subclasses naming the
   file; the final name is never touched after a failure.
 
@@ -58,6 +63,7 @@ from qfa_ros.model.files import fsync_directory
 
 __all__ = [
     'DEFAULT_CHUNK_SIZE',
+    'file_bag_metadata',
     'McapBagWriter',
 ]
 
@@ -79,6 +85,61 @@ MESSAGE_OVERHEAD = 47
 # topic-independent part of the rosbag2 metadata YAML.
 _BASE_FINISH_OVERHEAD = 1200
 _TOPIC_RE = re.compile(r'^/?[A-Za-z_~][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
+
+
+def file_bag_metadata(name, topics, first_time_ns, last_time_ns, custom_data=None,
+                      ros_distro=ROS_DISTRO):
+    """
+    Return the rosbag2 ``BagMetadata`` mapping (version 9) of one MCAP file.
+
+    Parameters
+    ----------
+    name : str
+        The file name (``relative_file_paths``).
+    topics : list of tuple
+        ``(topic, msgtype, offered QoS YAML, type hash, message count)`` per topic.
+    first_time_ns, last_time_ns : int or None
+        Log times of the first and last message [ns]; None without messages.
+    custom_data : mapping, optional
+        rosbag2 ``custom_data``.
+    ros_distro : str
+        Distribution the bag says it was recorded with.
+    """
+    start = first_time_ns or 0
+    duration = 0 if first_time_ns is None else last_time_ns - start
+    message_count = sum(topic[4] for topic in topics)
+    return {
+        'version': BAG_METADATA_VERSION,
+        'storage_identifier': 'mcap',
+        'duration': {'nanoseconds': duration},
+        'starting_time': {'nanoseconds_since_epoch': start},
+        'message_count': message_count,
+        'topics_with_message_count': [
+            {
+                'topic_metadata': {
+                    'name': topic,
+                    'type': msgtype,
+                    'serialization_format': 'cdr',
+                    'offered_qos_profiles': yaml.safe_load(qos_yaml) if qos_yaml else [],
+                    'type_description_hash': type_hash,
+                },
+                'message_count': count,
+            }
+            for topic, msgtype, qos_yaml, type_hash, count in topics
+        ],
+        # Chunk compression is storage-internal; rosbag2 leaves these empty for it.
+        'compression_format': '',
+        'compression_mode': '',
+        'relative_file_paths': [name],
+        'files': [{
+            'path': name,
+            'starting_time': {'nanoseconds_since_epoch': start},
+            'duration': {'nanoseconds': duration},
+            'message_count': message_count,
+        }],
+        'custom_data': dict(custom_data) if custom_data else None,
+        'ros_distro': ros_distro,
+    }
 
 
 @dataclasses.dataclass
@@ -437,41 +498,11 @@ class McapBagWriter:
 
     def bag_metadata(self):
         """Return the rosbag2 ``BagMetadata`` mapping (version 9) for what is written so far."""
-        start = self._first_time_ns or 0
-        duration = 0 if self._first_time_ns is None else self._last_time_ns - start
-        name = self.path.name
-        return {
-            'version': BAG_METADATA_VERSION,
-            'storage_identifier': 'mcap',
-            'duration': {'nanoseconds': duration},
-            'starting_time': {'nanoseconds_since_epoch': start},
-            'message_count': self._message_count,
-            'topics_with_message_count': [
-                {
-                    'topic_metadata': {
-                        'name': topic,
-                        'type': entry.msgtype,
-                        'serialization_format': 'cdr',
-                        'offered_qos_profiles': yaml.safe_load(entry.qos_yaml),
-                        'type_description_hash': entry.type_hash,
-                    },
-                    'message_count': entry.message_count,
-                }
-                for topic, entry in self._topics.items()
-            ],
-            # Chunk compression is storage-internal; rosbag2 leaves these empty for it.
-            'compression_format': '',
-            'compression_mode': '',
-            'relative_file_paths': [name],
-            'files': [{
-                'path': name,
-                'starting_time': {'nanoseconds_since_epoch': start},
-                'duration': {'nanoseconds': duration},
-                'message_count': self._message_count,
-            }],
-            'custom_data': dict(self._custom_data) or None,
-            'ros_distro': self._ros_distro,
-        }
+        return file_bag_metadata(
+            self.path.name,
+            [(topic, entry.msgtype, entry.qos_yaml, entry.type_hash, entry.message_count)
+             for topic, entry in self._topics.items()],
+            self._first_time_ns, self._last_time_ns, self._custom_data, self._ros_distro)
 
     def add_metadata(self, name, record):
         """
@@ -526,6 +557,27 @@ class McapBagWriter:
                 ) from error
             self._state = 'finished'
             return self.path
+
+    def flush(self):
+        """
+        Write the chunk in progress to the file now, compressed and indexed like any other.
+
+        Called every fraction of a second, it bounds what a crash can lose to what came
+        after the last call: the ``.part`` file then holds complete chunks up to it
+        (:mod:`qfa_ros.bag.recovery` makes them a finished file). Without a message since
+        the last chunk, nothing is written.
+
+        Returns
+        -------
+        pathlib.Path
+            The ``.part`` file, to hand to :func:`~qfa_ros.bag.files.make_durable` once no
+            lock is held (an fsync may take long).
+        """
+        with self._lock:
+            self._check_open('flush')
+            self._guarded(self._writer.flush)
+            self._account(0)
+        return self.part_path
 
     def abort(self):
         """Stop writing without publishing; the ``.part`` file keeps the complete chunks."""

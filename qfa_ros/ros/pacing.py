@@ -44,9 +44,11 @@ never slower than the stream."""
 RECORD_PERIOD_S = 0.25
 """How often the recording thread writes what was published meanwhile [s].
 
-Longer runs cost less per message (1.0 against 1.4 % of a core at 1 kHz, side by side,
-with 0.05 s); nothing waits on them, since a chunk (~2 s at 1 kHz) reaches the disk only
-when it is full, and stopping or restarting the recording writes what is queued first."""
+Each time it also ends the chunk in progress and fsyncs the file
+(:meth:`~qfa_ros.ros.recording.StreamRecording.checkpoint`), so a kill or a power cut loses
+at most what was published in the last period or so (``docs/node.md``, *Flight
+recorder*). Longer runs cost less per message (1.0 against 1.4 % of a core at 1 kHz, side
+by side, with 0.05 s); stopping or restarting the recording writes what is queued first."""
 
 IDLE_PERIOD_S = 1.0
 """How often the recording thread wakes while nothing is recorded [s]."""
@@ -386,3 +388,6 @@ class RecordingQueue:
                                   else IDLE_PERIOD_S):
             if self._queue:
                 self.flush()
+            if self._recording.active:
+                # What the executor recorded too (diagnostics, truth), chunk and fsync.
+                self._recording.checkpoint()

@@ -7,7 +7,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.serialization import serialize_message
 
-from qfa_ros.bag.files import RecorderError
+from qfa_ros.bag.files import make_durable, RecorderError
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.bounds import confined_directory
 
@@ -149,6 +149,31 @@ class StreamRecording:
             if files:
                 self._node.get_logger().info(
                     f'recorded bag {recorder.bag_directory} ({len(files)} file(s))')
+
+    def checkpoint(self):
+        """
+        End the chunk in progress and fsync the recording (the recording thread, periodically).
+
+        The fsync runs outside every lock: a disk that holds it up delays only the
+        recording thread, never a ``record`` call from the executor. A failure stops the
+        recording with a WARN, as a failed write does.
+        """
+        with self.lock:
+            if self.recorder is None:
+                return
+            recorder = self.recorder
+            try:
+                paths = recorder.flush()
+            except (OSError, ValueError) as error:
+                self._stop(f'recording stopped: {error}', DiagnosticStatus.WARN)
+                return
+        try:
+            make_durable(paths)
+        except OSError as error:
+            with self.lock:
+                if self.recorder is recorder:
+                    self._stop(f'recording stopped: fsync failed: {error}',
+                               DiagnosticStatus.WARN)
 
     def record(self, topic, msgtype, data, now_ns):
         """Record serialized ``data``; on failure or low free space stop recording and say why."""
