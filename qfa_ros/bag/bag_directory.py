@@ -8,11 +8,17 @@ This is the layout ``ros2 bag record -o NAME`` makes with the MCAP storage plugi
 
 import datetime
 
-from qfa_ros.bag.files import write_text_atomically
+from qfa_ros.bag.files import METADATA_FILE, write_text_atomically
 from qfa_ros.bag.qos import dump_yaml
 from qfa_ros.bag.writer import BAG_METADATA_VERSION, ROS_DISTRO
 
-METADATA_FILE = 'metadata.yaml'
+__all__ = [
+    'default_bag_name',
+    'merge_bag_metadata',
+    'METADATA_FILE',
+    'split_file_name',
+    'write_bag_metadata',
+]
 
 
 def default_bag_name(prefix, time_ns):

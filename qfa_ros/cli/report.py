@@ -2,6 +2,8 @@
 ``qfa-report BAG... [--out DIR]``: draw PNG figures from traces and scenario bags.
 
 ``qfa-report imu-yaml CONFIG|BAG``: write an ``imu.yaml`` (:mod:`qfa_ros.cli.imu_yaml`).
+``qfa-report recover PATH...``: finish what a killed node left (:mod:`qfa_ros.cli.recover`).
+Both need only the node's packages (``make run``).
 """
 
 import argparse
@@ -20,11 +22,17 @@ def main(argv=None):
     if args[:1] == ['imu-yaml']:
         from qfa_ros.cli.imu_yaml import main as imu_yaml
         return imu_yaml(args[1:])
+    if args[:1] == ['recover']:
+        from qfa_ros.cli.recover import main as recover
+        return recover(args[1:])
     argv = args
     parser = argparse.ArgumentParser(
         prog='qfa-report',
         description='Plot qfa_ros estimation traces and qfa-sim scenario bags as PNG figures '
-                    '(forward/feedback gain, static output, temperature compensation).')
+                    '(forward/feedback gain, static output, temperature compensation).',
+        epilog='Also: `qfa-report imu-yaml CONFIG|BAG` (noise figures for VIO/INS) and '
+               '`qfa-report recover PATH...` (finish the recordings and traces a killed '
+               'node left unfinished).')
     parser.add_argument('bags', nargs='+', metavar='BAG',
                         help='trace .mcap files, scenario bags, or directories of them; '
                              'files given together are combined')

@@ -1,0 +1,212 @@
+"""Kill a writer at an instant, read back what it left, and hold it against a witness.
+
+Used by ``test_recovery.py``, ``test_crash_recording.py`` and ``bench/crash_recording.py``:
+
+- :func:`killed_recording` runs a :class:`FlightRecorder` in a process of its own, fed
+  ``sensor_msgs/Imu`` the way the node feeds it (a flush every 0.25 s of stream), and ends
+  that process with ``os._exit`` mid-file, as a kill would;
+- :func:`read_bag` reads a bag directory back with ``rosbags``' ``AnyReader`` and every
+  file of it with the mcap seeking reader (summary, CRCs), and says whether both agree;
+- :func:`loss` compares the IMU stamps of a bag with those an independent subscriber
+  received, against the instant of the kill.
+"""
+
+import collections
+import dataclasses
+import os
+from pathlib import Path
+import signal
+import struct
+import subprocess
+import sys
+import textwrap
+import time
+
+from mcap.reader import make_reader
+import numpy as np
+from rosbags.highlevel import AnyReader
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+IMU_TOPIC = '/imu/data_raw'
+STAMP = struct.Struct('<iI')
+"""``header.stamp`` (sec, nanosec) right after the 4-byte CDR encapsulation header."""
+LOSS_BOUND_S = 1.0
+"""What a kill may lose: messages published in the last second before it (issue 35)."""
+
+KILLED_RECORDER = textwrap.dedent("""
+    import os, sys
+    import numpy as np
+    from qfa_ros.bag.flight_recorder import FlightRecorder
+    from qfa_ros.bag.imu_cdr import ImuEncoder
+    directory, prefix, count, rate, split_s, session_ns = sys.argv[1:7]
+    count, rate, split_s = int(count), float(rate), float(split_s)
+    recorder = FlightRecorder(directory, prefix, max_duration_ns=int(split_s * 1e9),
+                              session_time_ns=int(session_ns))
+    encoder = ImuEncoder('imu_link', [1e-6, 0, 0, 0, 1e-6, 0, 0, 0, 1e-6])
+    rng = np.random.default_rng(int(session_ns) % 2**32)
+    start, period, batch = int(session_ns), int(1e9 / rate), max(1, int(rate / 4))
+    for first in range(0, count, batch):
+        stamps = start + period * np.arange(first, min(count, first + batch), dtype=np.int64)
+        accel = rng.normal([0.0, 0.0, 9.81], 1e-4, size=(len(stamps), 3))
+        recorder.record_many('/imu/data_raw', 'sensor_msgs/msg/Imu',
+                             encoder.encode(stamps, accel), stamps.tolist())
+        recorder.flush()  # as the node's recording thread does every 0.25 s of stream
+    print(recorder.bag_directory, flush=True)
+    os._exit(9)  # no close(): the .part stays as a kill leaves it
+""")
+
+
+def killed_recording(directory, messages, *, prefix='qfa_node', rate=1000.0, split_s=600.0,
+                     session_ns=1_767_225_600_000_000_000, timeout=600):
+    """
+    Record ``messages`` Imu samples in a process that then dies without closing.
+
+    :returns: The bag directory (its last file a ``.part``).
+    """
+    result = subprocess.run(
+        [sys.executable, '-c', KILLED_RECORDER, str(directory), prefix, str(messages),
+         str(rate), str(split_s), str(session_ns)],
+        cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    assert result.returncode == 9, result.stderr
+    return Path(result.stdout.strip())
+
+
+@dataclasses.dataclass
+class BagContents:
+    """What a bag directory holds, read back by two independent readers."""
+
+    counts: dict
+    """Messages per topic (``AnyReader``)."""
+    imu_stamps: np.ndarray
+    """Header stamps of ``/imu/data_raw`` [ns], in log-time order."""
+    last_log_ns: int
+    """Log time of the last message of any topic [ns] (0: none)."""
+    files: int
+    """Files ``metadata.yaml`` lists."""
+
+
+def read_bag(directory):
+    """
+    Read a bag directory (or one MCAP file) with ``AnyReader`` and the mcap seeking reader.
+
+    The seeking reader validates the chunk CRCs and must find as many messages as each
+    file's summary states, and the same IMU stamps as ``AnyReader``; an assertion fails
+    otherwise.
+    """
+    directory = Path(directory)
+    if directory.is_file():
+        with AnyReader([directory]) as reader:
+            counts = collections.Counter(c.topic for c, _, _ in reader.messages())
+        stamps = read_mcap(directory)
+        return BagContents(dict(counts), np.array(stamps, dtype=np.int64), 0, 1)
+    counts = collections.Counter()
+    stamps, last_log = [], 0
+    with AnyReader([directory]) as reader:
+        for connection, log_time, raw in reader.messages():
+            counts[connection.topic] += 1
+            last_log = max(last_log, log_time)
+            if connection.topic == IMU_TOPIC:
+                sec, nanosec = STAMP.unpack_from(raw, 4)
+                stamps.append(sec * 1_000_000_000 + nanosec)
+    metadata = yaml.safe_load((directory / 'metadata.yaml').read_text())
+    files = metadata['rosbag2_bagfile_information']['relative_file_paths']
+    seen = []
+    for name in files:
+        seen += read_mcap(directory / name)
+    assert seen == stamps, 'the mcap seeking reader and AnyReader disagree'
+    assert metadata['rosbag2_bagfile_information']['message_count'] == sum(counts.values())
+    return BagContents(dict(counts), np.array(stamps, dtype=np.int64), last_log, len(files))
+
+
+def read_mcap(path):
+    """Return the IMU stamps of one MCAP file read by the seeking reader (CRCs checked)."""
+    stamps = []
+    with open(path, 'rb') as stream:
+        reader = make_reader(stream, validate_crcs=True)
+        summary = reader.get_summary()
+        messages = 0
+        for _, channel, message in reader.iter_messages(log_time_order=True):
+            messages += 1
+            if channel.topic == IMU_TOPIC:
+                sec, nanosec = STAMP.unpack_from(message.data, 4)
+                stamps.append(sec * 1_000_000_000 + nanosec)
+        assert messages == summary.statistics.message_count, path
+    return stamps
+
+
+@dataclasses.dataclass
+class Loss:
+    """A kill's loss, judged against an independent subscriber's samples."""
+
+    missing: int
+    """Samples the subscriber received that the bag lacks."""
+    missing_before_bound: int
+    """Of them, received ``LOSS_BOUND_S`` or more before the kill: must be 0."""
+    reach_s: float
+    """How far before the kill the loss reaches: from the receipt of the first missing
+    sample to the kill [s] (0 when none is missing); the bound is on this."""
+    last_s: float
+    """From the stamp of the last sample in the bag to the kill [s]: the loss, plus any
+    time the node published nothing (a schedule, a stall of the machine)."""
+    witnessed: int
+    """Samples the subscriber received up to ``LOSS_BOUND_S`` before the kill."""
+
+
+def loss(bag_stamps, received, kill_ns):
+    """
+    Return the :class:`Loss` of a bag against ``received``.
+
+    :param bag_stamps: IMU stamps in the bag [ns].
+    :param received: ``(stamp, receive time)`` pairs of the witness [ns], the receive time
+        on the system clock: a sample received at ``t`` was published before ``t``.
+    :param kill_ns: When SIGKILL was sent (system clock) [ns].
+    """
+    stamps = np.array([stamp for stamp, _ in received], dtype=np.int64)
+    times = np.array([time_ns for _, time_ns in received], dtype=np.int64)
+    missing = ~np.isin(stamps, bag_stamps)
+    early = times <= kill_ns - int(LOSS_BOUND_S * 1e9)
+    last = int(bag_stamps.max()) if len(bag_stamps) else 0
+    reach = (kill_ns - int(times[missing].min())) / 1e9 if missing.any() else 0.0
+    return Loss(int(missing.sum()), int((missing & early).sum()), reach,
+                (kill_ns - last) / 1e9, int(early.sum()))
+
+
+def stop_when(process, predicate, timeout, poll_s=0.001):
+    """
+    SIGSTOP ``process`` as soon as ``predicate()`` is true (polled).
+
+    A stopped process writes nothing more; a SIGKILL then leaves the disk as a kill at the
+    instant of the stop would.
+
+    :returns: When it was stopped (system clock) [ns], or None if ``predicate`` never held
+        (or the process ended) within ``timeout`` seconds.
+    """
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and process.poll() is None:
+        if predicate():
+            stopped = time.time_ns()
+            os.kill(process.pid, signal.SIGSTOP)
+            return stopped
+        time.sleep(poll_s)
+    return None
+
+
+def run_stopped(process, stopped_ns, steps, step_s=0.002, still=lambda: True):
+    """
+    Let a stopped ``process`` run ``steps`` slices of ``step_s`` (SIGCONT, sleep, SIGSTOP).
+
+    Ends early once ``still()`` is false (e.g. the file it was writing is finished). The
+    process is left stopped.
+
+    :returns: When it was last stopped (``stopped_ns`` if it never ran) [ns]: the instant a
+        SIGKILL now stands for.
+    """
+    for _ in range(steps):
+        if not still():
+            break
+        os.kill(process.pid, signal.SIGCONT)
+        time.sleep(step_s)
+        stopped_ns = time.time_ns()
+        os.kill(process.pid, signal.SIGSTOP)
+    return stopped_ns
