@@ -32,6 +32,7 @@ from qfa_ros.ros.runtime_parameters import (
 )
 from qfa_ros.ros.schedules import ScheduleService
 from qfa_ros.ros.services import CalibrationServices
+from qfa_ros.ros.startup_recovery import StartupRecovery
 from qfa_ros.ros.stream import offered_qos, SampleStream
 from qfa_ros.ros.truth import TruthPublisher
 
@@ -53,7 +54,8 @@ class QfaNode(Node):
     services), :class:`CalibrationServices` (the services), :class:`CalibrationKeeper`
     (state and state file), :class:`RuntimeParameters` (parameter changes),
     :class:`GroundTruthInput` with :class:`InputSubscription` (the input topic),
-    :class:`TruthPublisher`, :class:`StreamRecording` and :class:`Diagnostics`. The
+    :class:`TruthPublisher`, :class:`StreamRecording`, :class:`Diagnostics` and
+    :class:`StartupRecovery` (what a killed earlier run left unfinished). The
     executor thread serves parameters, services, diagnostics and the ground-truth input.
 
     :param node_name: Node name.
@@ -168,6 +170,9 @@ class QfaNode(Node):
         self._announce_timer = self.create_timer(
             ANNOUNCE_AFTER_S, self.announce_start, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._stream.start()
+        # What an earlier run left unfinished (a kill, a power cut), in the background.
+        self._startup_recovery = StartupRecovery(self, values)
+        self._startup_recovery.start()
 
     def announce_start(self):
         """Log what the node runs and which calibration state it loaded (once)."""
@@ -194,6 +199,7 @@ class QfaNode(Node):
         in the middleware, holding the lock), the state and the recording are written
         without the lock; nothing else touches them once the stream has stopped ticking.
         """
+        self._startup_recovery.stop(timeout_s)
         self._stream.stop(timeout_s)
         locked = self._lock.acquire(timeout=timeout_s)
         if not locked:

@@ -1,0 +1,159 @@
+"""``kill -9`` of the live node at random instants: its recording and trace are recovered.
+
+Each kill is judged against an independent witness: a subscriber of ``imu/data_raw`` in
+this process, **reliable, keep last 5000**, spun until the kill. Reliable and deep so
+that it receives every sample the node publishes even when this process falls behind for
+a while (a best-effort depth-5 subscriber drops samples of its own on a busy machine, and
+every sample it misses is one the bound is not checked for); spun until the kill so that
+a sample's receive time is close to when it was published. A sample it received one
+second or more before the kill had been published by then, and must be in the recovered
+bag (``crash_helpers.loss``). The random instants come from a seeded generator, printed
+on failure. ``bench/crash_recording.py`` does the same twenty times and more.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from crash_helpers import loss, LOSS_BOUND_S, read_bag, ROOT, run_stopped, stop_when
+from node_helpers import Client, domain_id, NodeProcess
+import numpy as np
+import pytest
+from sensor_msgs.msg import Imu
+from std_srvs.srv import Trigger
+
+from qfa_ros.bag.recovery import unfinished_recordings, unfinished_traces
+
+SHORT_SCHEDULE = {'estimation.realtime': False, 'estimation.forward.points': 3,
+                  'estimation.forward.average_s': 0.1, 'estimation.feedback.average_s': 0.3}
+
+
+class Witness:
+    """The independent subscriber: ``(stamp, receive time)`` of every sample, system clock."""
+
+    def __init__(self, client):
+        self.received = []
+        client.subscribe(Imu, 'imu/data_raw', self.callback, depth=5000)
+
+    def callback(self, message):
+        stamp = message.header.stamp
+        self.received.append((stamp.sec * 1_000_000_000 + stamp.nanosec, time.time_ns()))
+
+    def take(self):
+        received, self.received = self.received, []
+        return received
+
+
+def _kill(node):
+    kill_ns = time.time_ns()
+    os.kill(node.pid, signal.SIGKILL)
+    assert node.wait(30) == -signal.SIGKILL
+    return kill_ns
+
+
+def _assert_within_bound(bag, received, kill_ns, where):
+    contents = read_bag(bag)
+    judged = loss(contents.imu_stamps, received, kill_ns)
+    assert judged.witnessed > 300, f'{where}: too few witnessed samples to judge'
+    assert judged.missing_before_bound == 0, (
+        f'{where}: {judged.missing_before_bound} samples received more than '
+        f'{LOSS_BOUND_S:g} s before the kill are not in the recovered bag ({judged})')
+    assert judged.reach_s < LOSS_BOUND_S, f'{where}: {judged}'
+    return contents
+
+
+def _qfa_report_recover(path):
+    """Run ``qfa-report recover PATH`` as a user would; return what it printed."""
+    result = subprocess.run([sys.executable, '-m', 'qfa_ros.cli.report', 'recover', str(path)],
+                            capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return result.stdout
+
+
+def test_a_killed_recording_is_recovered_by_the_next_start_and_by_qfa_report(tmp_path):
+    rng = np.random.default_rng(35)
+    domain = domain_id('crash_recording')
+    output = tmp_path / 'output'
+    parameters = {'output_dir': str(output), 'state_file': str(output / 'state.json'),
+                  'recorder.enabled': True, 'recorder.max_duration_s': 1.0}
+    recordings = output / 'recordings'
+    client = Client(domain)
+    witness = Witness(client)
+    kills = {}
+    try:
+        for run in ('first', 'second'):
+            node = NodeProcess(domain, tmp_path / run, parameters)
+            try:
+                witness.take()
+                client.spin_until(lambda: witness.received, 120, f"the {run} node's samples")
+                if run == 'second':
+                    # Its start recovered what the first left, and said so.
+                    client.spin_until(lambda: 'earlier run left unfinished' in node.log(), 60,
+                                      'the WARN line of the recovery at start')
+                    line, = [x for x in node.log().splitlines() if 'left unfinished' in x]
+                    assert line.startswith('[WARN]') and str(kills['first'][0]) in line, line
+                    assert 'recovered' in line and 'metadata.yaml lists' in line, line
+                if run == 'first':  # killed after a split: finished files and a .part
+                    client.spin_until(lambda: list(recordings.glob('*/*.mcap')), 60, 'a split')
+                client.spin_for(rng.uniform(1.5, 3.0))
+                kill_ns = _kill(node)
+            finally:
+                node.stop(signal.SIGKILL)
+            bag, = set(unfinished_recordings(recordings, 'qfa_node'))
+            kills[run] = (bag, witness.take(), kill_ns)
+    finally:
+        client.close()
+
+    bag, received, kill_ns = kills['first']
+    contents = _assert_within_bound(bag, received, kill_ns, 'recovered by the next start')
+    assert contents.files >= 2, 'a split before the kill: finished files and the part'
+
+    bag, received, kill_ns = kills['second']
+    report = _qfa_report_recover(output)
+    assert report.startswith(f'{bag}: recovered '), report
+    _assert_within_bound(bag, received, kill_ns, 'recovered by qfa-report recover')
+    assert not unfinished_recordings(recordings, 'qfa_node')
+
+
+@pytest.mark.parametrize('seed', [5, 6])
+def test_a_node_killed_while_writing_a_trace_leaves_it_recoverable(tmp_path, seed):
+    rng = np.random.default_rng(seed)
+    domain = domain_id('crash_trace')
+    output = tmp_path / 'output'
+    traces = output / 'traces'
+    node = NodeProcess(domain, tmp_path, {
+        'output_dir': str(output), 'state_file': str(output / 'state.json'),
+        'recorder.enabled': True, **SHORT_SCHEDULE})
+    client = Client(domain)
+    try:
+        witness = Witness(client)
+        client.spin_until(lambda: witness.received, 120, 'samples')
+        client.spin_for(1.5)
+        client.call_async(Trigger, '/qfa_node/capture_reference', Trigger.Request())
+        # Stopped the moment the trace's .part appears, let run a random number of 2 ms
+        # slices, then killed (a stopped process writes nothing; SIGKILL ends it as it
+        # stands): a kill at a random instant of the trace's writing.
+        stopped_ns = stop_when(node.process, lambda: unfinished_traces(traces), 120)
+        assert stopped_ns, node.log()
+        stopped_ns = run_stopped(node.process, stopped_ns, int(rng.integers(0, 15)),
+                                 still=lambda: unfinished_traces(traces))
+        _kill(node)
+    finally:
+        node.stop(signal.SIGKILL)
+        client.close()
+    parts = unfinished_traces(traces)
+    report = _qfa_report_recover(output)
+    assert not unfinished_traces(traces) and not unfinished_recordings(
+        output / 'recordings', 'qfa_node')
+    trace, = traces.glob('qfa_reference_*.mcap')
+    topics = set(read_bag(trace).counts)
+    # What the kill left of the trace: the topics it writes first (a chunk each).
+    order = ['/qfa/trace/settings', '/qfa/trace/forward/points', '/qfa/trace/forward/residuals',
+             '/qfa/trace/feedback/points', '/qfa/trace/feedback/residuals', '/qfa/trace/result']
+    assert topics == set(order[:len(topics)]), (topics, report)
+    assert parts, 'the kill came after the trace was finished'
+    assert f'{trace}: recovered ' in report, report
+    bag, = (output / 'recordings').iterdir()
+    _assert_within_bound(bag, witness.take(), stopped_ns, 'killed during a trace')
