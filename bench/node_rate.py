@@ -27,7 +27,11 @@ CPU for ~4 ms every ~5.1 s (seen with ``perf sched``).
 Run (quiet machine, full length; then a 10-minute soak of the node, recorder on, for its memory):
 ``python bench/node_rate.py --window 60 --soak 600 --out bench/results/node_rate.md``;
 a quick check: ``python bench/node_rate.py --window 5``. ``--param NAME=VALUE`` passes node
-parameters (e.g. ``stream.batch_s=0.02``). Prints Markdown.
+parameters (e.g. ``stream.batch_s=0.02``). ``--tree LABEL=DIR`` runs another source tree's
+node (an export of an earlier commit, with its numba cache warmed by ``python -m
+qfa_ros.cli.warm_cache`` in it) beside this one's, case after case, and ``--repeat N`` runs
+N rounds: a last table then gives each case's medians side by side (a before/after
+comparison in one run). Prints Markdown.
 """
 
 import argparse
@@ -120,7 +124,7 @@ def start_floor(domain, rate):
                             env=environment(domain), cwd=ROOT, stdout=subprocess.DEVNULL)
 
 
-def start_node(domain, directory, rate, recorder, extra):
+def start_node(domain, directory, rate, recorder, extra, tree=ROOT):
     parameters = {**extra, 'sample_rate_hz': float(rate),
                   'state_file': str(Path(directory) / 'state.json'),
                   'output_dir': str(directory),
@@ -129,9 +133,11 @@ def start_node(domain, directory, rate, recorder, extra):
                   'recorder.directory': str(Path(directory) / 'recordings')}
     params_file = Path(directory) / 'params.yaml'
     params_file.write_text(json.dumps({'qfa_node': {'ros__parameters': parameters}}))
+    # Another source tree's node: its package first on the path (the same interpreter).
+    env = environment(domain) if tree == ROOT else dict(environment(domain), PYTHONPATH=str(tree))
     return subprocess.Popen([sys.executable, '-m', 'qfa_ros.cli.node', '--ros-args',
-                             '--params-file', str(params_file)], env=environment(domain),
-                            cwd=ROOT, stdout=subprocess.DEVNULL)
+                             '--params-file', str(params_file)], env=env,
+                            cwd=tree, stdout=subprocess.DEVNULL)
 
 
 # The machine probe: how long a CPU is taken away from a waking thread ---------------------
@@ -357,7 +363,7 @@ def delivery(stamps, received, rate, freezes=()):
             'max': float(latency.max())}
 
 
-def run_case(domain, kind, rate, recorder, args, window):
+def run_case(domain, kind, rate, recorder, args, window, tree=('', ROOT)):
     """Measure one case over ``window`` seconds; return its result dict."""
     with tempfile.TemporaryDirectory() as directory:
         # The subscribers exist before the publisher: they see its very first samples.
@@ -367,7 +373,7 @@ def run_case(domain, kind, rate, recorder, args, window):
         try:
             started = time.time()
             process = start_floor(domain, rate) if kind == 'floor' \
-                else start_node(domain, directory, rate, recorder, args.param)
+                else start_node(domain, directory, rate, recorder, args.param, tree[1])
             try:
                 subscribers.wait_for('reliable, depth 10', 'ready', 120.0)
                 time.sleep(args.warmup)
@@ -402,7 +408,8 @@ def run_case(domain, kind, rate, recorder, args, window):
     for name, (stamps, times) in received.items():
         inside = (times >= window_start) & (times < window_end)
         windows[name] = (stamps[inside], times[inside])
-    return {'kind': kind, 'rate': rate, 'recorder': recorder, 'cpu': 100.0 * cpu / wall,
+    return {'kind': kind, 'rate': rate, 'recorder': recorder, 'tree': tree[0],
+            'cpu': 100.0 * cpu / wall,
             'window': wall, 'rss': rss_end / 1e6, 'rss_change': (rss_end - rss_start) / 1e6,
             'first_s': first_s, 'startup_p99': float(np.percentile(lateness, 99)),
             'startup_max': float(lateness.max()), 'status': status,
@@ -423,7 +430,45 @@ def label(result):
     if result['kind'] == 'floor':
         return f'floor {result["rate"]:g} Hz'
     text = f'node {result["rate"]:g} Hz' + (', recorder' if result['recorder'] else '')
+    text += f' ({result["tree"]})' if result.get('tree') else ''
     return text + (f', soak {result["window"]:.0f} s' if result.get('soak') else '')
+
+
+def side_by_side(results, trees):
+    """
+    Return the medians of the node cases over the rounds, each tree beside this one.
+
+    Every tree's node ran in the same rounds, case after case, so the machine's state
+    weighs on each alike; the ratios are of medians.
+    """
+    labels = ['this tree'] + [label for label, _ in trees]
+    lines = ['| case | ' + ' | '.join(
+        f'{label}: CPU [% core] / lost depth 5 / lost reliable / p99 [ms]' for label in labels)
+        + ' | ' + ' | '.join(f'CPU this ÷ {label}' for label in labels[1:]) + ' |',
+        '|---|' + '---|' * (len(labels) * 2 - 1)]
+    cases = sorted({(r['rate'], r['recorder']) for r in results if r['kind'] == 'node'
+                    and not r.get('soak')})
+    for rate, recorder in cases:
+        cells, cpu = [], {}
+        for label in labels:
+            runs = [r for r in results if r['kind'] == 'node' and not r.get('soak')
+                    and r['rate'] == rate and r['recorder'] == recorder
+                    and (r.get('tree') or 'this tree') == label]
+            if not runs:
+                cells.append('')
+                continue
+            cpu[label] = np.median([r['cpu'] for r in runs])
+            depth5 = np.median([r['delivery']['best effort, depth 5']['lost'] for r in runs])
+            reliable = np.median([r['delivery']['reliable, depth 10']['lost'] for r in runs])
+            p99 = np.median([r['delivery']['best effort, depth 5']['p99'] for r in runs])
+            cells.append(f'{cpu[label]:.1f} / {depth5:g} / {reliable:g} / {p99:.2f} '
+                         f'({len(runs)} runs)')
+        ratios = [f'{cpu["this tree"] / cpu[label]:.3f}' if label in cpu and 'this tree' in cpu
+                  else '' for label in labels[1:]]
+        lines.append(f'| node {rate:g} Hz{", recorder" if recorder else ""} | '
+                     + ' | '.join(cells + ratios) + ' |')
+    return '\n'.join(lines) + '\n'
+
 
 
 def table(results, args):
@@ -476,6 +521,11 @@ def main():
     parser.add_argument('--soak', type=float, default=0.0,
                         help='then run the node at the first rate this long, with the recorder '
                         'unless --no-recorder [s] (RSS growth)')
+    parser.add_argument('--tree', action='append', default=[], metavar='LABEL=DIR',
+                        help="another source tree's node beside this one's, case by case "
+                        '(e.g. an export of an earlier commit, its numba cache warmed)')
+    parser.add_argument('--repeat', type=int, default=1,
+                        help='rounds of every case; the side-by-side table gives medians')
     parser.add_argument('--out', type=Path, default=None, help='append the Markdown here')
     parser.add_argument('--no-probe', action='store_true', help='skip the machine probe')
     parser.add_argument('--floor', type=float, default=None, help=argparse.SUPPRESS)
@@ -500,17 +550,25 @@ def main():
     low, high = (int(v) for v in os.environ.get('QFA_TEST_DOMAINS', '1-100').split('-'))
     domain = low + os.getpid() % (high - low + 1)
     recorders = (False,) if args.no_recorder else (False, True)
-    for rate in args.rates:
-        for kind, recorder in [('floor', False)] + [('node', r) for r in recorders]:
-            results.append(run_case(domain, kind, rate, recorder, args, args.window))
-            domain = low + (domain + 1 - low) % (high - low + 1)
-            print(f'{label(results[-1])}: done', file=sys.stderr)
+    trees = [(spec.rpartition('=')[0] or spec, Path(spec.rpartition('=')[2]).resolve())
+             for spec in args.tree]
+    for _ in range(args.repeat):
+        for rate in args.rates:
+            cases = [('floor', False, ('', ROOT))] + [
+                ('node', r, tree) for r in recorders for tree in [('', ROOT)] + trees]
+            for kind, recorder, tree in cases:
+                results.append(run_case(domain, kind, rate, recorder, args, args.window,
+                                        tree))
+                domain = low + (domain + 1 - low) % (high - low + 1)
+                print(f'{label(results[-1])}: done', file=sys.stderr)
     if args.soak:
         # The heaviest case soaks: the recorder's buffers and splits are what could grow.
         results.append(run_case(domain, 'node', args.rates[0], not args.no_recorder, args,
                                 args.soak))
         results[-1]['soak'] = True
     text = table(results, args) + ('\n' + probe if probe else '')
+    if trees or args.repeat > 1:
+        text += '\n' + side_by_side(results, trees)
     print(text)
     if args.out:
         with open(args.out, 'a') as stream:
