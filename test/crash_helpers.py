@@ -144,8 +144,9 @@ class Loss:
     missing_before_bound: int
     """Of them, received ``LOSS_BOUND_S`` or more before the kill: must be 0."""
     reach_s: float
-    """How far before the kill the loss reaches: from the receipt of the first missing
-    sample to the kill [s] (0 when none is missing); the bound is on this."""
+    """How far before the kill the loss reaches at most: from the stamp of the first missing
+    sample to the kill [s] (0 when none is missing). An upper bound: the node publishes a
+    sample at its stamp or later (the receipt, a lower bound, may follow the kill)."""
     last_s: float
     """From the stamp of the last sample in the bag to the kill [s]: the loss, plus any
     time the node published nothing (a schedule, a stall of the machine)."""
@@ -167,7 +168,7 @@ def loss(bag_stamps, received, kill_ns):
     missing = ~np.isin(stamps, bag_stamps)
     early = times <= kill_ns - int(LOSS_BOUND_S * 1e9)
     last = int(bag_stamps.max()) if len(bag_stamps) else 0
-    reach = (kill_ns - int(times[missing].min())) / 1e9 if missing.any() else 0.0
+    reach = (kill_ns - int(stamps[missing].min())) / 1e9 if missing.any() else 0.0
     return Loss(int(missing.sum()), int((missing & early).sum()), reach,
                 (kill_ns - last) / 1e9, int(early.sum()))
 

@@ -60,7 +60,6 @@ def _assert_within_bound(bag, received, kill_ns, where):
     assert judged.missing_before_bound == 0, (
         f'{where}: {judged.missing_before_bound} samples received more than '
         f'{LOSS_BOUND_S:g} s before the kill are not in the recovered bag ({judged})')
-    assert judged.reach_s < LOSS_BOUND_S, f'{where}: {judged}'
     return contents
 
 
