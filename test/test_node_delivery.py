@@ -22,6 +22,7 @@ from qfa_ros.ros.pacing import (
     CATCH_UP_BURST,
     CATCH_UP_SPACING_NS,
     PACER_SLICE_NS,
+    RECORDING_NICE,
     request_short_time_slice,
     SCHED_ATTR_SIZE_VER1,
     sched_setattr,
@@ -120,9 +121,10 @@ def test_sensor_data_subscriber_loses_no_sample(setup):
 
 
 def test_the_threads_that_work_ahead_yield_the_cpu_to_the_pacer(setup):
-    # The sensor and recording threads run at niceness + BACKGROUND_NICE; the pacer and
-    # the executor (the process's main thread) do not. The node inherits the niceness of
-    # this process (a suite run under `nice` starts above 0); the kernel caps it at 19.
+    # The sensor thread runs at niceness + BACKGROUND_NICE, the recording thread at
+    # + RECORDING_NICE; the pacer and the executor (the process's main thread) do not. The
+    # node inherits the niceness of this process (a suite run under `nice` starts above
+    # 0); the kernel caps it at 19.
     base = os.getpriority(os.PRIO_PROCESS, 0)
     if base + 1 > 19:
         pytest.skip(f'this process runs at niceness {base}: nothing can run nicer')
@@ -133,7 +135,8 @@ def test_the_threads_that_work_ahead_yield_the_cpu_to_the_pacer(setup):
         fields = (task / 'stat').read_text().rsplit(')', 1)[1].split()
         niceness[int(task.name)] = int(fields[16])
     assert niceness[pid] == base
-    assert sorted(niceness.values()).count(min(base + BACKGROUND_NICE, 19)) >= 2, niceness
+    assert sorted(niceness.values()).count(min(base + BACKGROUND_NICE, 19)) >= 1, niceness
+    assert sorted(niceness.values()).count(min(base + RECORDING_NICE, 19)) >= 1, niceness
     # The pacer (the base niceness) asked for the shortest time slice, where the kernel has
     # them.
     if not kernel_grants_short_slices():

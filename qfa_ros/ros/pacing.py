@@ -57,9 +57,19 @@ BACKGROUND_NICE = 10
 """Niceness added to the threads that work ahead of or behind the pacer (Linux).
 
 The sensor thread computes ``stream.lead_s`` ahead and the recording thread writes what
-was published: neither has a deadline within a sample period, the pacer has. On two busy
-cores the scheduler then lets the waking pacer take the core from them at once, instead
-of after their time slice."""
+was published (at :data:`RECORDING_NICE`): neither has a deadline within a sample period,
+the pacer has. On two busy cores the scheduler then lets the waking pacer take the core
+from them at once, instead of after their time slice."""
+
+RECORDING_NICE = 5
+"""Niceness added to the recording thread (Linux): under the pacer's, over the sensor thread's.
+
+It has a deadline, looser than the pacer's: what was published must be in the file within
+a fraction of a second (the flight recorder's crash bound, ``docs/node.md``), for which it
+needs about 1 % of a core at 1 kHz. At + 10 on a two-core machine loaded 25 deep it got
+about that much and fell behind: one kill in 25 lost samples published 1.3 s before it
+(``bench/results/crash_recording.md``); + 5 triples its share (scheduler weight 335
+against 110) and still lets the waking pacer take the core first."""
 
 
 PACER_SLICE_NS = 100_000
@@ -148,9 +158,9 @@ def request_short_time_slice(slice_ns=PACER_SLICE_NS):
     return sched_setattr(thread, attr)
 
 
-def lower_thread_priority():
+def lower_thread_priority(nice=BACKGROUND_NICE):
     """
-    Lower the calling thread's CPU priority by :data:`BACKGROUND_NICE` (Linux; else no-op).
+    Lower the calling thread's CPU priority by ``nice`` (Linux; else no-op).
 
     Raising one's own niceness needs no privilege; where it is refused the thread keeps
     its priority, which costs latency, not correctness.
@@ -158,7 +168,7 @@ def lower_thread_priority():
     thread = threading.get_native_id()
     try:
         os.setpriority(os.PRIO_PROCESS, thread,
-                       os.getpriority(os.PRIO_PROCESS, thread) + BACKGROUND_NICE)
+                       os.getpriority(os.PRIO_PROCESS, thread) + nice)
     except (AttributeError, OSError):  # not Linux, or refused
         pass
 
@@ -381,7 +391,7 @@ class RecordingQueue:
                 self._recording.record_runs(runs)
 
     def _loop(self):
-        lower_thread_priority()
+        lower_thread_priority(RECORDING_NICE)
         # Without a recording nothing is queued: wake seldom (a recording started meanwhile
         # is written at most IDLE_PERIOD_S later; stop wakes the thread at once).
         while not self._stop.wait(RECORD_PERIOD_S if self._recording.active
