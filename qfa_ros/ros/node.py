@@ -169,15 +169,16 @@ class QfaNode(Node):
         self._stream.on_publishing = self.create_guard_condition(self.announce_start).trigger
         self._announce_timer = self.create_timer(
             ANNOUNCE_AFTER_S, self.announce_start, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self._stream.start()
-        # What an earlier run left unfinished (a kill, a power cut), in the background.
+        # What an earlier run left unfinished (a kill, a power cut), recovered in the
+        # background once the first samples are out (announce_start).
         self._startup_recovery = StartupRecovery(self, values)
-        self._startup_recovery.start()
+        self._stream.start()
 
     def announce_start(self):
-        """Log what the node runs and which calibration state it loaded (once)."""
+        """Log what the node runs and which state it loaded; start the recovery (once)."""
         lines, self._start_lines = self._start_lines, []
         self._announce_timer.cancel()
+        self._startup_recovery.start()
         for line in lines:
             self.get_logger().info(line)
 
