@@ -74,9 +74,11 @@ __all__ = [
 ]
 
 MAGIC = b'\x89MCAP0\r\n'
-MAX_RECORD_BYTES = 256 << 20
-"""Largest record (and chunk, decompressed) recovery reads [bytes]; the recorder's are under
-1 MiB. A larger one ends the scan there, as a cut would."""
+MAX_RECORD_BYTES = 32 << 20
+"""Largest record (and chunk, decompressed) recovery reads [bytes]: the memory one file may
+cost; the recorder's are under 1 MiB. A larger one ends the scan there, as a cut would."""
+MAX_QOS_YAML = 1 << 16
+"""Longest offered-QoS YAML of a channel that is parsed [characters] (the recorder's: ~1 KiB)."""
 UNREADABLE_SUFFIX = '.unreadable'
 """What a ``.part`` that is no MCAP file is renamed to (``NAME.mcap.unreadable``), kept as it
 is and out of the way of the next recovery."""
@@ -441,7 +443,9 @@ def _topics(scan):
 
 
 def _qos_yaml(text):
-    """Return the channel's offered-QoS YAML if it parses as a list, else ''."""
+    """Return the channel's offered-QoS YAML if it is short and parses as a list, else ''."""
+    if len(text) > MAX_QOS_YAML:
+        return ''
     try:
         return text if isinstance(yaml.safe_load(text), list) else ''
     except yaml.YAMLError:
