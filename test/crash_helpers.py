@@ -147,6 +147,9 @@ class Loss:
     """How far before the kill the loss reaches at most: from the stamp of the first missing
     sample to the kill [s] (0 when none is missing). An upper bound: the node publishes a
     sample at its stamp or later (the receipt, a lower bound, may follow the kill)."""
+    reach_receipt_s: float
+    """The same from the receipt of the first missing sample [s]: a lower bound (a receipt
+    follows the publication, and may follow the kill: then it is negative)."""
     last_s: float
     """From the stamp of the last sample in the bag to the kill [s]: the loss, plus any
     time the node published nothing (a schedule, a stall of the machine)."""
@@ -169,7 +172,8 @@ def loss(bag_stamps, received, kill_ns):
     early = times <= kill_ns - int(LOSS_BOUND_S * 1e9)
     last = int(bag_stamps.max()) if len(bag_stamps) else 0
     reach = (kill_ns - int(stamps[missing].min())) / 1e9 if missing.any() else 0.0
-    return Loss(int(missing.sum()), int((missing & early).sum()), reach,
+    receipt = (kill_ns - int(times[missing].min())) / 1e9 if missing.any() else 0.0
+    return Loss(int(missing.sum()), int((missing & early).sum()), reach, receipt,
                 (kill_ns - last) / 1e9, int(early.sum()))
 
 
@@ -193,21 +197,28 @@ def stop_when(process, predicate, timeout, poll_s=0.001):
     return None
 
 
-def run_stopped(process, stopped_ns, steps, step_s=0.002, still=lambda: True):
+def run_stopped(process, stopped_ns, until, limit_s=60.0, step_s=0.002):
     """
-    Let a stopped ``process`` run ``steps`` slices of ``step_s`` (SIGCONT, sleep, SIGSTOP).
+    Let a stopped ``process`` run in slices of ``step_s`` (SIGCONT, sleep, SIGSTOP).
 
-    Ends early once ``still()`` is false (e.g. the file it was writing is finished). The
-    process is left stopped.
+    Stops slicing once ``until()`` is true (checked while the process is stopped), or after
+    ``limit_s`` seconds. The process is left stopped.
 
     :returns: When it was last stopped (``stopped_ns`` if it never ran) [ns]: the instant a
         SIGKILL now stands for.
     """
-    for _ in range(steps):
-        if not still():
-            break
+    deadline = time.monotonic() + limit_s
+    while not until() and time.monotonic() < deadline:
         os.kill(process.pid, signal.SIGCONT)
         time.sleep(step_s)
         stopped_ns = time.time_ns()
         os.kill(process.pid, signal.SIGSTOP)
     return stopped_ns
+
+
+def part_reached(directory, size):
+    """Return a check: no ``.mcap.part`` left in ``directory``, or one of ``size`` bytes."""
+    def reached():
+        parts = list(Path(directory).glob('*.mcap.part'))
+        return not parts or any(part.stat().st_size >= size for part in parts)
+    return reached

@@ -17,7 +17,15 @@ import subprocess
 import sys
 import time
 
-from crash_helpers import loss, LOSS_BOUND_S, read_bag, ROOT, run_stopped, stop_when
+from crash_helpers import (
+    loss,
+    LOSS_BOUND_S,
+    part_reached,
+    read_bag,
+    ROOT,
+    run_stopped,
+    stop_when,
+)
 from node_helpers import Client, domain_id, NodeProcess
 import numpy as np
 import pytest
@@ -131,13 +139,14 @@ def test_a_node_killed_while_writing_a_trace_leaves_it_recoverable(tmp_path, see
         client.spin_until(lambda: witness.received, 120, 'samples')
         client.spin_for(1.5)
         client.call_async(Trigger, '/qfa_node/capture_reference', Trigger.Request())
-        # Stopped the moment the trace's .part appears, let run a random number of 2 ms
-        # slices, then killed (a stopped process writes nothing; SIGKILL ends it as it
-        # stands): a kill at a random instant of the trace's writing.
+        # Stopped the moment the trace's .part appears, let run in 2 ms slices until the
+        # part holds a random number of bytes (a finished trace holds ~17 kB), then killed
+        # (a stopped process writes nothing; SIGKILL ends it as it stands): a kill at a
+        # random point of the trace's writing, whatever the machine's load.
         stopped_ns = stop_when(node.process, lambda: unfinished_traces(traces), 120)
         assert stopped_ns, node.log()
-        stopped_ns = run_stopped(node.process, stopped_ns, int(rng.integers(0, 15)),
-                                 still=lambda: unfinished_traces(traces))
+        stopped_ns = run_stopped(node.process, stopped_ns,
+                                 part_reached(traces, int(rng.uniform(0, 16_000))))
         _kill(node)
     finally:
         node.stop(signal.SIGKILL)
