@@ -753,6 +753,27 @@ def test_flight_recorder_rejects_late_writes_and_keeps_sequence(tmp_path):
         flight.record('/c', 'std_msgs/msg/String', _string_cdr('late'), 1000)
 
 
+def test_flight_recorder_flush_puts_every_message_so_far_in_complete_chunks(tmp_path):
+    """What a kill right after ``flush()`` leaves: every message recorded before it."""
+    with FlightRecorder(tmp_path) as flight:
+        assert flight.flush() == []  # nothing recorded: no file, nothing to sync
+        sent = []
+        for round_ in range(3):
+            for index in range(40):  # far less than a chunk (768 KiB)
+                text = f'round {round_} message {index}'
+                flight.record('/c', 'std_msgs/msg/String', _string_cdr(text), 10**9 + len(sent))
+                sent.append(_string_cdr(text))
+            part = flight.current_path.with_name(flight.current_path.name + '.part')
+            paths = flight.flush()
+            # The .part as a kill now would leave it holds every message, in complete chunks.
+            assert [m.data for _, m in iter_part_messages(part)] == sent
+            # The part to fsync; the bag directory once, after the file appeared in it.
+            assert paths == [part] + ([flight.bag_directory] if round_ == 0 else [])
+        assert flight.flush() == []  # nothing new since: nothing to sync
+    assert [m[3].data for m in _read_all(flight.files[0])] == [
+        f'round {r} message {i}' for r in range(3) for i in range(40)]
+
+
 # --- traces --------------------------------------------------------------------------------
 
 def test_trace_writer_is_self_describing(tmp_path):

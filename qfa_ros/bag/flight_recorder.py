@@ -112,13 +112,15 @@ class FlightRecorder:
         self._registered = set()
         self._file_start_ns = None
         # Protects the current writer and file, _registered, _file_start_ns, _index, the
-        # file list, the metadata, _unsynced_directory, _directory_lock and _closed:
-        # record, flush and close may come from several threads.
+        # file list, the metadata, _unsynced_directory, _flushed_bytes, _directory_lock and
+        # _closed: record, flush and close may come from several threads.
         self._lock = threading.Lock()
         # The locked bag directory's descriptor (held from its creation to close()).
         self._directory_lock = None
         # Whether a file was created since the last flush(): its directory entry is synced.
         self._unsynced_directory = False
+        # Bytes of the current file at the last flush(): an unchanged file needs no fsync.
+        self._flushed_bytes = 0
         self._closed = False
         self.files = []
 
@@ -258,6 +260,7 @@ class FlightRecorder:
         self._registered = set()
         self._file_start_ns = time_ns
         self._unsynced_directory = True
+        self._flushed_bytes = 0
 
     def _finish_current(self):
         writer, self._writer = self._writer, None
@@ -273,14 +276,18 @@ class FlightRecorder:
         Returns
         -------
         list of pathlib.Path
-            The ``.part`` file (and the bag directory after a new file appeared in it),
-            for :func:`~qfa_ros.bag.files.make_durable`, called once no lock is held;
-            empty between files.
+            The ``.part`` file if anything was written to it since the last call (and the
+            bag directory after a new file appeared in it), for
+            :func:`~qfa_ros.bag.files.make_durable`, called once no lock is held; empty
+            between files.
         """
         with self._lock:
             if self._writer is None:
                 return []
-            paths = [self._writer.flush()]
+            part = self._writer.flush()
+            # Nothing written since the last flush (the stream withheld): nothing to sync.
+            paths = [] if self._writer.bytes_written == self._flushed_bytes else [part]
+            self._flushed_bytes = self._writer.bytes_written
             if self._unsynced_directory:
                 self._unsynced_directory = False
                 paths.append(self.bag_directory)
