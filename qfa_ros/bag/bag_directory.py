@@ -33,7 +33,9 @@ def merge_bag_metadata(files, custom_data=None, ros_distro=ROS_DISTRO):
     Parameters
     ----------
     files : list of dict
-        Each file's own metadata (:meth:`McapBagWriter.bag_metadata`), in recording order.
+        Each file's own metadata (:meth:`McapBagWriter.bag_metadata`), or a bag's made
+        by this function (several files), in recording order: a recorder merges each
+        finished file into what it had, so it keeps one ``files`` entry per file.
     custom_data : mapping, optional
         rosbag2 ``custom_data``.
 
@@ -47,12 +49,12 @@ def merge_bag_metadata(files, custom_data=None, ros_distro=ROS_DISTRO):
     entries = []
     starts, ends = [], []
     for meta in files:
-        entry, = meta['files']
-        entries.append(entry)
-        if entry['message_count']:
-            start = entry['starting_time']['nanoseconds_since_epoch']
-            starts.append(start)
-            ends.append(start + entry['duration']['nanoseconds'])
+        for entry in meta['files']:
+            entries.append(entry)
+            if entry['message_count']:
+                start = entry['starting_time']['nanoseconds_since_epoch']
+                starts.append(start)
+                ends.append(start + entry['duration']['nanoseconds'])
         for item in meta['topics_with_message_count']:
             name = item['topic_metadata']['name']
             if name in topics:

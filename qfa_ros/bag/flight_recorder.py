@@ -99,7 +99,10 @@ class FlightRecorder:
         self._base_name = base
         self._check_directory()
         self.bag_directory = None
-        self._file_metadata = []
+        # metadata.yaml as written last: each finished file is merged in as it finishes,
+        # so a recording that splits for days keeps one files entry per file (its whole
+        # metadata, the topics' QoS parsed, was ~12 kB a split).
+        self._metadata = None
         self._index = 0
         self._writer = None
         # (topic, msgtype) pairs registered in the current file: add_topic once per file.
@@ -109,7 +112,6 @@ class FlightRecorder:
         # file list, the metadata and _closed: record and close may come from two threads.
         self._lock = threading.Lock()
         self._closed = False
-        self.files = []
 
     def _check_directory(self):
         if not self.directory.is_dir():
@@ -135,6 +137,14 @@ class FlightRecorder:
         # Unlike a single trace, a continuous recording is valid up to any point: keep it.
         self.close()
         return False
+
+    @property
+    def files(self):
+        """Every file this recorder published so far, in order (in :attr:`bag_directory`)."""
+        metadata = self._metadata
+        if metadata is None:
+            return []
+        return [self.bag_directory / entry['path'] for entry in metadata['files']]
 
     @property
     def current_path(self):
@@ -239,10 +249,12 @@ class FlightRecorder:
 
     def _finish_current(self):
         writer, self._writer = self._writer, None
-        self.files.append(writer.finish())
-        self._file_metadata.append(writer.bag_metadata())
-        write_bag_metadata(self.bag_directory, merge_bag_metadata(
-            self._file_metadata, self._storage_metadata))
+        writer.finish()
+        finished = [writer.bag_metadata()]
+        self._metadata = merge_bag_metadata(
+            finished if self._metadata is None else [self._metadata, *finished],
+            self._storage_metadata)
+        write_bag_metadata(self.bag_directory, self._metadata)
 
     def close(self):
         """Finish the current file and the bag's ``metadata.yaml``; idempotent.
@@ -257,4 +269,4 @@ class FlightRecorder:
                 self._closed = True
                 if self._writer is not None:
                     self._finish_current()
-            return list(self.files)
+            return self.files
