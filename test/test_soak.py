@@ -9,11 +9,14 @@ subscriber in another process.
 
 import gc
 import sys
+import time
 import types
 
 from qfa_ros.bag.flight_recorder import FlightRecorder
 from qfa_ros.bag.qos import QOS_LATCHED, QosProfile
 from qfa_ros.bag.types import encode_message
+from qfa_ros.model.triad import NS_PER_S
+from qfa_ros.ros.pacing import Pacer
 
 T0 = 1_700_000_000_000_000_000
 
@@ -80,3 +83,55 @@ def test_flight_recorder_keeps_one_metadata_entry_per_split(tmp_path):
         assert len(recorder.files) == 19
     assert per_split < 1024, f'the recorder keeps {per_split:.0f} bytes per finished file'
 
+
+class _SystemClockNode:
+    """What the pacer needs of a node: a clock that is the system clock (no use_sim_time)."""
+
+    class _Clock:
+        ros_time_is_active = False
+
+    def get_clock(self):
+        return self._Clock()
+
+
+class _Publisher:
+    topic_name = '/imu/data_raw'
+
+    def __init__(self):
+        self.published = []
+
+    def publish(self, data):
+        self.published.append(data)
+
+
+def test_pacer_drops_what_it_reaches_more_than_a_second_late():
+    """
+    A pacer held up for minutes resumes at the present instead of publishing the backlog.
+
+    Messages it reaches more than a second (pacing.STALE_NS) after their stamp are
+    dropped and counted, those late by less are published (late), the others at their
+    instant. Without the
+    bound, a pacer slower than the stream (tracemalloc on a machine at load 30) held
+    430 s of samples, 150 MB, every one published later than the one before.
+    """
+    publisher = _Publisher()
+    recorded = []
+    pacer = Pacer(_SystemClockNode(), on_published=lambda *args: recorded.append(args[2]))
+    now = time.time_ns()
+    # 2 s of samples 3 to 1.001 s old, then some 0.3 s old, then some due in 50 ms.
+    stale = [(now - 3 * NS_PER_S + i * 1_000_000, publisher, 'sensor_msgs/msg/Imu', b'stale')
+             for i in range(1999)]
+    late = [(now - 300_000_000 + i * 1_000_000, publisher, 'sensor_msgs/msg/Imu', b'late')
+            for i in range(10)]
+    due = [(now + 50_000_000 + i * 1_000_000, publisher, 'sensor_msgs/msg/Imu', b'due')
+           for i in range(10)]
+    pacer.put(stale + late + due)
+    pacer.start()
+    deadline = time.monotonic() + 60.0
+    while len(publisher.published) < 20 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    pacer.stop()
+    assert publisher.published == [b'late'] * 10 + [b'due'] * 10
+    assert recorded == publisher.published
+    assert pacer.dropped == len(stale)
+    assert pacer.published == 20
