@@ -7,12 +7,7 @@ import re
 import threading
 import time
 
-from qfa_ros.bag.bag_directory import (
-    default_bag_name,
-    merge_bag_metadata,
-    split_file_name,
-    write_bag_metadata,
-)
+from qfa_ros.bag.bag_directory import BagMetadata, default_bag_name, split_file_name
 from qfa_ros.bag.files import os_error_with_context, RecorderError
 from qfa_ros.bag.types import as_time_ns, canonical_type, definition_of
 from qfa_ros.bag.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE, McapBagWriter
@@ -99,10 +94,10 @@ class FlightRecorder:
         self._base_name = base
         self._check_directory()
         self.bag_directory = None
-        # metadata.yaml as written last: each finished file is merged in as it finishes,
-        # so a recording that splits for days keeps one files entry per file (its whole
-        # metadata, the topics' QoS parsed, was ~12 kB a split).
-        self._metadata = None
+        # metadata.yaml: each finished file is added as it finishes, so a recording that
+        # splits for days keeps a few hundred bytes per file (its whole metadata, the
+        # topics' QoS parsed, was ~16 kB) and renders only the new file's entry.
+        self._metadata = BagMetadata(self._storage_metadata)
         self._index = 0
         self._writer = None
         # (topic, msgtype) pairs registered in the current file: add_topic once per file.
@@ -141,10 +136,7 @@ class FlightRecorder:
     @property
     def files(self):
         """Every file this recorder published so far, in order (in :attr:`bag_directory`)."""
-        metadata = self._metadata
-        if metadata is None:
-            return []
-        return [self.bag_directory / entry['path'] for entry in metadata['files']]
+        return [self.bag_directory / name for name in self._metadata.file_names]
 
     @property
     def current_path(self):
@@ -250,11 +242,8 @@ class FlightRecorder:
     def _finish_current(self):
         writer, self._writer = self._writer, None
         writer.finish()
-        finished = [writer.bag_metadata()]
-        self._metadata = merge_bag_metadata(
-            finished if self._metadata is None else [self._metadata, *finished],
-            self._storage_metadata)
-        write_bag_metadata(self.bag_directory, self._metadata)
+        self._metadata.add(writer.bag_metadata())
+        self._metadata.write(self.bag_directory)
 
     def close(self):
         """Finish the current file and the bag's ``metadata.yaml``; idempotent.
