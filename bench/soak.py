@@ -801,7 +801,8 @@ def stream_section(stream_rows, gaps, events, node_rows, recorded_gaps, period):
     inside, outside = classify_gaps(gaps, windows)
     # A keep-last-5 reader that took the sample after a hole this long after the node sent
     # it (DDS source timestamp) had the four after it waiting too: it was itself behind.
-    behind = [g for g in outside if int(g['received_ns']) - int(g['published_ns'])
+    behind = [g for g in outside
+              if int(g['received_ns']) - int(g.get('published_ns') or g['after_stamp_ns'])
               >= STARVED_PERIODS * period]
     lost_inside = sum(int(g['missing']) for g in inside)
     lost_outside = sum(int(g['missing']) for g in outside)
@@ -980,12 +981,15 @@ def figure(paths, run, node_rows, stream_rows, t0):
         axes[2].set_yscale('log')
         axes[2].set_ylabel('receive - stamp [ms]')
         axes[2].legend(loc='upper right')
-    axes[3].plot(t_h, column(node_rows, 'load1'), label='load (1 min)')
-    axes[3].plot(t_h[1:], np.diff(column(node_rows, 'cpu_s')) / np.diff(
-        column(node_rows, 'wall_ns') / 1e9), label='node CPU [cores]')
-    axes[3].set_ylabel('cores')
+    axes[3].plot(t_h, column(node_rows, 'load1'), label='machine load (1 min)')
+    axes[3].set_ylabel('load (1 min)')
+    cpu = axes[3].twinx()
+    cpu.plot(t_h[1:], 100 * np.diff(column(node_rows, 'cpu_s')) / np.diff(
+        column(node_rows, 'wall_ns') / 1e9), color='tab:orange', label='node CPU')
+    cpu.set_ylabel('node CPU [% of a core]')
     axes[3].set_xlabel('hours since start')
-    axes[3].legend(loc='upper right')
+    axes[3].legend(loc='upper left')
+    cpu.legend(loc='upper right')
     for axis in axes:
         axis.axvline(warm_h, color='grey', lw=0.8, ls=':')
         axis.grid(alpha=0.3)
