@@ -686,7 +686,7 @@ def readback(paths):
         stamps = np.array(stamps, dtype=np.int64)
         steps = np.diff(stamps) // period - 1
         for index in np.flatnonzero(steps > 0):
-            recorded_gaps.write(['', stamps[index], stamps[index + 1], steps[index]])
+            recorded_gaps.write(['', '', stamps[index], stamps[index + 1], steps[index]])
         if np.any(np.diff(stamps) <= 0) or np.any(np.diff(stamps) % period):
             print(f'soak: {bag}: recorded stamps out of order or off the grid', flush=True)
         try:
