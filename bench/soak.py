@@ -832,7 +832,9 @@ def stream_section(stream_rows, gaps, events, node_rows, recorded_gaps, period):
             f'| the recording (what the pacer published) misses inside pauses | '
             f'{sum(int(g["missing"]) for g in held):,} |',
             f'| **the recording misses outside pauses** ({len(missed)} gaps) | '
-            f'**{sum(int(g["missing"]) for g in missed):,}** |']
+            f'**{sum(int(g["missing"]) for g in missed):,}** |',
+            f'| the node says it skipped, or dropped > 1 s late (samples and temperature '
+            f'readings) | {final.get("skipped", "")} + {final.get("dropped", "")} |']
         lines += ["The recording logs each sample as the node's pacer published it: a sample "
                   'missing at the subscriber but recorded left the node and was lost on the '
                   'way (DDS, or a subscriber starved for more than five sample periods).', '']
@@ -846,6 +848,8 @@ def stream_section(stream_rows, gaps, events, node_rows, recorded_gaps, period):
     low = column(stream_rows, 'offset_min_us')
     slope_p50, error_p50, _ = fit(t_h, p50)
     slope_min, error_min, _ = fit(t_h, low)
+    # The first and last intervals that received samples.
+    low, p50 = low[np.isfinite(low)], p50[np.isfinite(p50)]
     lines += ["Offset of the stamps from the subscriber's system clock (receive time - "
               'stamp, per interval; the node stamps on its grid and publishes when the '
               'system clock reaches the stamp, so this is the delivery delay):', '',
@@ -914,8 +918,9 @@ def disk_section(run, node_rows, t_h, after, files):
              '(one per schedule call).',
              f'- State file: written {written} times (distinct modification times seen), '
              f'readable JSON in {int(np.nansum(readable[present]))} of {int(present.sum())} '
-             f'samples since it was first written, size {np.nanmin(state[present], initial=0):.0f}'
-             f'…{np.nanmax(state[present], initial=0):.0f} bytes.', '']
+             f'samples since it was first written, size '
+             f'{np.min(state[present]) if present.any() else 0:.0f}…'
+             f'{np.max(state[present]) if present.any() else 0:.0f} bytes.', '']
     return lines
 
 
