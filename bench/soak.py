@@ -587,6 +587,7 @@ def soak(args):
         'param_every_s': args.param_every, 'calibrate_every_s': args.calibrate_every,
         'warmup_s': args.warmup_min * 60.0, 'sample_every_s': args.sample_every,
         'tracemalloc': bool(args.tracemalloc),
+        'allocator': {k: v for k, v in os.environ.items() if k.startswith('MALLOC_')},
         'machine': f'{platform.node()}, {os.cpu_count()} CPUs, {platform.machine()}, '
                    f'Linux {platform.release()}, Python {platform.python_version()}',
         'rotation': [name for name, _ in parameter_rotation()]}
@@ -753,6 +754,9 @@ def write_report(paths):
     if run.get('tracemalloc'):
         lines += ['**tracemalloc was on** (bench/soak_hook): the slopes below include '
                   'its own bookkeeping; not a measurement of the node.', '']
+    if run.get('allocator'):
+        lines += ['glibc allocator settings in the environment of the node: '
+                  + ', '.join(f'`{k}={v}`' for k, v in run['allocator'].items()) + '.', '']
     load = column(node_rows, 'load1')
     if len(load):
         lines += [f'Load (1-min average, `os.getloadavg`, every row of `soak.csv`): median '
