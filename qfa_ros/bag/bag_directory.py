@@ -49,38 +49,112 @@ def merge_bag_metadata(files, custom_data=None, ros_distro=ROS_DISTRO):
         Counts and per-topic counts summed, the time span of all files, one ``files``
         entry per file.
     """
-    topics = {}
-    entries = []
-    starts, ends = [], []
+    metadata = BagMetadata(custom_data, ros_distro)
     for meta in files:
-        entry, = meta['files']
-        entries.append(entry)
-        if entry['message_count']:
+        metadata.add(meta)
+    return metadata.as_dict()
+
+
+class BagMetadata:
+    """
+    A bag's ``metadata.yaml``, grown one finished file at a time.
+
+    A recorder that splits for days rewrites it after every file. Rendered whole by PyYAML
+    each time, the document costs time and transient memory in proportion to the files
+    listed (at 1000 files: 1.5 s of CPU and 4.4 MB of Python objects per split, freed to an
+    allocator that keeps them: the node's RSS grew with the bag). Here each file's
+    ``relative_file_paths`` line and ``files`` entry are rendered once, when the file is
+    added, and only the head (counts, time span, topics) is rendered again; the two lists
+    come last in the mapping, which readers take by key (rosbag2, rosbags).
+
+    :param custom_data: rosbag2 ``custom_data`` (mapping), or None.
+    :param ros_distro: The distribution named in the document.
+    """
+
+    def __init__(self, custom_data=None, ros_distro=ROS_DISTRO):
+        self._custom_data = dict(custom_data) if custom_data else None
+        self._ros_distro = ros_distro
+        self._topics = {}
+        self._message_count = 0
+        self._start = self._end = None
+        # Per file: (path, start, duration, message count) and its rendered lines in both
+        # lists (a few hundred bytes a file in all).
+        self._files = []
+        self._rendered = {'relative_file_paths': [], 'files': []}
+
+    @property
+    def file_names(self):
+        """Return the names of the files added, in order."""
+        return [path for path, _, _, _ in self._files]
+
+    def add(self, file_metadata):
+        """Add a finished file: its own metadata (:meth:`McapBagWriter.bag_metadata`)."""
+        for entry in file_metadata['files']:
             start = entry['starting_time']['nanoseconds_since_epoch']
-            starts.append(start)
-            ends.append(start + entry['duration']['nanoseconds'])
-        for item in meta['topics_with_message_count']:
+            duration = entry['duration']['nanoseconds']
+            self._files.append((entry['path'], start, duration, entry['message_count']))
+            self._message_count += entry['message_count']
+            if entry['message_count']:
+                self._start = start if self._start is None else min(self._start, start)
+                self._end = start + duration if self._end is None \
+                    else max(self._end, start + duration)
+            # Indented as PyYAML indents a block sequence under a key of a mapping.
+            self._rendered['relative_file_paths'].append(_indent(dump_yaml([entry['path']])))
+            self._rendered['files'].append(_indent(dump_yaml([_file_entry(*self._files[-1])])))
+        for item in file_metadata['topics_with_message_count']:
             name = item['topic_metadata']['name']
-            if name in topics:
-                topics[name]['message_count'] += item['message_count']
+            if name in self._topics:
+                self._topics[name]['message_count'] += item['message_count']
             else:
-                topics[name] = {'topic_metadata': dict(item['topic_metadata']),
-                                'message_count': item['message_count']}
-    start = min(starts, default=0)
-    return {
-        'version': BAG_METADATA_VERSION,
-        'storage_identifier': 'mcap',
-        'duration': {'nanoseconds': max(ends, default=0) - start},
-        'starting_time': {'nanoseconds_since_epoch': start},
-        'message_count': sum(entry['message_count'] for entry in entries),
-        'topics_with_message_count': list(topics.values()),
-        'compression_format': '',
-        'compression_mode': '',
-        'relative_file_paths': [entry['path'] for entry in entries],
-        'files': entries,
-        'custom_data': dict(custom_data) if custom_data else None,
-        'ros_distro': ros_distro,
-    }
+                self._topics[name] = {'topic_metadata': dict(item['topic_metadata']),
+                                      'message_count': item['message_count']}
+
+    def _head(self):
+        start = self._start or 0
+        return {
+            'version': BAG_METADATA_VERSION,
+            'storage_identifier': 'mcap',
+            'duration': {'nanoseconds': (self._end or 0) - start},
+            'starting_time': {'nanoseconds_since_epoch': start},
+            'message_count': self._message_count,
+            'topics_with_message_count': [dict(item) for item in self._topics.values()],
+            'compression_format': '',
+            'compression_mode': '',
+            'custom_data': dict(self._custom_data) if self._custom_data else None,
+            'ros_distro': self._ros_distro,
+        }
+
+    def as_dict(self):
+        """Return the rosbag2 ``BagMetadata`` mapping."""
+        return {**self._head(), 'relative_file_paths': self.file_names,
+                'files': [_file_entry(*item) for item in self._files]}
+
+    def _parts(self):
+        """Return ``metadata.yaml``'s text in parts: the head rendered now, each file's lines."""
+        parts = [dump_yaml({'rosbag2_bagfile_information': self._head()}), '\n']
+        for key, rendered in self._rendered.items():
+            parts += [f'  {key}:\n', *rendered] if rendered else [f'  {key}: []\n']
+        return parts
+
+    def text(self):
+        """Return the text of ``metadata.yaml``."""
+        return ''.join(self._parts())
+
+    def write(self, directory):
+        """Write ``directory/metadata.yaml`` atomically, part by part; return its path."""
+        path = directory / METADATA_FILE
+        write_text_atomically(path, self._parts())
+        return path
+
+
+def _indent(text):
+    return ''.join(f'  {line}\n' for line in text.split('\n'))
+
+
+def _file_entry(path, start, duration, message_count):
+    """Return a ``files`` entry of rosbag2's ``BagMetadata``."""
+    return {'path': path, 'starting_time': {'nanoseconds_since_epoch': start},
+            'duration': {'nanoseconds': duration}, 'message_count': message_count}
 
 
 def write_bag_metadata(directory, metadata):

@@ -185,10 +185,13 @@ def write_text_atomically(path, text):
     """
     Replace ``path`` with ``text`` atomically and durably (:func:`write_atomically`).
 
-    A reader sees the old content or the new one, never a mix; after a crash one of the
-    two is on disk.
+    ``text`` is a str, or a list of str written one after the other (a long document
+    without a joined copy of it). A reader sees the old content or the new one, never a
+    mix; after a crash one of the two is on disk.
     """
+    parts = [text] if isinstance(text, str) else text
     try:
-        write_atomically(path, lambda stream: stream.write(text.encode('utf-8')))
+        write_atomically(path, lambda stream: stream.writelines(
+            part.encode('utf-8') for part in parts))
     except OSError as error:
         raise os_error_with_context(error, f'cannot write {path.name}', path) from None

@@ -7,12 +7,7 @@ import re
 import threading
 import time
 
-from qfa_ros.bag.bag_directory import (
-    default_bag_name,
-    merge_bag_metadata,
-    split_file_name,
-    write_bag_metadata,
-)
+from qfa_ros.bag.bag_directory import BagMetadata, default_bag_name, split_file_name
 from qfa_ros.bag.files import lock_exclusively, os_error_with_context, RecorderError
 from qfa_ros.bag.types import as_time_ns, canonical_type, definition_of
 from qfa_ros.bag.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE, McapBagWriter
@@ -105,7 +100,10 @@ class FlightRecorder:
         self._base_name = base
         self._check_directory()
         self.bag_directory = None
-        self._file_metadata = []
+        # metadata.yaml: each finished file is added as it finishes, so a recording that
+        # splits for days keeps a few hundred bytes per file (its whole metadata, the
+        # topics' QoS parsed, was ~16 kB) and renders only the new file's entry.
+        self._metadata = BagMetadata(self._storage_metadata)
         self._index = 0
         self._writer = None
         # (topic, msgtype) pairs registered in the current file: add_topic once per file.
@@ -122,7 +120,6 @@ class FlightRecorder:
         # Bytes of the current file at the last flush(): an unchanged file needs no fsync.
         self._flushed_bytes = 0
         self._closed = False
-        self.files = []
 
     def _check_directory(self):
         if not self.directory.is_dir():
@@ -148,6 +145,11 @@ class FlightRecorder:
         # Unlike a single trace, a continuous recording is valid up to any point: keep it.
         self.close()
         return False
+
+    @property
+    def files(self):
+        """Every file this recorder published so far, in order (in :attr:`bag_directory`)."""
+        return [self.bag_directory / name for name in self._metadata.file_names]
 
     @property
     def current_path(self):
@@ -264,10 +266,9 @@ class FlightRecorder:
 
     def _finish_current(self):
         writer, self._writer = self._writer, None
-        self.files.append(writer.finish())
-        self._file_metadata.append(writer.bag_metadata())
-        write_bag_metadata(self.bag_directory, merge_bag_metadata(
-            self._file_metadata, self._storage_metadata))
+        writer.finish()
+        self._metadata.add(writer.bag_metadata())
+        self._metadata.write(self.bag_directory)
 
     def flush(self):
         """

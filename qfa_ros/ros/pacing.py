@@ -25,6 +25,16 @@ MAX_SLEEP_S = 0.1
 LATE_NS = 5_000_000
 """A message published more than this after its stamp counts as late [ns]."""
 
+STALE_NS = 1_000_000_000
+"""A message still unpublished this long after its stamp is dropped, not published [ns].
+
+The sensor thread never computes a sample more than 1 s behind the clock
+(``qfa_ros.ros.stream.MAX_CATCH_UP_S``); this is the same bound on the publishing side. A
+pacer that cannot publish as fast as the stream comes (a machine overloaded for minutes)
+would otherwise fall further behind without end: every message waiting, in memory, and
+each one published later than the one before (seen: 430 s of samples, 150 MB, queued).
+Not applied with ``use_sim_time``, whose samples are late, never lost."""
+
 CATCH_UP_BURST = 3
 """Messages the pacer may publish back to back when it catches up after a stall."""
 
@@ -177,6 +187,10 @@ class Pacer:
     """
     Publish serialized messages, each as soon as the node clock reaches its stamp.
 
+    A message the pacer reaches more than :data:`STALE_NS` after its stamp is dropped
+    (counted in :attr:`dropped`), so the messages waiting never span much more than a
+    second, however long the thread was held up.
+
     :param node: The node (its clock: system time, or ``/clock`` with ``use_sim_time``).
     :param on_published: Called on the pacer thread with ``(publisher, msgtype, data,
         time_ns)`` after each publication (the recording hook), or None.
@@ -199,6 +213,7 @@ class Pacer:
         self._stop = False
         self.published = 0
         self.late = 0
+        self.dropped = 0
         self.max_delay_ns = 0
         self.last_stamp_ns = None
         # The messages taken off the queue, being published (pacer thread only).
@@ -279,6 +294,11 @@ class Pacer:
             now = wait(clock, stamp, generation, simulated)
             if now is None:
                 return
+            if now - stamp > STALE_NS and not simulated:
+                # Held up for more than a second: the stream resumes at the present.
+                self.dropped += 1
+                self.last_stamp_ns = stamp
+                continue
             # Catching up: a few back to back, then a stream, not a burst (a token per
             # spacing; never spaced wider than the stamps, so never slower than the stream).
             spacing = min(CATCH_UP_SPACING_NS, stamp - previous_stamp)

@@ -23,7 +23,13 @@ from sensor_msgs.msg import Temperature
 from qfa_ros.bag.imu_cdr import ImuEncoder
 from qfa_ros.bag.qos import QosProfile
 from qfa_ros.model.triad import AXES, NS_PER_S, SampleGrid
-from qfa_ros.ros.pacing import LATE_NS, lower_thread_priority, Pacer, RecordingQueue
+from qfa_ros.ros.pacing import (
+    LATE_NS,
+    lower_thread_priority,
+    Pacer,
+    RecordingQueue,
+    STALE_NS,
+)
 
 FAST_CHUNK_SAMPLES = 1000
 FAST_SLICE_S = 0.02
@@ -125,6 +131,8 @@ class SampleStream:
         self.withheld = 0
         self.skipped = 0
         self._last_skip = None
+        # The pacer's dropped messages already logged, and when (sensor thread only).
+        self._drops_logged = (0, None)
         self.skip_note = None
         self.sensor_error = None
         self.clock_note = None
@@ -308,6 +316,7 @@ class SampleStream:
         limit = int(MAX_CATCH_UP_S * self._values['sample_rate_hz'])
         if backlog > limit:
             self._skip(backlog)
+        self._log_drops()
         count = grid.due(self._compute_until(now)) - grid.next_index
         if count > 0:
             self._advance(count)
@@ -323,6 +332,19 @@ class SampleStream:
         self._node.get_logger().warning(
             f'{self.skip_note}; the stream resumes on its grid (more than '
             f'{MAX_CATCH_UP_S:g} s behind the clock is never computed)')
+
+    def _log_drops(self):
+        """Log the messages the pacer dropped, at most every ``SKIP_WARN_S``."""
+        dropped = self.pacer.dropped
+        logged, when = self._drops_logged
+        if dropped == logged or (when is not None
+                                 and time.monotonic() - when < SKIP_WARN_S):
+            return
+        self._drops_logged = (dropped, time.monotonic())
+        self._node.get_logger().warning(
+            f'{dropped - logged} messages dropped unpublished more than '
+            f'{STALE_NS / 1e9:g} s after their instant: the publishing thread was held up; '
+            f'the stream resumes at the present ({dropped} since start)')
 
     def _advance(self, count):
         grid = self.grid
@@ -437,6 +459,7 @@ class SampleStream:
                    ('samples withheld', self.withheld),
                    ('samples skipped', self.skipped),
                    (f'messages published > {LATE_NS / 1e6:g} ms late', pacer.late),
+                   (f'messages dropped > {STALE_NS / 1e9:g} s late', pacer.dropped),
                    ('largest publication delay [ms]', f'{pacer.max_delay_ns / 1e6:.3f}'),
                    ('sensor time [s]', f'{triad.time:.3f}')]
         if self.clock_note:
@@ -451,9 +474,14 @@ class SampleStream:
         if self.sensor_error:
             values.append(('sensor thread error', self.sensor_error))
         level, message = DiagnosticStatus.OK, 'publishing'
+        dropped_at = self._drops_logged[1]
         if self._last_skip is not None and time.monotonic() - self._last_skip < SKIP_WARN_S:
             level, message = DiagnosticStatus.WARN, \
                 f'{self.skip_note}; {self.skipped} samples skipped since start'
+        elif dropped_at is not None and time.monotonic() - dropped_at < SKIP_WARN_S:
+            level, message = DiagnosticStatus.WARN, \
+                f'{pacer.dropped} messages dropped more than {STALE_NS / 1e9:g} s late ' \
+                'since start: the publishing thread was held up'
         elif self.pause_reason:
             level, message = DiagnosticStatus.WARN, f'paused: {self.pause_reason}'
         elif self.saturated.any():

@@ -1,0 +1,430 @@
+"""
+Nothing grows or drifts while the node runs: the soak's invariants over a minute (issue 35).
+
+``bench/soak.py`` runs the node for hours and fits slopes; these tests hold what a minute
+can: the recorder's memory per split, the pacer's backlog, and a real node (its own
+process) splitting its recording every few seconds while parameters change and a
+self-calibration runs, seen by a ``SensorDataQoS`` subscriber in the test process.
+"""
+
+import gc
+import json
+import os
+from pathlib import Path
+import shutil
+import signal
+import struct
+import sys
+import tempfile
+import time
+import tracemalloc
+import types
+
+from diagnostic_msgs.msg import DiagnosticArray
+from mcap.reader import make_reader
+from node_helpers import Client, domain_id, NODE, NodeProcess
+import numpy as np
+from rclpy.qos import qos_profile_sensor_data
+from rclpy.serialization import deserialize_message
+from rosbags.highlevel import AnyReader
+from sensor_msgs.msg import Imu
+from std_srvs.srv import Trigger
+import yaml
+
+from qfa_ros.bag.flight_recorder import FlightRecorder
+from qfa_ros.bag.qos import QOS_LATCHED, QosProfile
+from qfa_ros.bag.types import encode_message
+from qfa_ros.model.triad import NS_PER_S
+from qfa_ros.ros.pacing import Pacer
+
+T0 = 1_700_000_000_000_000_000
+STAMP = struct.Struct('<iI')
+"""``header.stamp`` (sec, nanosec) right after the 4-byte CDR encapsulation header."""
+
+# The eight topics the node records, each with the QoS it offers (docs/node.md).
+RECORDED = {
+    '/imu/data_raw': ('sensor_msgs/msg/Imu', QosProfile(depth=100)),
+    '/imu/temperature': ('sensor_msgs/msg/Temperature', QosProfile(depth=100)),
+    '/diagnostics': ('diagnostic_msgs/msg/DiagnosticArray', QosProfile(depth=10)),
+    '/qfa_node/is_calibrated': ('std_msgs/msg/Bool', QOS_LATCHED),
+    '/qfa_node/calibration_events': ('diagnostic_msgs/msg/DiagnosticStatus',
+                                     QosProfile(depth=20, durability='transient_local')),
+    '/truth/odometry': ('nav_msgs/msg/Odometry', QosProfile(depth=10)),
+    '/truth/origin': ('sensor_msgs/msg/NavSatFix', QOS_LATCHED),
+    '/truth/imu_errors': ('sensor_msgs/msg/Imu', QosProfile(depth=10)),
+}
+
+
+def reachable_bytes(root):
+    """Return the bytes of every object reachable from ``root`` (modules, types, code aside)."""
+    skip = (type, types.ModuleType, types.FunctionType, types.BuiltinFunctionType,
+            types.CodeType)
+    seen, stack, total = set(), [root], 0
+    while stack:
+        item = stack.pop()
+        if id(item) in seen or isinstance(item, skip):
+            continue
+        seen.add(id(item))
+        total += sys.getsizeof(item)
+        stack.extend(gc.get_referents(item))
+    return total
+
+
+def test_flight_recorder_keeps_one_metadata_entry_per_split(tmp_path):
+    """
+    A recording that splits for days holds only metadata.yaml's entry per finished file.
+
+    Every split file gets the same messages, and the recorder is weighed right after the
+    first message of a new file, so the file in progress weighs the same each time: what
+    grows is what the recorder keeps of the files it finished. metadata.yaml's entry of
+    a file (name, start, duration, count) is a few hundred bytes; the whole per-file
+    metadata with every topic's parsed QoS was ~12 kB, 0.35 MiB an hour at 2-min splits.
+    """
+    messages = [(topic, msgtype, encode_message({}, msgtype))
+                for topic, (msgtype, _) in RECORDED.items()]
+    split_ns = 1_000_000_000
+    recorder = FlightRecorder(tmp_path, max_duration_ns=split_ns,
+                              qos={topic: qos for topic, (_, qos) in RECORDED.items()})
+
+    def record_splits(first, count):
+        for index in range(first, first + count):
+            for step in range(3):
+                for topic, msgtype, data in messages:
+                    recorder.record(topic, msgtype, data, T0 + index * split_ns + step)
+        # The first message of the next file: the file just finished is merged in.
+        topic, msgtype, data = messages[0]
+        recorder.record(topic, msgtype, data, T0 + (first + count) * split_ns)
+
+    with recorder:
+        record_splits(0, 3)
+        before = reachable_bytes(recorder)
+        record_splits(3, 16)
+        after = reachable_bytes(recorder)
+        per_split = (after - before) / 16
+        assert len(recorder.files) == 19
+    assert per_split < 1024, f'the recorder keeps {per_split:.0f} bytes per finished file'
+
+
+def test_flight_recorder_split_costs_about_what_metadata_yaml_grows(tmp_path):
+    """
+    A split's transient memory does not grow with the bag's metadata.yaml.
+
+    Each split rewrites metadata.yaml listing every file. Rendered whole by PyYAML, the
+    document cost ~23 bytes of short-lived Python objects per byte written (5 MB and
+    1.5 s at 1000 files, on an allocator that keeps the peak: the node's RSS grew with the
+    bag); here the document is written in parts, each file's rendered once, and the peak
+    of a split at 250 files exceeds that at 30 by less than half of what metadata.yaml
+    grew meanwhile (nothing, measured).
+    """
+    shm = Path('/dev/shm')
+    # fsync is free on tmpfs: 250 splits in seconds.
+    directory = Path(tempfile.mkdtemp(dir=shm)) if shm.is_dir() else tmp_path
+    imu, (msgtype, qos) = '/imu/data_raw', RECORDED['/imu/data_raw']
+    data = encode_message({}, msgtype)
+    recorder = FlightRecorder(directory, max_duration_ns=1, qos={imu: qos})
+    try:
+        def split_peak(index):
+            gc.collect()
+            tracemalloc.start()
+            try:
+                recorder.record(imu, msgtype, data, T0 + index)  # finishes file index - 1
+                return tracemalloc.get_traced_memory()[1]
+            finally:
+                tracemalloc.stop()
+
+        def metadata_bytes():
+            return (recorder.bag_directory / 'metadata.yaml').stat().st_size
+
+        for index in range(30):
+            recorder.record(imu, msgtype, data, T0 + index)
+        small = split_peak(30), metadata_bytes()
+        for index in range(31, 250):
+            recorder.record(imu, msgtype, data, T0 + index)
+        large = split_peak(250), metadata_bytes()
+        recorder.close()
+    finally:
+        shutil.rmtree(directory, ignore_errors=True)
+    assert large[1] > 5 * small[1]
+    growth = (large[0] - small[0]) / (large[1] - small[1])
+    assert growth <= 0.5, (f'a split at 250 files takes {large[0] / 1024:.0f} KiB, at 30 '
+                           f'{small[0] / 1024:.0f} KiB: {growth:.1f} bytes per byte of '
+                           f'metadata.yaml')
+
+
+class _SystemClockNode:
+    """What the pacer needs of a node: a clock that is the system clock (no use_sim_time)."""
+
+    class _Clock:
+        ros_time_is_active = False
+
+    def get_clock(self):
+        return self._Clock()
+
+
+class _Publisher:
+    topic_name = '/imu/data_raw'
+
+    def __init__(self):
+        self.published = []
+
+    def publish(self, data):
+        self.published.append(data)
+
+
+def test_pacer_drops_what_it_reaches_more_than_a_second_late():
+    """
+    A pacer held up for minutes resumes at the present instead of publishing the backlog.
+
+    Messages it reaches more than a second (pacing.STALE_NS) after their stamp are
+    dropped and counted, those late by less are published (late), the others at their
+    instant. Without the
+    bound, a pacer slower than the stream (tracemalloc on a machine at load 30) held
+    430 s of samples, 150 MB, every one published later than the one before.
+    """
+    publisher = _Publisher()
+    recorded = []
+    pacer = Pacer(_SystemClockNode(), on_published=lambda *args: recorded.append(args[2]))
+    now = time.time_ns()
+    # 2 s of samples 3 to 1.001 s old, then some 0.3 s old, then some due in 50 ms.
+    stale = [(now - 3 * NS_PER_S + i * 1_000_000, publisher, 'sensor_msgs/msg/Imu', b'stale')
+             for i in range(1999)]
+    late = [(now - 300_000_000 + i * 1_000_000, publisher, 'sensor_msgs/msg/Imu', b'late')
+            for i in range(10)]
+    due = [(now + 50_000_000 + i * 1_000_000, publisher, 'sensor_msgs/msg/Imu', b'due')
+           for i in range(10)]
+    pacer.put(stale + late + due)
+    pacer.start()
+    deadline = time.monotonic() + 60.0
+    while len(publisher.published) < 20 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    pacer.stop()
+    assert publisher.published == [b'late'] * 10 + [b'due'] * 10
+    assert recorded == publisher.published
+    assert pacer.dropped == len(stale)
+    assert pacer.published == 20
+
+
+# --- a minute of the live node ------------------------------------------------------------
+
+RATE = 250.0
+"""Sample rate of the short soak [Hz]: a keep-last-5 subscriber in the (busy) test process
+has 20 ms of slack; the invariants do not depend on the rate (bench/soak.py runs 1 kHz)."""
+PERIOD_NS = int(1e9 / RATE)
+SPLIT_S = 2.0
+MAX_BYTES = 1 << 20
+SOAK_S = 30.0
+"""Node time of parameter changes and splits after the baseline [s]."""
+PAUSE_MARGIN_NS = 500_000_000
+"""A gap this close to a schedule call (request to answer) is the schedule's pause [ns]."""
+LOSS_BOUND = 0.05
+"""Samples the SensorDataQoS subscriber may miss outside pauses, as a fraction, beside those
+it missed while it was itself behind; what the node published is accounted for exactly.
+Seen: none on a quiet machine, up to 2.7 % (single samples) with this test process sharing
+two cores at load 15-20; a node publishing each 0.1 s batch at once would lose 80 %."""
+STARVED_NS = 4 * PERIOD_NS
+"""A keep-last-5 reader that reads the sample after a hole this long after the node sent it
+had the four sent after it waiting too: the hole was the reader's (this test process
+starved on a busy machine; seen: 2.4 s at load 27), not the node's."""
+
+ROTATION = [
+    ('drift.forward_ppm', lambda i: [100.0 * (i % 3), -50.0, 20.0 * i % 200]),
+    ('input.roll', lambda i: 0.01 * (i % 5)),
+    ('temperature_c', lambda i: 20.0 + i % 10),
+    ('drift.feedback_ppm', lambda i: [-30.0 * (i % 4), 60.0, 0.0]),
+    ('frame_id', lambda i: f'imu_link_{i % 2}'),
+    ('input.yaw', lambda i: 0.1 * (i % 7)),
+]
+
+
+class RawStamps:
+    """Stamps and receive times of ``imu/data_raw`` as a SensorDataQoS subscriber sees them."""
+
+    def __init__(self, client):
+        self.stamps = []
+        self.received = []
+        self.sent = []
+        client.node.create_subscription(Imu, 'imu/data_raw', self.callback,
+                                        qos_profile_sensor_data, raw=True)
+
+    def callback(self, data, info):
+        self.received.append(time.time_ns())
+        # The DDS source timestamp: when the node's writer sent it.
+        self.sent.append(info['source_timestamp'])
+        sec, nanosec = STAMP.unpack_from(data, 4)
+        self.stamps.append(sec * 1_000_000_000 + nanosec)
+
+
+def process_resources(client, pid, recordings, samples=3):
+    """
+    Return ``(descriptors, recording descriptors, threads)`` of process ``pid``.
+
+    Descriptors other than the recording's, and threads, each the least of a few looks
+    0.2 s apart: a split, a trace or a state write holds a file open for a moment. The
+    client spins meanwhile (its subscriber keeps reading).
+    """
+    looks = []
+    for _ in range(samples):
+        targets = []
+        for fd in os.listdir(f'/proc/{pid}/fd'):
+            try:
+                targets.append(os.readlink(f'/proc/{pid}/fd/{fd}'))
+            except OSError:  # closed meanwhile
+                pass
+        # The bag directory itself is held open (locked) while it records: not a file.
+        recording = sum(t.startswith(str(recordings)) and not os.path.isdir(t)
+                        for t in targets)
+        status = Path(f'/proc/{pid}/status').read_text()
+        threads = int(status.split('Threads:')[1].split()[0])
+        looks.append((len(targets) - recording, recording, threads))
+        client.spin_for(0.2)
+    return tuple(min(look[i] for look in looks) for i in range(3))
+
+
+def gaps(stamps):
+    """Return ``(before, after, missing)`` for every hole in sorted grid stamps."""
+    stamps = np.asarray(stamps, dtype=np.int64)
+    missing = np.diff(stamps) // PERIOD_NS - 1
+    return [(int(stamps[i]), int(stamps[i + 1]), int(missing[i]))
+            for i in np.flatnonzero(missing > 0)]
+
+
+def inside(gap, windows):
+    return any(gap[0] >= start - PAUSE_MARGIN_NS and gap[1] <= end + PAUSE_MARGIN_NS
+               for start, end in windows)
+
+
+def test_a_minute_of_splits_parameter_changes_and_a_calibration(tmp_path):
+    """
+    Hold the soak's invariants over a minute of the live node.
+
+    The node as a user runs it, recording split every 2 s, a parameter change every 0.5 s,
+    a capture and a self-calibration (fast mode), a SensorDataQoS subscriber in this
+    process.
+
+    Every stamp on the grid; every sample the node did not publish accounted for by its own
+    counters (withheld during the schedules, skipped or dropped after a stall), none outside
+    a schedule's pause otherwise; the subscriber's losses outside pauses within
+    ``LOSS_BOUND``; descriptors and threads back to their level after the splits, no
+    recording file held open but the current one; every split file within
+    ``recorder.max_bytes``, readable by rosbags and the mcap reader with the counts
+    metadata.yaml lists, no ``.part`` left; the state file readable.
+    """
+    domain = domain_id('short soak')
+    out = tmp_path / 'out'
+    recordings = out / 'recordings'
+    client = Client(domain)
+    received = RawStamps(client)
+    node = NodeProcess(domain, tmp_path, {
+        'sample_rate_hz': RATE, 'loop_rate_hz': 10 * RATE, 'output_dir': str(out),
+        'state_file': str(out / 'state.json'), 'estimation.realtime': False,
+        'recorder.enabled': True, 'recorder.max_duration_s': SPLIT_S,
+        'recorder.max_bytes': MAX_BYTES})
+    windows = []
+
+    def schedule(name):
+        sent = time.time_ns()
+        response = client.call(Trigger, f'/{NODE}/{name}', Trigger.Request(), timeout=300)
+        windows.append((sent, time.time_ns()))
+        assert response.success, response.message
+
+    try:
+        client.spin_until(lambda: len(received.stamps) > 50, 120, 'the first samples')
+        schedule('capture_reference')
+        # The baseline once the recorder has split twice and every service has run once.
+        client.spin_for(2 * SPLIT_S)
+        baseline = process_resources(client, node.pid, recordings)
+        files_at_baseline = len(list(recordings.glob('*/*.mcap')))
+        started = time.monotonic()
+        turn = 0
+        calibrated = False
+        while time.monotonic() - started < SOAK_S:
+            name, value = ROTATION[turn % len(ROTATION)]
+            result, = client.set_parameters({name: value(turn)})
+            assert result.successful, f'{name}: {result.reason}'
+            turn += 1
+            if not calibrated and time.monotonic() - started > SOAK_S / 2:
+                schedule('self_calibrate')
+                calibrated = True
+            client.spin_for(0.5)
+        client.spin_for(3.0)
+        after = process_resources(client, node.pid, recordings)
+        splits = len(list(recordings.glob('*/*.mcap'))) - files_at_baseline
+        assert node.stop() == 0
+    finally:
+        client.close()
+        if node.process.poll() is None:
+            node.stop(signal.SIGKILL)
+
+    assert splits >= SOAK_S / SPLIT_S / 2, f'only {splits} splits'
+    assert after[0] <= baseline[0] and after[2] <= baseline[2], (
+        f'after {splits} splits, {turn} parameter changes and a calibration the node holds '
+        f'{after[0]} descriptors and {after[2]} threads (before: {baseline[0]}, '
+        f'{baseline[2]})')
+    assert after[1] <= 1, f'{after[1]} recording files open'
+
+    # The recording: every file readable by both readers, as metadata.yaml lists it.
+    bag, = (p for p in recordings.iterdir() if p.is_dir())
+    assert not list(bag.glob('*.part'))
+    listed = {Path(f['path']).name: f['message_count'] for f in yaml.safe_load(
+        (bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']['files']}
+    files = sorted(bag.glob('*.mcap'), key=lambda p: int(p.stem.rsplit('_', 1)[1]))
+    assert [f.name for f in files] == list(listed)
+    recorded, reports = [], []
+    for file in files:
+        assert file.stat().st_size <= MAX_BYTES
+        with open(file, 'rb') as stream:
+            messages = list(make_reader(stream).iter_messages())
+        with AnyReader([file]) as reader:
+            assert sum(1 for _ in reader.messages()) == len(messages) == listed[file.name]
+        for _, channel, message in messages:
+            if channel.topic == '/imu/data_raw':
+                sec, nanosec = STAMP.unpack_from(message.data, 4)
+                recorded.append((sec * 1_000_000_000 + nanosec, message.log_time))
+            elif channel.topic == '/diagnostics':
+                reports.append(deserialize_message(message.data, DiagnosticArray))
+    with AnyReader([bag]) as reader:
+        assert sum(1 for _ in reader.messages()) == sum(listed.values())
+    assert json.loads((out / 'state.json').read_text())['compensation_enabled'] is True
+
+    # What the node published (its recording): on the grid and continuous across the
+    # splits; each hole accounted for by the node's counters, and outside a schedule's
+    # pause only if the node said it skipped or dropped samples. The counters are those of
+    # the last diagnostics recorded, up to the last sample published before they were read:
+    # the pacer publishes in stamp order, so every sample before it was decided by then.
+    recorded = np.asarray(recorded, dtype=np.int64)
+    stamps = recorded[:, 0]
+    assert np.all(np.diff(stamps) > 0) and np.all(np.diff(stamps) % PERIOD_NS == 0)
+    report = reports[-1]
+    counters = {kv.key: kv.value for kv in next(
+        s for s in report.status if s.name.endswith(': stream')).values}
+    read_ns = report.header.stamp.sec * 1_000_000_000 + report.header.stamp.nanosec
+    decided = stamps[recorded[:, 1] <= read_ns].max()
+    holes = [h for h in gaps(stamps) if h[1] <= decided]
+    withheld = int(counters['samples withheld'])
+    unpublished = int(counters['samples skipped']) + int(
+        next(v for k, v in counters.items() if k.startswith('messages dropped')))
+    assert withheld > 0 and any(inside(h, windows) for h in holes)
+    missing = sum(h[2] for h in holes)
+    assert missing <= withheld + unpublished, (
+        f'{missing} samples missing from the recording; the node accounts for {withheld} '
+        f'withheld and {unpublished} skipped or dropped; holes (s after the first sample, '
+        f'samples): {[((h[0] - stamps[0]) / 1e9, h[2]) for h in holes][:10]}')
+    outside = sum(h[2] for h in holes if not inside(h, windows))
+    assert outside <= unpublished, f'{outside} samples never published outside the pauses'
+
+    # What the subscriber saw: on the grid; losses outside the pauses bounded, but for
+    # those it caused itself by reading late.
+    stamps = np.asarray(received.stamps, dtype=np.int64)
+    assert np.all((stamps - stamps[0]) % PERIOD_NS == 0)
+    unique, first = np.unique(stamps, return_index=True)
+    lateness = dict(zip(unique.tolist(), (np.asarray(received.received)[first]
+                                          - np.asarray(received.sent)[first])))
+    holes = [h for h in gaps(unique) if not inside(h, windows)]
+    starved = [h for h in holes if lateness[h[1]] >= STARVED_NS]
+    lost = sum(h[2] for h in holes) - sum(h[2] for h in starved)
+    span = (unique[-1] - unique[0]) // PERIOD_NS
+    assert lost <= LOSS_BOUND * span, (
+        f'{lost} of {span} samples lost outside the pauses while the subscriber kept up '
+        f'(and {sum(h[2] for h in starved)} while it was behind); the largest holes (s '
+        f'after the first sample, samples, ms between sending and reading the next): '
+        f'{[((h[0] - unique[0]) / 1e9, h[2], lateness[h[1]] / 1e6) for h in holes][:8]}')
