@@ -1,8 +1,9 @@
-"""What a stranger sends: files it names, stamps it sends, the largest schedules it may ask."""
+"""What a stranger sends or leaves: files, state files, temporaries, stamps, arrays, schedules."""
 
 import os
 from pathlib import Path
 import re
+import secrets
 import threading
 
 from node_helpers import domain_id, largest_schedule_values, NodeProcess
@@ -13,6 +14,7 @@ from qfa_ros.calibration.estimation import capture_reference
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_calibration
+from qfa_ros.model import files
 from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.files import read_regular_file, UntrustedFileError, write_atomically
 from qfa_ros.model.hardware import AxisHardware, nominal_gains
@@ -70,16 +72,55 @@ def test_only_bounded_regular_files_are_read(tmp_path):
     worker.join(timeout=30.0)
     assert done and 'not a regular file' in str(done[0].value)
     assert 'not a regular file' in refusal(read_regular_file, tmp_path, 100)
-    for pseudo in ('/dev/zero', '/proc/self/environ', '/sys/kernel/mm/transparent_hugepage'):
-        assert '/proc, /sys and /dev' in refusal(read_regular_file, pseudo, 1 << 20)
+    assert 'not a regular file' in refusal(read_regular_file, '/dev/zero', 1 << 20)
+    # The file system of what was opened decides, whatever path led there.
+    for pseudo, kind in (('/proc/self/environ', 'proc'), ('/proc/self/status', 'proc'),
+                         ('/sys/kernel/mm/transparent_hugepage/enabled', 'sysfs')):
+        if os.path.exists(pseudo):
+            assert f'kernel file system {kind}' in refusal(read_regular_file, pseudo, 1 << 20)
     # A symlink is followed to what it names, and judged there.
     (tmp_path / 'environ').symlink_to('/proc/self/environ')
-    assert '/proc, /sys and /dev' in refusal(read_regular_file, tmp_path / 'environ', 100)
+    assert 'kernel file system proc' in refusal(read_regular_file, tmp_path / 'environ', 100)
     assert 'cannot open' in refusal(read_regular_file, tmp_path / 'missing', 100)
     sparse = tmp_path / 'sparse'
     with open(sparse, 'wb') as stream:
         stream.truncate(4 << 30)
     assert 'more than the' in refusal(read_regular_file, sparse, 16 << 20)
+
+
+def test_the_file_system_type_is_the_opened_descriptors():
+    descriptor = os.open('/proc/self/status', os.O_RDONLY)
+    try:
+        assert files.PSEUDO_FILE_SYSTEMS[files.file_system_type(descriptor)] == 'proc'
+    finally:
+        os.close(descriptor)
+    descriptor = os.open(__file__, os.O_RDONLY)
+    try:
+        assert files.file_system_type(descriptor) not in files.PSEUDO_FILE_SYSTEMS
+    finally:
+        os.close(descriptor)
+
+
+def test_a_directory_swapped_for_a_symlink_after_resolving_is_not_followed(tmp_path,
+                                                                        monkeypatch):
+    # What was checked is what is read: between resolving the path and opening it,
+    # someone with a shell swaps a directory on it for a symlink into /proc.
+    real = (tmp_path / 'real').resolve()
+    real.mkdir()
+    (real / 'environ').write_text('a harmless file\n')
+    resolve = Path.resolve
+
+    def resolve_then_swap(self, strict=False):
+        resolved = resolve(self, strict)
+        if resolved == real / 'environ' and not real.is_symlink():
+            real.rename(tmp_path / 'moved')
+            real.symlink_to('/proc/self', target_is_directory=True)
+        return resolved
+
+    monkeypatch.setattr(Path, 'resolve', resolve_then_swap)
+    message = refusal(read_regular_file, real / 'environ', 1 << 20)
+    assert 'cannot open' in message and 'Not a directory' in message, message
+    assert '/proc' not in message
 
 
 @pytest.mark.parametrize('content, expected', [
@@ -277,3 +318,31 @@ def test_a_failed_atomic_write_leaves_the_old_file_and_no_temporary(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ['state.json']
     write_atomically(path, lambda stream: stream.write(b'new'))
     assert path.read_bytes() == b'new'
+
+
+def test_temporary_files_are_created_exclusively_under_unpredictable_names(tmp_path,
+                                                                          monkeypatch):
+    victim = tmp_path / 'victim.txt'
+    victim.write_text('not yours\n')
+    out = tmp_path / 'out'
+    out.mkdir()
+    path = out / 'state.json'
+    # A link planted where a temporary named after the process would go.
+    (out / f'.state.json.{os.getpid()}.tmp').symlink_to(victim)
+    renamed = []
+    replace = os.replace
+    monkeypatch.setattr(os, 'replace', lambda source, target: (
+        renamed.append(Path(source).name), replace(source, target))[1])
+    write_atomically(path, lambda stream: stream.write(b'one'))
+    write_atomically(path, lambda stream: stream.write(b'two'))
+    assert victim.read_text() == 'not yours\n'
+    assert not path.is_symlink() and path.read_bytes() == b'two'
+    assert len(set(renamed)) == 2, renamed
+    assert all(re.fullmatch(r'\.state\.json\.[0-9a-f]{16}\.tmp', name) for name in renamed)
+    # A name that exists (here a planted link) is never opened: the next one is drawn.
+    (out / f'.state.json.{"0" * 16}.tmp').symlink_to(victim)
+    names = iter(['0' * 16, '1' * 16])
+    monkeypatch.setattr(secrets, 'token_hex', lambda size: next(names))
+    write_atomically(path, lambda stream: stream.write(b'three'))
+    assert victim.read_text() == 'not yours\n' and path.read_bytes() == b'three'
+    assert renamed[-1] == f'.state.json.{"1" * 16}.tmp'
