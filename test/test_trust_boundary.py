@@ -1,5 +1,7 @@
 """What a stranger sends or leaves: files, state files, temporaries, stamps, arrays, schedules."""
 
+import json
+import math
 import os
 from pathlib import Path
 import re
@@ -29,6 +31,7 @@ from qfa_ros.ros.bounds import (
     LARGEST_FORWARD,
     MAX_SCHEDULE_LOOP_STEPS,
 )
+from qfa_ros.ros.calibration import CalibrationKeeper
 from qfa_ros.ros.ground_truth import GroundTruthInput
 from qfa_ros.ros.params import (
     check_all,
@@ -181,6 +184,95 @@ def test_stamps_far_from_the_node_clock_are_refused_without_changing_the_order()
     force, _, _ = truth.inputs(np.array([now + 100_000_000], dtype=np.int64))
     assert force[0, 0] == pytest.approx(1.0, abs=1e-9)  # (1.1 - 1.0) / 0.1 s
     assert truth.refused_stamps == 1
+
+
+def nominal_state(triad):
+    """Return a valid state file's dict: the words ``triad`` holds now."""
+    state = CalibrationState(controller_gain=[loop.controller.gain for loop in triad.axes],
+                             n_vref=[loop.n_vref for loop in triad.axes])
+    return state.to_dict()
+
+
+def hostile_state(case, state):
+    """Return the text of a state file that breaks ``state`` (a dict) as ``case`` says."""
+    if case == 'nested':
+        return '[' * 100_000 + ']' * 100_000
+    if case == 'nested in a field':
+        return json.dumps(state)[:-1] + ', "last_estimates": ' + '[' * 5000 + ']' * 5000 + '}'
+    if case == 'Infinity in n_vref':
+        return json.dumps({**state, 'n_vref': [math.inf, 1, 1]})
+    if case == 'huge captured_at_ns':
+        return json.dumps(state)[:-1] + ', "captured_at_ns": 1e400}'
+    if case == 'huge integer':
+        return json.dumps(state)[:-1] + ', "updated_at_ns": ' + '9' * 5000 + '}'
+    if case == 'word in controller_gain':
+        return json.dumps({**state, 'controller_gain': [SECRET, 1.0, 1.0]})
+    if case == 'word as a reference key':
+        return json.dumps({**state, 'references': [{SECRET: 1.0}] * 3})
+    if case == 'word in last_estimates':
+        return json.dumps({**state, 'last_estimates': {SECRET: [1.0, 2.0, 3.0]}})
+    if case == 'word in the temperature record':
+        return json.dumps({**state, 'temperature': {'format': 'multiposition/1',
+                                                    'bias': {'x': {'fit': {},
+                                                                   'alpha': [SECRET, 1.0]}}}})
+    if case == 'word as the compensation switch':
+        return json.dumps({**state, 'compensation_enabled': SECRET})
+    if case == 'not JSON':
+        return f'{SECRET}\n'
+    raise ValueError(case)
+
+
+class LogLines:
+    """A logger keeping every line."""
+
+    def __init__(self):
+        self.lines = []
+
+    def error(self, line):
+        self.lines.append(line)
+
+    warning = info = error
+
+
+@pytest.mark.parametrize('case', [
+    'nested', 'nested in a field', 'Infinity in n_vref', 'huge captured_at_ns', 'huge integer',
+    'word in controller_gain', 'word as a reference key', 'word in last_estimates',
+    'word in the temperature record', 'word as the compensation switch', 'not JSON'])
+def test_a_malformed_state_file_is_set_aside_without_quoting_it(tmp_path, case):
+    triad = make_triad(defaults())
+    nominal = [(loop.controller.gain, loop.n_vref) for loop in triad.axes]
+    path = tmp_path / 'state.json'
+    path.write_text(hostile_state(case, nominal_state(triad)))
+    log = LogLines()
+    keeper = CalibrationKeeper(triad, str(path), log)
+    keeper.load()
+    assert keeper.problem and 'starting uncalibrated' in keeper.problem, keeper.problem
+    assert 'corrupt' in keeper.problem or 'cannot take' in keeper.problem, keeper.problem
+    assert log.lines and all(SECRET not in line and 'hunter2' not in line
+                             for line in log.lines), log.lines
+    assert all(len(line) < 1000 for line in log.lines)
+    assert not path.exists() and len(list(tmp_path.glob('state.json.corrupt-*'))) == 1
+    assert [(loop.controller.gain, loop.n_vref) for loop in triad.axes] == nominal
+    assert not keeper.state.has_reference and not keeper.state.last_estimates
+
+
+def test_stored_words_the_sensor_refuses_are_not_quoted(tmp_path):
+    # Loaded with the compensation off, a word out of the DA0 range is applied only when
+    # a participant switches the compensation on.
+    triad = make_triad(defaults())
+    nominal = [(loop.controller.gain, loop.n_vref) for loop in triad.axes]
+    word = 2 ** 40 + 12345
+    path = tmp_path / 'state.json'
+    path.write_text(json.dumps({**nominal_state(triad), 'compensation_enabled': False,
+                                'n_vref': [nominal[0][1], word, nominal[2][1]]}))
+    keeper = CalibrationKeeper(triad, str(path), LogLines())
+    keeper.load()
+    assert keeper.problem is None and not keeper.compensation
+    success, message = keeper.set_compensation(True)
+    assert not success and 'out of the sensor' in message, message
+    assert str(word) not in message
+    assert [(loop.controller.gain, loop.n_vref) for loop in triad.axes] == nominal
+    assert not keeper.compensation
 
 
 def test_leftover_temporary_state_files_are_removed(tmp_path):
