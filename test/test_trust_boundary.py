@@ -35,6 +35,7 @@ from qfa_ros.ros.calibration import CalibrationKeeper
 from qfa_ros.ros.ground_truth import GroundTruthInput
 from qfa_ros.ros.params import (
     check_all,
+    check_value,
     input_profile,
     load_trajectory_file,
     make_triad,
@@ -184,6 +185,27 @@ def test_stamps_far_from_the_node_clock_are_refused_without_changing_the_order()
     force, _, _ = truth.inputs(np.array([now + 100_000_000], dtype=np.int64))
     assert force[0, 0] == pytest.approx(1.0, abs=1e-9)  # (1.1 - 1.0) / 0.1 s
     assert truth.refused_stamps == 1
+
+
+def test_arrays_and_strings_are_bounded_before_anything_is_quoted():
+    # Every array parameter has a size (a new one without length or max_length fails
+    # here), checked before its elements.
+    for spec in PARAMETERS:
+        if isinstance(spec.default, list):
+            huge = [0.0] * 200_000
+            reason = check_value(spec.name, huge)
+            assert reason and spec.name in reason and len(reason) < 200, (
+                spec.name, reason and reason[:300])
+            reason = check_value(spec.name, [math.nan] + [1.0] * (len(spec.default) - 1))
+            assert 'finite' in reason and len(reason) < 200, reason
+        elif isinstance(spec.default, str):
+            reason = check_value(spec.name, 'x' * 100_000)
+            assert reason and spec.name in reason and len(reason) < 200, (
+                spec.name, reason and reason[:300])
+    reason = check_value('input.mode', f'{SECRET} ' * 10)
+    assert 'one of' in reason and len(reason) < 200
+    reason = check_value('input.steps.levels', [1.0] * 5 + [1.0e6])
+    assert reason == 'input.steps.levels[5] must be in [-1000, 1000], got 1000000.0'
 
 
 def nominal_state(triad):
