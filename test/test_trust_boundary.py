@@ -40,6 +40,7 @@ from qfa_ros.ros.params import (
     load_trajectory_file,
     make_triad,
     PARAMETERS,
+    SPECS,
 )
 from qfa_ros.ros.state_store import StateFileError, StateStore
 
@@ -185,6 +186,28 @@ def test_stamps_far_from_the_node_clock_are_refused_without_changing_the_order()
     force, _, _ = truth.inputs(np.array([now + 100_000_000], dtype=np.int64))
     assert force[0, 0] == pytest.approx(1.0, abs=1e-9)  # (1.1 - 1.0) / 0.1 s
     assert truth.refused_stamps == 1
+
+
+def test_one_ordering_rule_against_everything_accepted():
+    values = defaults(**{'input.mode': 'topic'})
+    truth = GroundTruthInput(values)
+    now = 1_000 * NS_PER_S
+    truth.accept(now, (0.0, 0.0, 9.8), now_ns=now)
+    truth.accept(now + 20_000_000, (0.0, 0.0, 9.7), now_ns=now + 20_000_000)
+    # The stream takes both: the queue drains, the newer message is held.
+    truth.inputs(np.array([now + 30_000_000], dtype=np.int64))
+    assert not truth.pending and truth.held[0] == now + 20_000_000
+    # Older than the held message: out of order, though nothing is queued.
+    truth.accept(now + 10_000_000, (5.0, 5.0, 5.0), now_ns=now + 30_000_000)
+    assert truth.rejected == 1 and not truth.pending
+    force, _, _ = truth.inputs(np.array([now + 40_000_000], dtype=np.int64))
+    np.testing.assert_allclose(force[0], (0.0, 0.0, 9.7))
+
+
+def test_the_stamp_window_is_read_only():
+    # A participant that could widen it would stall the honest input for that long with one
+    # message stamped ahead (3600 s, +3000 s: 73 of 600 samples taken in the probes).
+    assert SPECS['input.stamp_window_s'].read_only
 
 
 def test_arrays_and_strings_are_bounded_before_anything_is_quoted():

@@ -293,7 +293,9 @@ PARAMETERS = (
     ParameterSpec('input.stamp_window_s', 1.0,
                   'A ground-truth message stamped further than this from the node clock, '
                   'ahead or behind, is refused and counted (diagnostics input) without '
-                  'changing the input [s]', False, 1.0e-3, 3600.0),
+                  'changing the input [s]. Read-only: a message stamped up to this far ahead '
+                  'holds back the honest input stamped before it, so no participant may '
+                  'widen it', True, 1.0e-3, 3600.0),
     ParameterSpec('estimation.realtime', True,
                   'true: a schedule takes its sensor time at the node clock; false: as fast '
                   'as the CPU allows'),
@@ -409,7 +411,7 @@ RUNTIME_EFFECTS = {
               'input.tumble.dwell_s', 'input.steps.times_s', 'input.steps.levels'),
     'recorder': ('recorder.enabled', 'recorder.directory', 'recorder.max_bytes',
                  'recorder.max_duration_s'),
-    'live': ('input.timeout_s', 'input.stamp_window_s', 'estimation.realtime',
+    'live': ('input.timeout_s', 'estimation.realtime',
              'estimation.forward.points', 'estimation.forward.step',
              'estimation.forward.settle_s', 'estimation.forward.average_s',
              'estimation.forward.order', 'estimation.feedback.cycles',
