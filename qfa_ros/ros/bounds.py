@@ -78,7 +78,8 @@ def forward_sweep_problem(settings, hardware, forward_drift_ppm=(0.0,)):
             f'{settings.points} x {settings.step} = {settings.points * settings.step} '
             f'counts: the sweep would drive DA1 or the ADC out of range; at most {span} '
             f'(N_FPGA {hardware.n_fpga} + the span stays under the ADC full scale with '
-            f'{FORWARD_HEADROOM - 1:.0%} headroom)')
+            f'{FORWARD_HEADROOM - 1:.0%} headroom; a positive drift.forward_ppm raises the '
+            f'open-loop output and narrows it)')
 
 
 def forward_sensor_time_s(settings, settle_time_s):
@@ -143,17 +144,23 @@ def confined_directory(values, name):
         names the parameter.
     """
     value = values[name]
+    rule = (f'{name} must name a directory inside output_dir: relative to it, or absolute '
+            'inside it, symlinks and .. resolved (the node writes only under output_dir, '
+            'read-only, chosen at start)')
     if not value:
         raise ValueError(f'{name} must not be empty')
     if value.startswith('~'):
-        raise ValueError(f'{name} {value!r}: ~ is not expanded; give a path relative to '
-                         f'output_dir or an absolute path inside it')
+        raise ValueError(f'{rule}; ~ is not expanded')
     base = output_directory(values)
-    directory = (base / value).resolve()
+    try:
+        directory = (base / value).resolve()
+    except (OSError, RuntimeError):
+        # A symlink loop or an unreadable component; the error's text names the path.
+        raise ValueError(f'{rule}; this one cannot be resolved') from None
     if directory != base and base not in directory.parents:
-        raise ValueError(f'{name} {value!r} resolves to {directory}, outside output_dir '
-                         f'{base}: the node writes only under output_dir (read-only, chosen '
-                         f'at start)')
+        # Never where it leads: /proc/self/cwd, /proc/<pid>/cwd, /proc/self/fd/N or a
+        # link planted under output_dir would tell the caller paths it cannot see.
+        raise ValueError(f'{rule}; this one leads outside it')
     return directory
 
 
