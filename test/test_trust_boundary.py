@@ -22,6 +22,7 @@ from qfa_ros.model.files import read_regular_file, UntrustedFileError, write_ato
 from qfa_ros.model.hardware import AxisHardware, nominal_gains
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.bounds import (
+    CHAMBER_MAX_PERIOD_S,
     CHAMBER_WORST_S,
     FEEDBACK_WORST_S,
     FORWARD_MAX_SPAN,
@@ -41,6 +42,7 @@ from qfa_ros.ros.params import (
     make_triad,
     PARAMETERS,
     SPECS,
+    temperature_settings,
 )
 from qfa_ros.ros.state_store import StateFileError, StateStore
 
@@ -362,6 +364,52 @@ def test_the_forward_span_bound_is_the_adc_and_da1_range():
                          'estimation.forward.step': FORWARD_MAX_SPAN // 50})
     assert check_all(values) is None
     assert 'ADC' in check_all({**values, 'drift.forward_ppm': [5.0e4, 0.0, 0.0]})
+
+
+def test_the_documented_chamber_bound_is_the_largest_an_accepted_setting_takes():
+    # The bound docs/security.md states, against the chamber settings the node accepts:
+    # limits 10 to 120 degC apart all over their range (the fewer plateaus, the longer
+    # each holds), the I_ref steps on, the period at the top of its range and on either
+    # side of where the bound cuts it. Not compared with bounds.py's constant: that would
+    # be the bound with itself.
+    text = (Path(__file__).resolve().parents[1] / 'docs' / 'security.md').read_text()
+    stated = re.search(r'(\d{1,3}(?:[ \u202f]\d{3})*) s of sensor time for\s+'
+                       r'`calibrate_temperature`', text)
+    documented = float(re.sub(r'\D', '', stated.group(1)))
+    largest = 0.0
+    cut = 0
+    for low in range(-60, 125, 15):
+        for high in [low + span for span in (10, 15, 20, 40, 80, 120) if low + span <= 125]:
+            # The nominal unit: drawing one per check would take most of the test's time.
+            values = defaults(**{'unit.draw': False,
+                                 'temperature_calibration.low_c': float(low),
+                                 'temperature_calibration.high_c': float(high),
+                                 'temperature_calibration.period_s': CHAMBER_MAX_PERIOD_S})
+
+            def sensor_s(period):
+                values['temperature_calibration.period_s'] = period
+                return temperature_settings(values).max_sensor_time_s()
+
+            longest_s = sensor_s(CHAMBER_MAX_PERIOD_S)
+            if longest_s <= documented:
+                assert check_all(values) is None, (low, high)
+                largest = max(largest, longest_s)
+                continue
+            # The sensor time is affine in the period: where does it reach the bound?
+            slope = (longest_s - sensor_s(1000.0)) / (CHAMBER_MAX_PERIOD_S - 1000.0)
+            period = math.floor(CHAMBER_MAX_PERIOD_S - (longest_s - documented) / slope)
+            assert documented < sensor_s(period + 1.0)
+            within_s = sensor_s(period)
+            assert within_s <= documented and check_all(values) is None, (low, high, period)
+            largest = max(largest, within_s)
+            # One second more is refused as a whole, naming the chamber's parameters.
+            over_s = sensor_s(period + 1.0)
+            reason = check_all(values)
+            assert reason and 'temperature_calibration' in reason, (low, high, over_s)
+            cut += 1
+    assert cut > 10
+    assert documented - 10.0 <= largest <= documented
+    assert documented == round(CHAMBER_WORST_S)
 
 
 def test_the_largest_schedules_the_ranges_allow_run():
