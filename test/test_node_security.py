@@ -163,6 +163,26 @@ def test_attacks_are_refused_naming_the_parameter(setup):
     assert not any(outside.iterdir())
 
 
+def test_a_change_whose_effect_fails_is_refused(setup):
+    client = setup.client
+    setup.output.mkdir(parents=True, exist_ok=True)
+    (setup.output / 'blocked').write_text('a file where the recording would go\n')
+    result, = client.set_parameters({'recorder.directory': 'blocked/bag'})
+    assert result.successful, result.reason  # not recording: nothing to apply yet
+    result, = client.set_parameters({'recorder.enabled': True})
+    assert not result.successful
+    assert 'recorder.enabled not changed' in result.reason and 'recorder not started' \
+        in result.reason, result.reason
+    assert client.get_parameters(['recorder.enabled']) == [False]
+    result, = client.set_parameters({'recorder.directory': 'recordings'})
+    assert result.successful, result.reason
+    # The node goes on: the same change where a recording can start is accepted.
+    result, = client.set_parameters({'recorder.enabled': True})
+    assert result.successful, result.reason
+    assert client.set_parameters({'recorder.enabled': False})[0].successful
+    assert any((setup.output / 'recordings').iterdir())
+
+
 def test_cancel_restores_the_sensor_for_every_schedule_kind(setup):
     client, imu, diagnostics = setup.client, setup.imu, setup.diagnostics
     response = trigger(client, 'cancel')
