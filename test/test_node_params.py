@@ -248,3 +248,53 @@ def test_every_writable_parameter_takes_effect_or_is_refused(tmp_path):
         node.close()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def test_a_change_whose_effect_fails_is_refused_and_undone(tmp_path):
+    import rclpy
+    from rclpy.context import Context
+
+    from qfa_ros.ros.node import QfaNode
+
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id('failing effects'))
+    node = QfaNode(context=context, parameter_overrides=[
+        Parameter('output_dir', value=str(tmp_path)), Parameter('state_file', value='')])
+    drift = node.runtime_effects['drift']
+    seen = []
+
+    def fails_once(error):
+        def step():
+            # The real step first (the model takes the values it is given), then a failure
+            # the first time: the change must be refused and the step run again, undoing it.
+            seen.append(list(node.get_parameter('drift.forward_ppm').value)
+                        if seen else 'new')
+            drift()
+            if len(seen) == 1:
+                raise error
+        return step
+
+    try:
+        old = list(node.get_parameter('drift.forward_ppm').value)
+        for error, words in ((ValueError('the model refused it'), 'the model refused it'),
+                             (RuntimeError('unexpected'), 'RuntimeError: unexpected')):
+            seen.clear()
+            node.runtime_effects['drift'] = fails_once(error)
+            applied = dict(node.applied_effects)
+            result, = node.set_parameters([Parameter('drift.forward_ppm',
+                                                     value=[500.0, 0.0, 0.0])])
+            assert not result.successful, error
+            assert 'drift.forward_ppm not changed' in result.reason and words in result.reason
+            assert list(node.get_parameter('drift.forward_ppm').value) == old
+            # Undone: the step ran again, while the parameter held its old value.
+            assert seen == ['new', old]
+            assert dict(node.applied_effects) == applied
+        node.runtime_effects['drift'] = drift
+        # The node goes on: the same change, its effect working, is accepted.
+        result, = node.set_parameters([Parameter('drift.forward_ppm', value=[500.0, 0.0, 0.0])])
+        assert result.successful, result.reason
+        assert node.applied_effects['drift'] == applied.get('drift', 0) + 1
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)

@@ -150,6 +150,31 @@ def test_drift_shows_in_the_truth_and_a_correction_is_an_event(setup):
         'stamp_ns'])
 
 
+def test_each_correction_is_one_event_even_within_one_tick(setup):
+    # The feedback correction of the test before is stored, compensation off. Four
+    # switches in a row (milliseconds apart; the truth ticks every 50 ms): four events,
+    # each labelled and measured against the one before it, on and off cancelling.
+    client, truth = setup['client'], setup['truth']
+    count = len(truth.events)
+    switches = (True, False, True, False)
+    for on in switches:
+        response = client.call(SetBool, f'{NODE}/set_compensation', SetBool.Request(data=on))
+        assert response.success, response.message
+    client.spin_until(lambda: len(truth.events) >= count + len(switches), 30,
+                      'one event per switch')
+    client.spin_for(0.3)  # a tick or more: no event beyond those
+    events = [{kv.key: kv.value for kv in event.values} for event in truth.events[count:]]
+    assert len(events) == len(switches), events
+    assert [event['kind'] for event in events] == ['set_compensation'] * len(switches)
+    steps = np.array([[float(event[f'accel_scale_change_ppm_{a}']) for a in 'xyz']
+                      for event in events])
+    # On applies the correction (undoing the drift), off takes it back out.
+    assert np.allclose(steps[0], FEEDBACK_PPM, atol=150.0), steps
+    assert np.allclose(steps[1:], [-steps[0], steps[0], -steps[0]], atol=1.0), steps
+    stamps = [int(event['stamp_ns']) for event in events]
+    assert stamps == sorted(stamps)
+
+
 def test_a_new_trajectory_publishes_its_origin(setup):
     client, truth = setup['client'], setup['truth']
     count = len(truth.origin)

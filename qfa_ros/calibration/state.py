@@ -29,6 +29,10 @@ class AxisReference:
     temperature: float = None
 
 
+REFERENCE_FIELDS = frozenset(('forward_slope', 'feedback_step', 'temperature'))
+"""The fields of one stored :class:`AxisReference`."""
+
+
 @dataclass
 class CalibrationState:
     """
@@ -88,39 +92,53 @@ class CalibrationState:
     def to_dict(self):
         """Return a JSON-serializable dict."""
         data = asdict(self)
-        data['format'] = 'qfa_ros.calibration/1'
+        data['format'] = STATE_FORMAT
         return data
 
     @classmethod
     def from_dict(cls, data):
-        """Build a state from :meth:`to_dict` output, validating it."""
-        if not isinstance(data, dict) or data.get('format') != 'qfa_ros.calibration/1':
-            raise ValueError('calibration state: unknown or missing format tag')
+        """
+        Build a state from :meth:`to_dict` output, validating it.
+
+        :raises StateFormatError: ``data`` is not a calibration state. The message names
+            the field and the rule, never a value: the data comes from a file.
+        """
         try:
-            refs = [AxisReference(**r) for r in data['references']]
-            state = cls(references=refs,
-                        controller_gain=[float(g) for g in data['controller_gain']],
-                        n_vref=[int(n) for n in data['n_vref']],
-                        last_estimates=dict(data.get('last_estimates', {})),
-                        captured_at_ns=int(data.get('captured_at_ns', 0)),
-                        updated_at_ns=int(data.get('updated_at_ns', 0)),
-                        temperature=dict(data.get('temperature', {})),
-                        reference_tc_ppm=[float(v) for v in data.get('reference_tc_ppm', [])],
-                        gyro_bias=[float(v) for v in data.get('gyro_bias', [])],
-                        reference_settings=_settings_from(data.get('reference_settings', {})))
-        except (KeyError, TypeError, ValueError) as error:
-            raise ValueError(f'calibration state: malformed ({error})') from error
-        if len(refs) != len(AXES) or len(state.controller_gain) not in (0, len(AXES)) \
-                or len(state.n_vref) not in (0, len(AXES)) \
-                or len(state.reference_tc_ppm) not in (0, len(AXES)) \
-                or len(state.gyro_bias) not in (0, len(AXES)):
-            raise ValueError('calibration state: expected three axes')
-        if not all(math.isfinite(v) for v in state.reference_tc_ppm + state.gyro_bias):
-            raise ValueError('calibration state: non-finite reference_tc_ppm or gyro_bias')
+            return cls._from_dict(data)
+        except StateFormatError:
+            raise
+        except RecursionError:
+            raise StateFormatError('calibration state: nested too deeply') from None
+        except Exception as error:
+            # Whatever else a hostile file triggers; its message may quote the file.
+            raise StateFormatError(
+                f'calibration state: malformed ({type(error).__name__})') from None
+
+    @classmethod
+    def _from_dict(cls, data):
+        if not isinstance(data, dict) or data.get('format') != STATE_FORMAT:
+            raise StateFormatError('calibration state: unknown or missing format tag')
+        references = data.get('references')
+        if not isinstance(references, list) or len(references) != len(AXES):
+            raise StateFormatError('calibration state: references must hold three axes')
+        refs = [_reference(r) for r in references]
+        for key in ('controller_gain', 'n_vref'):
+            if key not in data:
+                raise StateFormatError(f'calibration state: {key} missing')
+        state = cls(references=refs,
+                    controller_gain=_numbers(data, 'controller_gain'),
+                    n_vref=[_integer(v, 'n_vref') for v in _axes_list(data, 'n_vref')],
+                    last_estimates=_estimates(data.get('last_estimates', {})),
+                    captured_at_ns=_integer(data.get('captured_at_ns', 0), 'captured_at_ns'),
+                    updated_at_ns=_integer(data.get('updated_at_ns', 0), 'updated_at_ns'),
+                    temperature=_temperature(data.get('temperature', {})),
+                    reference_tc_ppm=_numbers(data, 'reference_tc_ppm'),
+                    gyro_bias=_numbers(data, 'gyro_bias'),
+                    reference_settings=_settings_from(data.get('reference_settings', {})))
         for value in [v for r in refs for v in (r.forward_slope, r.feedback_step)
                       if v is not None] + state.controller_gain:
-            if not math.isfinite(value) or value == 0:
-                raise ValueError('calibration state: non-finite or zero gain')
+            if value == 0:
+                raise StateFormatError('calibration state: zero gain')
         return state
 
     def apply_to(self, triad):
@@ -150,16 +168,96 @@ class CalibrationState:
         self.updated_at_ns = port.sensor_time_ns()
 
 
+class StateFormatError(ValueError):
+    """Not a calibration state; the message names the field and the rule, never a value."""
+
+
+STATE_FORMAT = 'qfa_ros.calibration/1'
+"""Format tag of a persisted calibration state."""
+LARGEST_INTEGER = 2 ** 63 - 1
+"""Largest magnitude of an integer field (words, sensor times in ns)."""
+ESTIMATE_KINDS = ('forward', 'feedback')
+
+
+def _number(value, field):
+    """Return ``value`` as a finite float; StateFormatError naming ``field`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not -1e308 < value < 1e308:
+        raise StateFormatError(f'calibration state: {field} must hold finite numbers')
+    return float(value)
+
+
+def _integer(value, field):
+    """Return ``value`` as an int of at most 63 bits (a whole float is taken too)."""
+    if isinstance(value, float) and math.isfinite(value) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) \
+            or abs(value) > LARGEST_INTEGER:
+        raise StateFormatError(f'calibration state: {field} must hold integers of at most '
+                               '63 bits')
+    return value
+
+
+def _axes_list(data, key):
+    """Return ``data[key]`` (default empty): a list of nothing or one entry per axis."""
+    values = data.get(key, [])
+    if not isinstance(values, list) or len(values) not in (0, len(AXES)):
+        raise StateFormatError(f'calibration state: {key} must be empty or hold three axes')
+    return values
+
+
+def _numbers(data, key):
+    return [_number(v, key) for v in _axes_list(data, key)]
+
+
+def _reference(record):
+    """Return the :class:`AxisReference` of one stored axis."""
+    if not isinstance(record, dict) or not set(record) <= REFERENCE_FIELDS:
+        raise StateFormatError('calibration state: each reference must map '
+                               f'{", ".join(sorted(REFERENCE_FIELDS))} to numbers or null')
+    return AxisReference(**{key: None if value is None else _number(value, f'references.{key}')
+                            for key, value in record.items()})
+
+
+def _estimates(data):
+    """Validate the last estimates: per kind three numbers [ppm]."""
+    if not isinstance(data, dict) or not set(data) <= set(ESTIMATE_KINDS):
+        raise StateFormatError('calibration state: last_estimates must map forward/feedback '
+                               'to three numbers')
+    estimates = {}
+    for kind, values in data.items():
+        if not isinstance(values, list) or len(values) != len(AXES):
+            raise StateFormatError(f'calibration state: last_estimates.{kind} must hold '
+                                   'three numbers')
+        estimates[kind] = [_number(v, f'last_estimates.{kind}') for v in values]
+    return estimates
+
+
+def _temperature(data):
+    """Validate the temperature ROM record by building it (an empty one: none stored)."""
+    if not isinstance(data, dict):
+        raise StateFormatError('calibration state: temperature must be a record')
+    if data:
+        try:
+            ThermalCompensation.from_dict(data)
+        except Exception as error:
+            raise StateFormatError(f'calibration state: temperature is not a temperature '
+                                   f'compensation record ({type(error).__name__})') from None
+    return dict(data)
+
+
 def _settings_from(data):
     """Validate the stored reference settings: per kind a flat mapping of scalars."""
-    if not isinstance(data, dict) or not set(data) <= {'forward', 'feedback'}:
-        raise ValueError('reference_settings must map forward/feedback to settings')
+    if not isinstance(data, dict) or not set(data) <= set(ESTIMATE_KINDS):
+        raise StateFormatError('calibration state: reference_settings must map '
+                               'forward/feedback to settings')
     settings = {}
     for kind, values in data.items():
         if not isinstance(values, dict) or len(values) > 32 or not all(
                 isinstance(k, str) and isinstance(v, (bool, int, float, str))
                 and len(k) <= 64 and len(str(v)) <= 64 for k, v in values.items()):
-            raise ValueError(f'reference_settings.{kind} must map names to scalars')
+            raise StateFormatError(f'calibration state: reference_settings.{kind} must map '
+                                   'names to scalars')
         settings[kind] = dict(values)
     return settings
 

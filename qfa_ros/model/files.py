@@ -2,28 +2,81 @@
 Files: read one someone else named (bounded, never echoed); replace one atomically.
 
 Every file the package reads on a stranger's word (a trajectory CSV, the calibration
-state) goes through :func:`read_regular_file`. It resolves symlinks first, opens without
-blocking on a FIFO (``O_NONBLOCK``), takes regular files only, refuses the kernel's
-pseudo file systems (``/proc``, ``/sys``, ``/dev``: their regular-looking files report
-sizes that mean nothing) and reads at most ``max_bytes``. Its errors name the path and
-the problem, never the content.
+state) goes through :func:`read_regular_file`. It resolves symlinks once, then opens
+the resolved path one component at a time with ``O_NOFOLLOW`` (a symlink swapped in
+since is refused, not followed), without blocking on a FIFO (``O_NONBLOCK``), and
+judges the opened descriptor itself: a regular file (``fstat``), not on one of the
+kernel's pseudo file systems (``fstatfs`` magic: proc, sysfs, debugfs ...; their
+regular-looking files are interfaces whose sizes mean nothing), at most ``max_bytes``.
+What was checked is what is read. Its errors name the path as given and the rule,
+never the resolved path or the content.
 
 Every file the package replaces in place (the calibration state, bag metadata, fleet
-results) goes through :func:`write_atomically`: a temporary file beside it, fsynced,
-renamed over it, the directory fsynced, so a reader or a crash sees the old file or the
-new one, never a mix.
+results) goes through :func:`write_atomically`: a temporary file beside it, created
+exclusively under an unpredictable name, fsynced, renamed over it, the directory
+fsynced, so a reader or a crash sees the old file or the new one, never a mix.
 """
 
+import ctypes
 import os
 from pathlib import Path
+import secrets
 import stat
 
-PSEUDO_FILE_SYSTEMS = (Path('/proc'), Path('/sys'), Path('/dev'))
-"""Kernel file systems whose files are interfaces, not data: never read."""
+PSEUDO_FILE_SYSTEMS = {
+    0x9FA0: 'proc', 0x62656572: 'sysfs', 0x1CD1: 'devpts', 0x64626720: 'debugfs',
+    0x74726163: 'tracefs', 0x73636673: 'securityfs', 0x0027E0EB: 'cgroup',
+    0x63677270: 'cgroup2', 0x62656570: 'configfs', 0xCAFE4A11: 'bpf',
+    0xDE5E81E4: 'efivarfs', 0x6165676C: 'pstore', 0x65735543: 'fusectl',
+    0x42494E4D: 'binfmt_misc', 0xF97CFF8C: 'selinuxfs', 0x43415D53: 'smackfs',
+    0x6E736673: 'nsfs', 0x50495045: 'pipefs', 0x534F434B: 'sockfs',
+    0x09041934: 'anon_inode'}
+"""Kernel file systems whose files are interfaces, not data, by ``statfs`` magic
+(``linux/magic.h``): never read. devtmpfs reports tmpfs's magic; every file on it a
+read could harm is a device node, refused as not a regular file."""
+
+_LIBC = ctypes.CDLL(None, use_errno=True)
+_STATFS_BYTES = 256
+"""Room for ``struct statfs`` (120 bytes on 64-bit Linux); ``f_type`` is its first word."""
 
 
 class UntrustedFileError(ValueError):
     """The named file is not one the package reads; the message never quotes its content."""
+
+
+def file_system_type(descriptor):
+    """Return the ``statfs`` magic number of the file system holding ``descriptor``."""
+    buffer = ctypes.create_string_buffer(_STATFS_BYTES)
+    if _LIBC.fstatfs(descriptor, buffer) != 0:
+        code = ctypes.get_errno()
+        raise OSError(code, os.strerror(code))
+    # f_type is a C long (__fsword_t); the magic numbers are 32 bits.
+    return ctypes.c_long.from_buffer(buffer).value & 0xFFFFFFFF
+
+
+def _open_without_symlinks(resolved):
+    """
+    Open the absolute, symlink-free path ``resolved`` for reading, following no symlink.
+
+    Each directory on the way is opened ``O_PATH | O_NOFOLLOW`` relative to the one
+    before (search permission suffices, as for a plain open), the file itself
+    ``O_NOFOLLOW | O_NONBLOCK``: a component swapped for a symlink since ``resolved``
+    was computed fails with ELOOP or ENOTDIR instead of leading elsewhere.
+    """
+    parts = resolved.parts
+    directory = os.open(parts[0], os.O_PATH | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        for part in parts[1:-1]:
+            inner = os.open(part, os.O_PATH | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC,
+                            dir_fd=directory)
+            os.close(directory)
+            directory = inner
+        last = parts[-1] if len(parts) > 1 else '.'
+        # O_NONBLOCK: opening a FIFO must not wait for a writer; it is refused below.
+        return os.open(last, os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW | os.O_NOCTTY
+                       | os.O_CLOEXEC, dir_fd=directory)
+    finally:
+        os.close(directory)
 
 
 def read_regular_file(path, max_bytes):
@@ -33,14 +86,16 @@ def read_regular_file(path, max_bytes):
     Parameters
     ----------
     path : str or os.PathLike
-        The file; ``~`` is not expanded (the caller decides).
+        The file; ``~`` is not expanded (the caller decides). Symlinks are resolved once,
+        then nothing on the resolved path may be a symlink when it is opened.
     max_bytes : int
         Largest size read [bytes]; a larger file is refused, not truncated.
 
     Raises
     ------
     UntrustedFileError
-        Missing, unreadable, not a regular file, on a pseudo file system, or too large.
+        Missing, unreadable, changed into a symlink while opened, not a regular file, on
+        a pseudo file system, or too large. The message names ``path`` as given.
     """
     if max_bytes < 1:
         raise ValueError(f'max_bytes must be positive, got {max_bytes!r}')
@@ -51,15 +106,16 @@ def read_regular_file(path, max_bytes):
         resolved = Path(name).resolve()
     except (OSError, RuntimeError) as error:
         raise UntrustedFileError(f'{name}: cannot resolve: {_reason(error)}') from None
-    if any(resolved == base or base in resolved.parents for base in PSEUDO_FILE_SYSTEMS):
-        raise UntrustedFileError(f'{name}: files under /proc, /sys and /dev are not read')
     try:
-        # O_NONBLOCK: opening a FIFO must not wait for a writer; it is refused below.
-        descriptor = os.open(resolved, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+        descriptor = _open_without_symlinks(resolved)
     except OSError as error:
         raise UntrustedFileError(f'{name}: cannot open: {_reason(error)}') from None
     try:
         info = os.fstat(descriptor)
+        kind = PSEUDO_FILE_SYSTEMS.get(file_system_type(descriptor))
+        if kind:
+            raise UntrustedFileError(f'{name}: on the kernel file system {kind}: its files '
+                                     'are interfaces, not data, and are not read')
         if not stat.S_ISREG(info.st_mode):
             raise UntrustedFileError(f'{name}: not a regular file')
         if info.st_size > max_bytes:
@@ -95,8 +151,10 @@ def write_atomically(path, write):
     """
     Replace ``path`` with what ``write(stream)`` writes, atomically and durably.
 
-    The temporary file is ``.<name>.<pid>.tmp`` beside ``path`` (removed if anything
-    fails); it is fsynced and renamed over ``path``, then the directory is fsynced.
+    The temporary file ``.<name>.<random>.tmp`` beside ``path`` is created exclusively
+    (``O_CREAT | O_EXCL``: never an existing file or a planted symlink; 64 random bits
+    in its name, so none can be planted in advance) and removed if anything fails; it is
+    fsynced and renamed over ``path``, then the directory is fsynced.
 
     Parameters
     ----------
@@ -110,9 +168,9 @@ def write_atomically(path, write):
     OSError
         The file could not be written or renamed; ``path`` is unchanged.
     """
-    temporary = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
+    temporary, descriptor = _create_temporary(path)
     try:
-        with open(temporary, 'wb') as stream:
+        with open(descriptor, 'wb') as stream:
             write(stream)
             stream.flush()
             os.fsync(stream.fileno())
@@ -126,6 +184,24 @@ def write_atomically(path, write):
     fsync_directory(path.parent)
 
 
+TEMPORARY_ATTEMPTS = 16
+"""Names tried for a temporary file before giving up (a clash of 64 random bits)."""
+
+
+def _create_temporary(path):
+    """Create ``.<name>.<16 hex digits>.tmp`` beside ``path`` exclusively; return (path, fd)."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+    for attempt in range(TEMPORARY_ATTEMPTS):
+        temporary = path.with_name(f'.{path.name}.{secrets.token_hex(8)}.tmp')
+        try:
+            return temporary, os.open(temporary, flags, 0o666)
+        except FileExistsError:
+            if attempt == TEMPORARY_ATTEMPTS - 1:
+                raise
+
+
 def _reason(error):
-    """Return the system's words for ``error`` (never a file's content)."""
+    """Return the system's words for ``error`` (never a file's content nor a path)."""
+    if isinstance(error, RuntimeError):
+        return 'symlink loop'  # pathlib's resolve(); its message names the path
     return error.strerror or type(error).__name__

@@ -32,6 +32,11 @@ CHAMBER_MAX_PERIOD_S = 4500.0
 CHAMBER_MAX_CYCLES = 1
 MAX_SCHEDULE_LOOP_STEPS = 144_000_000
 """Model loop steps one call may compute: 14400 s of sensor time at the default 10 kHz loop."""
+CHAMBER_MAX_SENSOR_S = 14_400.0
+"""Sensor time one calibrate_temperature call may take [s], whatever the loop rate. The
+ranges alone do not bound it tightly: fewer plateaus (``low_c`` and ``high_c`` close
+together) hold longer each, and the extremes soak up to ten holds, so the settings are
+checked as a whole (:meth:`TemperatureSettings.max_sensor_time_s`)."""
 SETTLE_TIME_S = TriadConfig.settle_time
 """Settling of the re-closed loops that ends every estimation schedule [s]."""
 
@@ -78,7 +83,8 @@ def forward_sweep_problem(settings, hardware, forward_drift_ppm=(0.0,)):
             f'{settings.points} x {settings.step} = {settings.points * settings.step} '
             f'counts: the sweep would drive DA1 or the ADC out of range; at most {span} '
             f'(N_FPGA {hardware.n_fpga} + the span stays under the ADC full scale with '
-            f'{FORWARD_HEADROOM - 1:.0%} headroom)')
+            f'{FORWARD_HEADROOM - 1:.0%} headroom; a positive drift.forward_ppm raises the '
+            f'open-loop output and narrows it)')
 
 
 def forward_sensor_time_s(settings, settle_time_s):
@@ -102,13 +108,14 @@ LARGEST_FEEDBACK = FeedbackSettings(cycles=FEEDBACK_MAX_CYCLES, settle_s=FEEDBAC
 """The longest I_ref schedule the parameter ranges allow."""
 LARGEST_CHAMBER = TemperatureSettings(period_s=CHAMBER_MAX_PERIOD_S, cycles=CHAMBER_MAX_CYCLES,
                                       reference_steps=True)
-"""The longest calibrate_temperature program the parameter ranges allow."""
+"""The longest calibrate_temperature program the parameter ranges allow at the default
+chamber limits (other limits may take longer, up to :data:`CHAMBER_WORST_S`)."""
 FORWARD_WORST_S = forward_sensor_time_s(LARGEST_FORWARD, SETTLE_TIME_S)
 FEEDBACK_WORST_S = feedback_sensor_time_s(LARGEST_FEEDBACK, SETTLE_TIME_S)
 SCHEDULE_WORST_S = FORWARD_WORST_S + FEEDBACK_WORST_S
 """Longest sensor time of an estimation call the ranges allow [s]."""
-CHAMBER_WORST_S = LARGEST_CHAMBER.max_sensor_time_s()
-"""Longest sensor time of a calibrate_temperature call the ranges allow [s]."""
+CHAMBER_WORST_S = CHAMBER_MAX_SENSOR_S
+"""Longest sensor time of a calibrate_temperature call the settings allow [s]."""
 
 FORWARD_SPAN_BOUND = (
     f'; points x step at most {FORWARD_MAX_SPAN} counts (DA1 and ADC range of the sweep)')
@@ -119,9 +126,9 @@ ESTIMATION_BOUND = (
     'steps')
 CHAMBER_BOUND = (
     f'; bounded: one call takes at most {CHAMBER_WORST_S:.0f} s of sensor time and '
-    f'{MAX_SCHEDULE_LOOP_STEPS:.3g} model loop steps (the plateaus of cycles x period_s, '
-    'the soaks at the extremes and back, the I_ref steps at every plateau, times '
-    'loop_rate_hz)')
+    f'{MAX_SCHEDULE_LOOP_STEPS:.3g} model loop steps (the plateaus of cycles x period_s '
+    'between low_c and high_c, the soaks at the extremes and back, the I_ref steps at every '
+    'plateau, times loop_rate_hz)')
 
 
 def output_directory(values):
@@ -143,17 +150,23 @@ def confined_directory(values, name):
         names the parameter.
     """
     value = values[name]
+    rule = (f'{name} must name a directory inside output_dir: relative to it, or absolute '
+            'inside it, symlinks and .. resolved (the node writes only under output_dir, '
+            'read-only, chosen at start)')
     if not value:
         raise ValueError(f'{name} must not be empty')
     if value.startswith('~'):
-        raise ValueError(f'{name} {value!r}: ~ is not expanded; give a path relative to '
-                         f'output_dir or an absolute path inside it')
+        raise ValueError(f'{rule}; ~ is not expanded')
     base = output_directory(values)
-    directory = (base / value).resolve()
+    try:
+        directory = (base / value).resolve()
+    except (OSError, RuntimeError):
+        # A symlink loop or an unreadable component; the error's text names the path.
+        raise ValueError(f'{rule}; this one cannot be resolved') from None
     if directory != base and base not in directory.parents:
-        raise ValueError(f'{name} {value!r} resolves to {directory}, outside output_dir '
-                         f'{base}: the node writes only under output_dir (read-only, chosen '
-                         f'at start)')
+        # Never where it leads: /proc/self/cwd, /proc/<pid>/cwd, /proc/self/fd/N or a
+        # link planted under output_dir would tell the caller paths it cannot see.
+        raise ValueError(f'{rule}; this one leads outside it')
     return directory
 
 
@@ -173,6 +186,13 @@ def budget_problem(loop_rate_hz, forward, feedback, chamber):
                 f'steps at loop_rate_hz {loop_rate_hz:g}; at most '
                 f'{MAX_SCHEDULE_LOOP_STEPS:.3g} are allowed')
     chamber_s = chamber.max_sensor_time_s()
+    if chamber_s > CHAMBER_MAX_SENSOR_S:
+        return ('temperature_calibration.period_s, temperature_calibration.low_c, '
+                'temperature_calibration.high_c, temperature_calibration.cycles, '
+                'temperature_calibration.reference_steps: one calibrate_temperature would '
+                f'take {chamber_s:.0f} s of sensor time (its plateaus between low_c and '
+                f'high_c, the soaks at the extremes and back); at most '
+                f'{CHAMBER_MAX_SENSOR_S:.0f} s are allowed')
     if chamber_s * loop_rate_hz > MAX_SCHEDULE_LOOP_STEPS:
         return (f'temperature_calibration.period_s x temperature_calibration.cycles: one '
                 f'calibrate_temperature would take {chamber_s:.0f} s of sensor time, '

@@ -69,12 +69,15 @@ class CalibrationKeeper:
         try:
             if compensation:
                 state.apply_to(self.triad)
-        except ValueError as error:
+        except Exception as error:
+            # Whatever a stored word makes the model raise: the start goes on, bare. The
+            # model's message quotes the word (the file's content): only its kind is told.
             self.restore_nominal_words()
             kept = store.set_aside()
             where = f'kept as {kept}' if kept else 'could not be set aside'
-            self.problem = (f'state file {store.path} holds words the sensor cannot '
-                            f'take ({error}); {where}; starting uncalibrated')
+            self.problem = (f'state file {store.path} holds words the sensor cannot take '
+                            f'(k(D(z)), N_VREF or the temperature ROM out of range: '
+                            f'{type(error).__name__}); {where}; starting uncalibrated')
             self._logger.error(self.problem)
             return
         self.state = state
@@ -132,8 +135,14 @@ class CalibrationKeeper:
                 state.apply_to(self.triad)
             else:
                 self.restore_nominal_words()
-        except ValueError as error:
-            return False, f'bad calibration state: {error}'
+        except Exception as error:
+            # A stored word the sensor refuses (a file loaded with the compensation off):
+            # no mix of words is left, and the model's message, which quotes the word, is
+            # not passed on.
+            self.restore_nominal_words()
+            self.compensation = False
+            return False, ("bad calibration state: a stored word is out of the sensor's range "
+                           f'({type(error).__name__}); nominal words restored')
         self.compensation = bool(on)
         words = ', '.join(f'{axis} k(D(z)) {loop.controller.gain:.6g} N_VREF {loop.n_vref}'
                           for axis, loop in zip(AXES, self.triad.axes))

@@ -31,7 +31,10 @@ class GroundTruthInput:
     ``input.timeout_s``. Before the first input the static orientation stands in.
     Stamps are a stranger's data: one further than ``input.stamp_window_s`` from the
     node clock (ahead or behind) is refused and counted before it can change anything,
-    so what "in order" means for the next message stays the stream's.
+    so what "in order" means for the next message stays the stream's. One ordering rule:
+    a message stamped before the newest one accepted so far (queued, held or already
+    used) is rejected, so a message stamped ahead holds back the honest input by at most
+    the window (read-only).
     The caller holds the node lock around every method.
 
     :param values: The node's live parameter values (read, never written).
@@ -44,6 +47,7 @@ class GroundTruthInput:
         self.rejected = 0
         self.refused_stamps = 0
         self.problem = None
+        self._newest_ns = None  # stamp of the newest input accepted so far [ns]
         self._odometry = None  # (time_ns, world velocity) of the previous odometry message
 
     @property
@@ -66,7 +70,7 @@ class GroundTruthInput:
                             f'from the node clock refused (input.stamp_window_s '
                             f'{self._values["input.stamp_window_s"]:g})')
             return True
-        if self.pending and time_ns < self.pending[-1][0]:
+        if self._newest_ns is not None and time_ns < self._newest_ns:
             self.rejected += 1
             self.problem = 'ground-truth input out of order rejected'
             return True
@@ -91,6 +95,7 @@ class GroundTruthInput:
                             f'{MAX_SPECIFIC_FORCE:g} m/s^2, {MAX_ANGULAR_RATE:g} rad/s): {value}')
             return
         self.pending.append((time_ns, value))
+        self._newest_ns = time_ns
         if len(self.pending) > MAX_PENDING_INPUTS:
             # Inputs stamped ahead of the stream (another clock) must not pile up.
             self.held = self.pending.pop(0)

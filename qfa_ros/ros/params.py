@@ -64,6 +64,10 @@ MAX_STRING_LENGTH = 4096
 """Longest string parameter [characters] (PATH_MAX): a stranger's megabyte is refused."""
 MAX_FRAME_ID_LENGTH = 256
 """Longest ``frame_id`` [characters]: it rides on every published message."""
+MAX_STEPS = 1000
+"""Most entries of ``input.steps.times_s`` (three levels each in ``input.steps.levels``)."""
+MAX_SHOWN = 64
+"""Most characters of a refused value a refusal quotes back."""
 
 FORWARD_COMPONENT = 'k_amp'
 """Drift component behind ``drift.forward_ppm``: the in-amp gain resistor (seed 1 §IV)."""
@@ -92,7 +96,8 @@ class ParameterSpec:
     :param read_only: True where a runtime change makes no sense.
     :param low, high: Inclusive range of a scalar number (None: no range).
     :param choices: Allowed strings.
-    :param length: Required length of an array (None: any, but non-empty).
+    :param length: Required length of an array (None: one to ``max_length`` elements).
+    :param max_length: Most elements of an array without a required ``length``.
     """
 
     name: str
@@ -103,6 +108,7 @@ class ParameterSpec:
     high: float = None
     choices: tuple = None
     length: int = None
+    max_length: int = None
 
 
 def _vector(name, default, description, read_only=False, low=-1.0e6, high=1.0e6):
@@ -270,11 +276,11 @@ PARAMETERS = (
                   1.0e-3, 1.0e6),
     ParameterSpec('input.steps.times_s', [0.0, 10.0],
                   'Start of each step level in sensor time [s], increasing', False, 0.0,
-                  1.0e9),
+                  1.0e9, max_length=MAX_STEPS),
     ParameterSpec('input.steps.levels', [0.0, 0.0, STANDARD_GRAVITY,
                                          STANDARD_GRAVITY, 0.0, 0.0],
                   'Step levels, x, y, z per entry of input.steps.times_s [m/s^2]', False,
-                  -1000.0, 1000.0),
+                  -1000.0, 1000.0, max_length=3 * MAX_STEPS),
     ParameterSpec('input.topic_type', 'imu',
                   'Ground-truth message: imu (sensor_msgs/Imu on input/imu, with its '
                   'angular_velocity unless covariance[0] = -1), accel '
@@ -287,7 +293,9 @@ PARAMETERS = (
     ParameterSpec('input.stamp_window_s', 1.0,
                   'A ground-truth message stamped further than this from the node clock, '
                   'ahead or behind, is refused and counted (diagnostics input) without '
-                  'changing the input [s]', False, 1.0e-3, 3600.0),
+                  'changing the input [s]. Read-only: a message stamped up to this far ahead '
+                  'holds back the honest input stamped before it, so no participant may '
+                  'widen it', True, 1.0e-3, 3600.0),
     ParameterSpec('estimation.realtime', True,
                   'true: a schedule takes its sensor time at the node clock; false: as fast '
                   'as the CPU allows'),
@@ -403,7 +411,7 @@ RUNTIME_EFFECTS = {
               'input.tumble.dwell_s', 'input.steps.times_s', 'input.steps.levels'),
     'recorder': ('recorder.enabled', 'recorder.directory', 'recorder.max_bytes',
                  'recorder.max_duration_s'),
-    'live': ('input.timeout_s', 'input.stamp_window_s', 'estimation.realtime',
+    'live': ('input.timeout_s', 'estimation.realtime',
              'estimation.forward.points', 'estimation.forward.step',
              'estimation.forward.settle_s', 'estimation.forward.average_s',
              'estimation.forward.order', 'estimation.feedback.cycles',
@@ -456,8 +464,8 @@ def descriptor(spec):
         result.floating_point_range = [FloatingPointRange(
             from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
     if isinstance(spec.default, list):
-        length = (f'exactly {spec.length} elements (x, y, z)' if spec.length
-                  else 'at least one element')
+        length = (f'exactly {spec.length} elements' if spec.length
+                  else f'1 to {spec.max_length} elements')
         bounds = f' in [{spec.low:g}, {spec.high:g}]' if spec.low is not None else ''
         result.additional_constraints = (f'{length}, each a finite number{bounds}; '
                                          'integers are accepted and stored as doubles')
@@ -488,46 +496,79 @@ def as_declared_type(parameter):
     return parameter
 
 
+def shown(value):
+    """Return ``value`` as a refusal quotes it: its repr, at most :data:`MAX_SHOWN` characters."""
+    if isinstance(value, str) and len(value) > MAX_SHOWN:
+        value = value[:MAX_SHOWN]  # the repr of a stranger's megabyte is never built
+    text = repr(value)
+    return text if len(text) <= MAX_SHOWN else text[:MAX_SHOWN - 3] + '...'
+
+
 def check_value(name, value):
-    """Return why ``value`` is not acceptable for parameter ``name``, or None."""
+    """
+    Return why ``value`` is not acceptable for parameter ``name``, or None.
+
+    The reason names the parameter and the rule; it quotes at most :data:`MAX_SHOWN`
+    characters of a scalar value and never an array (sizes are checked before anything
+    else is looked at).
+    """
     spec = SPECS.get(name)
     if spec is None:
-        return f'{name}: unknown parameter'
-    if isinstance(spec.default, list):
-        try:
-            values = [float(v) for v in value]
-        except (TypeError, ValueError):
-            return f'{name} must be an array of numbers, got {value!r}'
-        if spec.length is not None and len(values) != spec.length:
-            return f'{name} must have exactly {spec.length} elements (x, y, z), ' \
-                   f'got {len(values)}'
-        if not values:
-            return f'{name} must not be empty'
-        if not all(math.isfinite(v) for v in values):
-            return f'{name} must be finite, got {list(value)!r}'
-        if spec.low is not None and not all(spec.low <= v <= spec.high for v in values):
-            return f'{name} elements must be in [{spec.low:g}, {spec.high:g}], ' \
-                   f'got {list(value)!r}'
-        return None
-    if isinstance(spec.default, float):
-        if not isinstance(value, (int, float)) or isinstance(value, bool):
-            return f'{name} must be a number, got {value!r}'
-        if not math.isfinite(value):
-            return f'{name} must be finite, got {value!r}'
+        return f'{shown(name)}: unknown parameter'
+    default = spec.default
+    if isinstance(default, list):
+        return _check_array(spec, value)
+    if isinstance(default, str):
+        return _check_string(spec, value)
+    if isinstance(default, bool):
+        return None if isinstance(value, bool) else f'{name} must be true or false'
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return f'{name} must be a number'
+    if isinstance(default, float) and not math.isfinite(value):
+        return f'{name} must be finite, got {shown(value)}'
+    if isinstance(default, int) and not isinstance(value, int):
+        return f'{name} must be an integer'
     if spec.low is not None and not spec.low <= value <= spec.high:
-        return f'{name} must be in [{spec.low:g}, {spec.high:g}], got {value!r}'
+        return f'{name} must be in [{spec.low:g}, {spec.high:g}], got {shown(value)}'
+    return None
+
+
+def _check_string(spec, value):
+    """Return why ``value`` is not acceptable for the string parameter ``spec``, or None."""
+    name = spec.name
+    if not isinstance(value, str):
+        return f'{name} must be a string'
+    limit = MAX_FRAME_ID_LENGTH if name == 'frame_id' else MAX_STRING_LENGTH
+    if len(value) > limit:
+        return f'{name} must be at most {limit} characters, got {len(value)}'
+    if not value.isprintable():
+        return f'{name} must be printable text (no control characters)'
     if spec.choices is not None and value not in spec.choices:
-        return f'{name} must be one of {", ".join(spec.choices)}, got {value!r}'
-    if isinstance(spec.default, str):
-        if not isinstance(value, str):
-            return f'{name} must be a string'
-        limit = MAX_FRAME_ID_LENGTH if name == 'frame_id' else MAX_STRING_LENGTH
-        if len(value) > limit:
-            return f'{name} must be at most {limit} characters, got {len(value)}'
-        if not value.isprintable():
-            return f'{name} must be printable text (no control characters)'
+        return f'{name} must be one of {", ".join(spec.choices)}, got {shown(value)}'
     if name == 'frame_id' and not value:
         return 'frame_id must not be empty'
+    return None
+
+
+def _check_array(spec, value):
+    """Return why ``value`` is not acceptable for the array parameter ``spec``, or None."""
+    name = spec.name
+    if isinstance(value, (str, bytes)) or not hasattr(value, '__len__'):
+        return f'{name} must be an array of numbers'
+    if spec.length is not None and len(value) != spec.length:
+        return f'{name} must have exactly {spec.length} elements, got {len(value)}'
+    if spec.max_length is not None and len(value) > spec.max_length:
+        return f'{name} must have at most {spec.max_length} elements, got {len(value)}'
+    if not len(value):
+        return f'{name} must not be empty'
+    for index, element in enumerate(value):
+        if isinstance(element, bool) or not isinstance(element, (int, float)):
+            return f'{name}[{index}] must be a number'
+        if not math.isfinite(element):
+            return f'{name}[{index}] must be finite, got {shown(element)}'
+        if spec.low is not None and not spec.low <= element <= spec.high:
+            return (f'{name}[{index}] must be in [{spec.low:g}, {spec.high:g}], '
+                    f'got {shown(element)}')
     return None
 
 
@@ -828,7 +869,7 @@ def parameter_table():
         default = spec.default
         kind = {bool: 'bool', int: 'int', float: 'double', str: 'string'}.get(type(default))
         if isinstance(default, list):
-            kind = f'double[{spec.length}]' if spec.length else 'double[]'
+            kind = f'double[{spec.length}]' if spec.length else f'double[≤{spec.max_length}]'
         limits = ''
         if spec.low is not None:
             limits = f'{spec.low} … {spec.high}' if isinstance(spec.default, int) \

@@ -2,9 +2,9 @@
 The node's parameters at run time: declared from the table, checked and applied on change.
 
 Every parameter of :data:`~qfa_ros.ros.params.PARAMETERS` is declared with its
-``ParameterDescriptor``; a change is accepted only if the whole set stays consistent and is
-then applied to the running sensor through one step per runtime effect
-(:data:`~qfa_ros.ros.params.RUNTIME_EFFECTS`).
+``ParameterDescriptor``; a change is accepted only if the whole set stays consistent and
+its effect on the running sensor (one step per runtime effect,
+:data:`~qfa_ros.ros.params.RUNTIME_EFFECTS`) has run.
 """
 
 import collections
@@ -81,11 +81,16 @@ def apply_ambient(triad, values):
 
 class RuntimeParameters:
     """
-    Check each parameter change and apply the accepted ones to the running sensor.
+    Check each parameter change, apply it to the running sensor, and only then accept it.
 
-    Registers the node's set-parameters and post-set-parameters callbacks.
+    Registers the node's set-parameters callback: a change is accepted once the whole set
+    is consistent and the step of each runtime effect it has (:data:`RUNTIME_EFFECTS`) has
+    run. A step that fails (the recording cannot start in the new directory, a value the
+    model refuses, any unexpected exception) refuses the change with the reason, puts the
+    old values back and runs the steps again with them, so the parameter and the sensor
+    stay as they were; the node goes on either way.
 
-    :param node: The node (callbacks, logger).
+    :param node: The node (callback, logger).
     :param lock: The node lock (the model, the stream and the values are changed under it).
     :param values: The node's live parameter values: written here only, under ``lock``.
     :param trajectory_file: The trajectory file read at start, or None.
@@ -106,50 +111,77 @@ class RuntimeParameters:
         self._recording = recording
         self._schedules = schedules
         # The step that applies each runtime effect of params.RUNTIME_EFFECTS, and how
-        # often each ran (read by the tests; under the node lock).
+        # often each ran for an accepted change (read by the tests; under the node lock).
         self.steps = {
             'live': lambda: None, 'drift': lambda: apply_drift(triad, values),
             'input': self._apply_input, 'frame': self._apply_frame_id,
             'ambient': lambda: apply_ambient(triad, values),
             'recorder': self._restart_recording}
         self.applied = collections.Counter()
-        node.add_on_set_parameters_callback(self.validate_callback)
-        node.add_post_set_parameters_callback(self.apply_callback)
+        # rclpy runs the set-parameters callbacks last added first, and stores the values
+        # once all accepted: this one applies the change, so it must be the last to run
+        # (the first added).
+        node.add_on_set_parameters_callback(self.set_callback)
 
-    def validate_callback(self, parameters):
-        """Accept a parameter change only if the whole set stays consistent."""
+    def set_callback(self, parameters):
+        """Accept a parameter change only if the whole set stays consistent and it applies."""
+        names = sorted({parameter.name for parameter in parameters})
         try:
             merged = dict(self._values)
             for parameter in parameters:
                 merged[parameter.name] = parameter.value
             reason = check_all(merged, self._trajectory_file)
-            names = {parameter.name for parameter in parameters}
             if not reason and self._schedules.busy_kind == 'temperature' \
-                    and names & THERMAL_RUNTIME_PARAMETERS:
+                    and THERMAL_RUNTIME_PARAMETERS.intersection(names):
                 reason = 'busy: the temperature calibration controls the ambient until it ends'
+            if not reason:
+                reason = self._apply({name: merged[name] for name in names})
         except Exception as error:
-            # A parameter callback must never raise: it would kill the set_parameters call.
-            reason = f'cannot check the change: {error}'
+            # A parameter callback must never raise: it would end the set_parameters call
+            # (and the executor with it).
+            reason = f'cannot check the change of {", ".join(names)}: {type(error).__name__}'
+            self._node.get_logger().error(f'{reason}: {error}')
         if reason:
             return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
 
-    def apply_callback(self, parameters):
-        """Apply accepted parameter changes to the running sensor at once."""
-        names = {parameter.name for parameter in parameters}
+    def _apply(self, changes):
+        """Apply ``changes`` (name: value) to the sensor; return why they were undone, or None."""
+        wanted = {EFFECT_OF[name] for name in changes}
         # One step per effect, each once, in the order of params.RUNTIME_EFFECTS.
-        wanted = {EFFECT_OF[name] for name in names}
         effects = [effect for effect in RUNTIME_EFFECTS if effect in wanted]
         with self._lock:
-            for parameter in parameters:
-                self._values[parameter.name] = parameter.value
+            old = {name: self._values[name] for name in changes}
+            self._values.update(changes)
+            ran = []
             try:
                 for effect in effects:
+                    ran.append(effect)  # a step that fails half-way is undone too
                     self.steps[effect]()
-                    self.applied[effect] += 1
-            except (ValueError, OSError) as error:
-                self._schedules.last_error = f'applying {", ".join(sorted(names))}: {error}'
-                self._node.get_logger().error(self._schedules.last_error)
+            except Exception as error:
+                self._values.update(old)
+                detail = str(error) if isinstance(error, (ValueError, OSError, EffectError)) \
+                    else f'{type(error).__name__}: {error}'
+                reason = f'{", ".join(changes)} not changed: applying it failed ({detail})'
+                self._node.get_logger().error(reason + self._undo(ran))
+                return reason
+            for effect in effects:
+                self.applied[effect] += 1
+        return None
+
+    def _undo(self, effects):
+        """Run ``effects`` again with the restored values; return what could not be undone."""
+        failed = []
+        for effect in effects:
+            try:
+                self.steps[effect]()
+            except Exception as error:
+                failed.append(f'{effect} ({type(error).__name__}: {error})')
+        if failed:
+            self._schedules.last_error = 'a failed parameter change could not be undone: ' \
+                + ', '.join(failed)
+            return '; ' + self._schedules.last_error
+        return '; old values restored'
 
     def _apply_frame_id(self):
         self._stream.set_frame_id(self._values['frame_id'])
@@ -163,3 +195,9 @@ class RuntimeParameters:
         with self._recording.lock:
             self._stream.flush_recording()
             self._recording.restart()
+            if self._values['recorder.enabled'] and not self._recording.active:
+                raise EffectError(self._recording.problem or 'the recording did not start')
+
+
+class EffectError(Exception):
+    """A runtime effect did not take: the message says why (no traceback needed)."""

@@ -7,7 +7,7 @@ import json
 import os
 from pathlib import Path
 
-from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.calibration.state import CalibrationState, StateFormatError
 from qfa_ros.model.files import (
     fsync_directory,
     read_regular_file,
@@ -20,6 +20,18 @@ MAX_STATE_BYTES = 1 << 20
 
 COMPENSATION_KEY = 'compensation_enabled'
 """Extra key of the state file: whether the stored corrections are applied (node-level)."""
+
+
+def corrupt_reason(error):
+    """Return why a state file's text is no state, in words that never quote the file."""
+    if isinstance(error, json.JSONDecodeError):
+        # Its msg is the parser's rule ("Expecting value"), its doc the file: only the former.
+        return f'not JSON ({error.msg} at line {error.lineno} column {error.colno})'
+    if isinstance(error, StateFormatError):
+        return str(error)
+    if isinstance(error, RecursionError):
+        return 'not JSON this parser takes (nested too deeply)'
+    return f'not a calibration state ({type(error).__name__})'
 
 
 class StateFileError(Exception):
@@ -68,9 +80,11 @@ class StateStore:
             state = CalibrationState.from_dict(data)
             compensation = data.get(COMPENSATION_KEY, True)
             if not isinstance(compensation, bool):
-                raise ValueError(f'{COMPENSATION_KEY} must be true or false')
-        except ValueError as error:
-            raise StateFileError(f'state file {self.path} corrupt: {error}',
+                raise StateFormatError(f'{COMPENSATION_KEY} must be true or false')
+        except Exception as error:
+            # Any malformed file is set aside, never the end of the start; the reason
+            # never quotes it (a parser's message may).
+            raise StateFileError(f'state file {self.path} corrupt: {corrupt_reason(error)}',
                                  self.set_aside()) from None
         return state, compensation
 

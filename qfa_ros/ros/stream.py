@@ -388,9 +388,11 @@ class SampleStream:
 
     def schedule_ended(self):
         """Forget the running schedule and wake whoever awaits its end; the stream resumes."""
+        run = self.schedule
         self.end_schedule()
         if self.on_schedule_end is not None:
-            self.on_schedule_end()
+            # The hook is told which schedule ended (the calibration event's kind).
+            self.on_schedule_end(None if run is None else run.kind)
 
     def _queue_samples(self, first, stamps, output, stale):
         """Encode the valid samples and the temperature readings; queue them for the pacer."""

@@ -11,11 +11,14 @@ publishes what the model holds then: the pose on the input trajectory, its origi
 (:func:`qfa_ros.model.error_truth.error_truth`). Nothing runs on the per-sample path.
 
 A correction applied in place (a schedule's result, ``~/set_compensation``) changes the
-loop words, the temperature compensation or the gyro bias correction; the timer sees the
-change between two ticks without a schedule running and publishes one
-``diagnostic_msgs/DiagnosticStatus`` on ``~/calibration_events`` (transient local), stamped
-with the first sample computed after the change (:meth:`TruthPublisher.mark` records it
-exactly where the node knows it).
+loop words, the temperature compensation or the gyro bias correction. Where the node
+applies one, :meth:`TruthPublisher.mark` records the words and the errors right after it
+and the first sample computed with it; the next tick publishes one
+``diagnostic_msgs/DiagnosticStatus`` on ``~/calibration_events`` (transient local) per
+marked correction that changed something, each against the one before it, so two
+corrections within one tick give two events. A change nobody marked (a schedule that
+failed after applying part of its result) is still seen between two ticks and published
+as one event.
 """
 
 import math
@@ -109,7 +112,7 @@ class TruthPublisher:
         self._profile = None
         self._fingerprint = None
         self._before = None
-        self._marked = None
+        self._marks = []  # (sample index, kind, words, ErrorTruth) per correction since the tick
         self._last_kind = None
         self._position = None
         self.published = 0
@@ -118,19 +121,33 @@ class TruthPublisher:
 
     def chain(self, callback):
         """Return ``callback`` preceded by :meth:`mark` (the stream's schedule-end hook)."""
-        def marked():
-            self.mark()
+        def marked(kind=None):
+            self.mark(kind)
             callback()
         return marked
 
     def mark(self, kind=None):
         """
-        Note that a correction may have been applied now: the next sample has it.
+        Note that a correction ``kind`` may have been applied now: the next sample has it.
 
-        Called with the node lock held (by the sensor thread at a schedule's end, by the
-        ``~/set_compensation`` callback); takes no lock.
+        Records the words and the errors the model holds now, so that each correction
+        gets its own event even when several come within one tick. Called with the node
+        lock held (by the sensor thread at a schedule's end, by the ``~/set_compensation``
+        callback); takes no lock.
         """
-        self._marked = (self._stream.grid.next_index, kind)
+        if self._fingerprint is None:
+            return  # before the first tick: nothing to compare the correction with
+        self._marks.append((self._stream.grid.next_index, kind, self._words(),
+                            self._error_truth()[0]))
+
+    def _error_truth(self):
+        """Return the :class:`ErrorTruth` of the model now, and whether the input has a pose."""
+        triad = self._triad
+        profile = triad.profile
+        pose_input = self._values['input.mode'] in POSE_MODES \
+            and hasattr(profile, 'local_pose') and triad.fixture is None
+        force = profile.evaluate(np.array([triad.time]))[0] if pose_input else None
+        return error_truth(triad, force), pose_input
 
     def _words(self):
         triad = self._triad
@@ -159,15 +176,21 @@ class TruthPublisher:
             stamp_ns = int(grid.stamp_ns(grid.next_index - 1))
             t = triad.time
             profile = triad.profile
-            pose_input = self._values['input.mode'] in POSE_MODES \
-                and hasattr(profile, 'local_pose') and triad.fixture is None
-            force = profile.evaluate(np.array([t]))[0] if pose_input else None
-            truth = error_truth(triad, force)
+            truth, pose_input = self._error_truth()
             words = self._words()
+            marks, self._marks = self._marks, []
+            for index, kind, marked_words, marked_truth in marks:
+                if marked_words != self._fingerprint:
+                    messages.append(('event', self._event(
+                        kind or self._last_kind or _changed(self._fingerprint, marked_words),
+                        marked_words, marked_truth, int(grid.stamp_ns(index)))))
+                self._fingerprint, self._before = marked_words, marked_truth
             if self._fingerprint is not None and words != self._fingerprint:
-                messages.append(('event', self._event(words, truth, stamp_ns)))
+                messages.append(('event', self._event(
+                    self._last_kind or _changed(self._fingerprint, words), words, truth,
+                    stamp_ns)))
             self._fingerprint, self._before = words, truth
-            self._marked = self._last_kind = None
+            self._last_kind = None
             if self.enabled:
                 frame_id = self._values['frame_id']
                 messages.append(('errors', imu_errors_message(truth, stamp_ns, frame_id)))
@@ -196,12 +219,9 @@ class TruthPublisher:
             topics[self.origin.topic_name] = QOS_LATCHED
         return topics
 
-    def _event(self, words, truth, stamp_ns):
+    def _event(self, kind, words, truth, stamp_ns):
+        """Return the event of the correction ``kind`` to ``words``, against the one before."""
         before = self._before
-        index, marked_kind = self._marked if self._marked is not None else (None, None)
-        if index is not None:
-            stamp_ns = int(self._stream.grid.stamp_ns(index))
-        kind = marked_kind or self._last_kind or _changed(self._fingerprint, words)
         scale = (np.diag(truth.accel_matrix) - np.diag(before.accel_matrix)) / PPM
         bias = (truth.accel_bias - before.accel_bias) / MICRO_G
         gyro = np.nan_to_num(truth.gyro_bias - before.gyro_bias) / DEG_PER_HOUR
