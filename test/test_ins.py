@@ -143,6 +143,11 @@ def test_trajectory_bag_carries_its_truth_origin_and_geodetic_position_is_recove
         origin = topics['/truth/origin']
         assert origin.msgtype == 'sensor_msgs/msg/NavSatFix'
         assert 'transient_local' in str(origin.ext.offered_qos_profiles).lower()
+        # The truth's QoS in a bag is the node's (qfa_ros.bag.qos.QOS_TRUTH): reliable, so
+        # `ros2 bag play` serves reliable subscribers too.
+        for topic in ('/truth/odometry', '/truth/imu_errors'):
+            qos, = topics[topic].ext.offered_qos_profiles
+            assert (qos.reliability.name, qos.depth) == ('RELIABLE', 10), topic
         (_, time_ns, raw), = reader.messages(connections=[origin])
         fix = reader.deserialize(raw, origin.msgtype)
         odometry = [(t, reader.deserialize(raw, c.msgtype)) for c, t, raw in

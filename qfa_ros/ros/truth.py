@@ -26,7 +26,7 @@ import numpy as np
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
-from qfa_ros.bag.qos import QOS_LATCHED, QosProfile
+from qfa_ros.bag.qos import QOS_LATCHED, QOS_TRUTH, QosProfile
 from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G, PPM
@@ -94,7 +94,9 @@ class TruthPublisher:
         self._values = values
         self._stream = stream
         self.enabled = bool(values['truth.enabled'])
-        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        # One statement of the truth's QoS, shared with the bags (qfa_ros.bag.qos).
+        truth_qos = QoSProfile(depth=QOS_TRUTH.depth,
+                               reliability=ReliabilityPolicy[QOS_TRUTH.reliability.upper()])
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                              reliability=ReliabilityPolicy.RELIABLE)
         self.events = node.create_publisher(
@@ -103,9 +105,9 @@ class TruthPublisher:
                        reliability=ReliabilityPolicy.RELIABLE))
         self.odometry = self.origin = self.errors = None
         if self.enabled:
-            self.odometry = node.create_publisher(Odometry, 'truth/odometry', reliable)
+            self.odometry = node.create_publisher(Odometry, 'truth/odometry', truth_qos)
             self.origin = node.create_publisher(NavSatFix, 'truth/origin', latched)
-            self.errors = node.create_publisher(Imu, 'truth/imu_errors', reliable)
+            self.errors = node.create_publisher(Imu, 'truth/imu_errors', truth_qos)
         self._profile = None
         self._fingerprint = None
         self._before = None
@@ -150,6 +152,11 @@ class TruthPublisher:
                 self._last_kind = schedule.kind
             if grid.start_ns is None or grid.next_index == 0 or previous is None:
                 return
+            # No sample computed since the last tick (the sensor thread computes a batch
+            # every stream.batch_s, the timer runs on its own): the last one has had its
+            # truth already; a second message would repeat its stamp and state.
+            if position[0] == previous[0]:
+                return
             # The grid and the model advanced together since the last tick (no fast
             # schedule, no skip between): the last computed sample ends at triad.time.
             in_step = position[0] - previous[0] == position[1] - previous[1]
@@ -191,8 +198,8 @@ class TruthPublisher:
         topics = {self.events.topic_name: QosProfile(depth=EVENT_DEPTH,
                                                      durability='transient_local')}
         if self.enabled:
-            topics[self.odometry.topic_name] = QosProfile(depth=10)
-            topics[self.errors.topic_name] = QosProfile(depth=10)
+            topics[self.odometry.topic_name] = QOS_TRUTH
+            topics[self.errors.topic_name] = QOS_TRUTH
             topics[self.origin.topic_name] = QOS_LATCHED
         return topics
 
