@@ -212,7 +212,8 @@ PARAMETERS = (
                   0.0, 1.0e12),
     ParameterSpec('latitude_deg', 45.0,
                   'Geodetic latitude of the sensor (WGS-84) [deg]: normal gravity and Earth '
-                  'rate follow', False, -89.9, 89.9),
+                  'rate follow (at a pole: the Earth rate all vertical; a drive keeps 0.1 deg '
+                  'off it)', False, -90.0, 90.0),
     ParameterSpec('longitude_deg', 0.0, 'Longitude of the sensor (WGS-84) [deg]', False,
                   -180.0, 180.0),
     ParameterSpec('height_m', 0.0, 'Height of the sensor above the WGS-84 ellipsoid [m]',
