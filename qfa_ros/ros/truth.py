@@ -28,6 +28,7 @@ from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
 from qfa_ros.bag.qos import QOS_LATCHED, QOS_TRUTH, QosProfile
 from qfa_ros.model.error_truth import error_truth
+from qfa_ros.model.loop_response import CORRECTION_SETTLE_BAND, feedback_step_transient
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G, PPM
 
@@ -172,7 +173,7 @@ class TruthPublisher:
             truth = error_truth(triad, force)
             words = self._words()
             if self._fingerprint is not None and words != self._fingerprint:
-                messages.append(('event', self._event(words, truth, stamp_ns)))
+                messages.append(('event', self._event(words, truth)))
             self._fingerprint, self._before = words, truth
             self._marked = self._last_kind = None
             if self.enabled:
@@ -203,16 +204,25 @@ class TruthPublisher:
             topics[self.origin.topic_name] = QOS_LATCHED
         return topics
 
-    def _event(self, words, truth, stamp_ns):
+    def _event(self, words, truth):
         before = self._before
-        index, marked_kind = self._marked if self._marked is not None else (None, None)
-        if index is not None:
-            stamp_ns = int(self._stream.grid.stamp_ns(index))
+        grid = self._stream.grid
+        # The first sample with the correction: where the node marked it, else the last
+        # one computed (the tick's stamp_ns).
+        index, marked_kind = self._marked if self._marked is not None else (
+            grid.next_index - 1, None)
+        stamp_ns = int(grid.stamp_ns(index))
         kind = marked_kind or self._last_kind or _changed(self._fingerprint, words)
         scale = (np.diag(truth.accel_matrix) - np.diag(before.accel_matrix)) / PPM
         bias = (truth.accel_bias - before.accel_bias) / MICRO_G
         gyro = np.nan_to_num(truth.gyro_bias - before.gyro_bias) / DEG_PER_HOUR
+        first, peak, settled = self._transient(words)
+        settled_ns = int(grid.stamp_ns(index + settled))
         values = [('kind', kind), ('stamp_ns', str(stamp_ns)),
+                  ('settled_stamp_ns', str(settled_ns)),
+                  ('transient_first_fraction', f'{first:.3f}'),
+                  ('transient_peak_fraction', f'{peak:.3f}'),
+                  ('settle_band', f'{CORRECTION_SETTLE_BAND:g}'),
                   ('temperature_compensation', 'on' if words[1][0] else 'off')]
         for i, axis in enumerate('xyz'):
             values += [(f'accel_scale_change_ppm_{axis}', f'{scale[i]:.3f}'),
@@ -220,9 +230,32 @@ class TruthPublisher:
                        (f'gyro_bias_change_deg_per_h_{axis}', f'{gyro[i]:.6f}')]
         return DiagnosticStatus(
             level=DiagnosticStatus.OK, name=f'{self._node.get_name()}: calibration event',
-            message=f'{kind} applied in place from stamp {stamp_ns}',
+            message=f'{kind} applied in place from stamp {stamp_ns}, output settled from '
+                    f'stamp {settled_ns}',
             hardware_id=self._values['hardware_id'],
             values=[KeyValue(key=k, value=v) for k, v in values])
+
+    def _transient(self, words):
+        """
+        Return (first fraction, peak fraction, settled samples) of a correction's output.
+
+        A new feedback word (N_VREF) makes the loop answer as to a step of its input
+        (:func:`~qfa_ros.model.loop_response.feedback_step_transient`, the changed axes'
+        worst); the forward gain moves no settled output (a loop at rest, no transient
+        above its quantization), and the temperature compensation and the gyro bias
+        correction are digital: a step at the first sample.
+        """
+        changed = [axis for axis, (after, before) in enumerate(zip(words[0],
+                                                                   self._fingerprint[0]))
+                   if after[1] != before[1]]
+        if not changed:
+            return 1.0, 1.0, 0
+        transients = [feedback_step_transient(self._triad.config,
+                                              self._triad.axes[axis].controller)
+                      for axis in changed]
+        return (min(t.first_fraction for t in transients),
+                max(t.peak_fraction for t in transients),
+                max(t.settled_samples for t in transients))
 
     def _origin_message(self, profile, stamp_ns):
         k = profile.kinematics(np.array([profile.start]))
