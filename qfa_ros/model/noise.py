@@ -138,6 +138,10 @@ class NoiseSource:
         # 1/block of its random numbers (it was 14 % of the kernel's time per sample).
         self.gm_block = max(1, int(min(GAUSS_MARKOV_BLOCK_S,
                                        0.1 * min(config.correlation_times)) * sample_rate_hz))
+        if config.random_walk > 0 and config.bias_instability == 0:
+            # A random walk alone (an emulated imu.yaml) steps every sample, Kalibr's
+            # discrete model exactly: one normal a sample, about 5 % of the kernel's.
+            self.gm_block = 1
         dt = self.gm_block / sample_rate_hz
         if config.bias_instability > 0:
             self.phi = np.exp(-dt / np.asarray(config.correlation_times, dtype=float))
