@@ -43,9 +43,9 @@ from qfa_ros.model.imu_noise import (  # noqa: E402
 TAUS = (0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
 KALIBR_YAML = """\
 accelerometer_noise_density: 2.0e-05
-accelerometer_random_walk: 2.0e-05
+accelerometer_random_walk: 1.0e-04
 gyroscope_noise_density: 1.0e-06
-gyroscope_random_walk: 1.0e-07
+gyroscope_random_walk: 1.0e-06
 """
 
 

@@ -17,8 +17,8 @@ read off no curve and no fit range:
 
 * white: the acceleration white noise ``N`` the model injects. The loop (unity gain below
   its bandwidth, 600 Hz) and the averaging decimator shape it only where an Allan
-  deviation no longer looks (``sigma(tau) sqrt(tau)`` is 4.5 % above ``N`` at 10 ms from
-  the loop's peaking, 0.1 % at 0.1 s: ``test_ins``); the ADC noise leaves the loop as
+  deviation no longer looks (``sigma(tau) sqrt(tau)`` is 4.9 % above ``N`` at 10 ms from
+  the loop's peaking, 0.9 % at 0.1 s: ``bench/imu_yaml.py``); the ADC noise leaves the loop as
   white *phase* noise (slope -1, the integrator), with a white floor
   ``|G_ADC(0)| sigma_adc / sqrt(f_loop)`` (:func:`loop_white_floor`, 2.4e-9 m/s^2/sqrt(Hz)
   for the defaults) added in quadrature. The gyros: their angle random walk.
@@ -74,8 +74,8 @@ WHITE_LIMIT = 10.0
 """The white-noise line is fitted to tau < this [s]."""
 POINTS_PER_DECADE = 40
 SHORT_TAUS = (0.1, 1.0)
-"""Averaging times [s] of the white-noise density of a recording: past the loop's and the
-decimator's shaping (0.1 % at 0.1 s), short of the bias processes' correlation times,
+"""Averaging times [s] of the white-noise density of a recording: past most of the loop's
+and the decimator's shaping (0.9 % at 0.1 s), short of the bias processes' correlation times,
 where ``sigma(tau)^2 tau = N^2 + (K^2 / 3) tau^2`` (:func:`white_density`)."""
 KEYS = ('accelerometer_noise_density', 'accelerometer_random_walk',
         'gyroscope_noise_density', 'gyroscope_random_walk')
