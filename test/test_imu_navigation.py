@@ -72,6 +72,30 @@ def test_static_level_north_pointing_sees_earth_rate_and_normal_gravity():
     assert 'moving' in moving.is_at_rest()
 
 
+@pytest.mark.parametrize('latitude_deg', [90.0, -90.0])
+def test_a_body_at_a_pole_sees_the_vertical_earth_rate_and_polar_gravity(latitude_deg):
+    # Issue 38: the pole is a location like any other for a body at rest (TR8350.2
+    # gamma_p = 9.8321849378 m/s^2; the Earth rate all vertical, +Omega up at the north
+    # pole, -Omega at the south pole), in the Python kinematics and in the compiled
+    # per-sample means; only a path integrated from its east velocity is refused there.
+    earth.check_location(latitude_deg, 0.0, 0.0)
+    sign = math.copysign(1.0, latitude_deg)
+    for yaw in (0.0, 1.0):
+        static = tr.static(latitude_deg, 30.0, 0.0, yaw=yaw)
+        k = static.kinematics(np.array([0.0, 0.5]))
+        assert_allclose(k['specific_force'], [[0.0, 0.0, 9.8321849378]] * 2, rtol=0,
+                        atol=1e-9)
+        assert_allclose(k['angular_rate'], [[0.0, 0.0, sign * earth.EARTH_RATE]] * 2,
+                        rtol=0, atol=1e-18)
+        force, rate = static.sample_means(0.25, 0.001, 3)
+        assert_allclose(force, [[0.0, 0.0, 9.8321849378]] * 3, rtol=0, atol=1e-9)
+        assert_allclose(rate, [[0.0, 0.0, sign * earth.EARTH_RATE]] * 3, rtol=0, atol=1e-18)
+    with pytest.raises(ValueError, match='latitude_deg 89.99: the drive comes within'):
+        tr.vehicle_drive(latitude_deg=89.99)
+    with pytest.raises(ValueError, match='latitude_deg must be in'):
+        earth.check_location(90.001, 0.0, 0.0)
+
+
 def test_trajectory_kinematics_are_consistent_with_the_pose():
     # Finite differences of the pose reproduce the analytic velocity and body rate.
     drive = tr.vehicle_drive()

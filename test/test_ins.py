@@ -1,4 +1,4 @@
-"""What an INS developer needs (issue 29): the error-profile switch, truth, imu.yaml."""
+"""What an INS developer needs (issue 29): the error-profile switch and the truth."""
 
 import dataclasses
 import math
@@ -11,10 +11,9 @@ import numpy as np
 from numpy.testing import assert_allclose
 import pytest
 from rosbags.highlevel import AnyReader
-import yaml
 
 from qfa_ros.bag.imu_series import read_imu
-from qfa_ros.cli import report, sim
+from qfa_ros.cli import sim
 from qfa_ros.model import trajectory as tr
 from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.errors import ERROR_PROFILES, ideal_config, sensor_config
@@ -143,6 +142,11 @@ def test_trajectory_bag_carries_its_truth_origin_and_geodetic_position_is_recove
         origin = topics['/truth/origin']
         assert origin.msgtype == 'sensor_msgs/msg/NavSatFix'
         assert 'transient_local' in str(origin.ext.offered_qos_profiles).lower()
+        # The truth's QoS in a bag is the node's (qfa_ros.bag.qos.QOS_TRUTH): reliable, so
+        # `ros2 bag play` serves reliable subscribers too.
+        for topic in ('/truth/odometry', '/truth/imu_errors'):
+            qos, = topics[topic].ext.offered_qos_profiles
+            assert (qos.reliability.name, qos.depth) == ('RELIABLE', 10), topic
         (_, time_ns, raw), = reader.messages(connections=[origin])
         fix = reader.deserialize(raw, origin.msgtype)
         odometry = [(t, reader.deserialize(raw, c.msgtype)) for c, t, raw in
@@ -231,46 +235,3 @@ def test_error_truth_equals_what_the_model_holds(roll, pitch):
     assert np.diag(truth.accel_matrix) == pytest.approx(
         (1 + thermal) / (1 + np.array([150e-6, 0.0, -80e-6])) - 1, abs=1e-9)
     assert truth.temperature == pytest.approx(31.0)
-
-
-def test_imu_yaml_from_the_config_and_from_a_static_bag_agree(tmp_path, capsys):
-    # qfa-report imu-yaml on config/qfa.yaml (the node's noise) and on a 10-minute
-    # qfa-sim static bag of the same sensor: the allan_variance_ros-style figures agree
-    # within 3 times the estimator's uncertainty bound (plus the worst-of-three-axes
-    # selection: 1 sigma more), over the same tau range.
-    bag = tmp_path / 'static.mcap'
-    assert sim.main(['static', '--duration', '600', '--seed', '6', '--out', str(bag)]) == 0
-    capsys.readouterr()
-    measured_path, implied_path = tmp_path / 'bag.yaml', tmp_path / 'config.yaml'
-    assert report.main(['imu-yaml', str(bag), '--out', str(measured_path)]) == 0
-    assert report.main(['imu-yaml', str(ROOT / 'config' / 'qfa.yaml'), '--max-tau', '60',
-                        '--out', str(implied_path)]) == 0
-    measured = yaml.safe_load(measured_path.read_text())
-    implied = yaml.safe_load(implied_path.read_text())
-    assert measured['update_rate'] == implied['update_rate'] == 1000.0
-    assert measured['rostopic'] == implied['rostopic'] == '/imu/data_raw'
-    text = measured_path.read_text()
-    assert '0.1..60 s' in text
-    for key in ('accelerometer_noise_density', 'accelerometer_random_walk',
-                'gyroscope_noise_density', 'gyroscope_random_walk'):
-        bound = float(text.split(f'# {key}: relative uncertainty <= ')[1].split()[0])
-        assert 0 < bound < 0.3, key
-        ratio = measured[key] / implied[key]
-        assert abs(math.log(ratio)) < 4 * bound, (key, ratio, bound)
-    # The figures are the sensor's: the white density is of the configured order (the
-    # fixed-slope line absorbs the flicker below 10 s), the gyro's its ARW.
-    assert 1.47e-5 < implied['accelerometer_noise_density'] < 3e-5
-    assert implied['gyroscope_noise_density'] == pytest.approx(
-        GyroConfig().arw, rel=0.05)
-
-
-def test_imu_yaml_of_an_ideal_sensor_is_zero_and_bad_input_is_refused(tmp_path, capsys):
-    config = tmp_path / 'ideal.yaml'
-    config.write_text("qfa_node:\n  ros__parameters:\n    sensor.error_profile: 'ideal'\n"
-                      '    sample_rate_hz: 200.0\n')
-    assert report.main(['imu-yaml', str(config)]) == 0
-    figures = yaml.safe_load(capsys.readouterr().out)
-    assert figures['update_rate'] == 200.0
-    assert figures['accelerometer_noise_density'] == 0.0
-    assert figures['gyroscope_random_walk'] == 0.0
-    assert report.main(['imu-yaml', str(tmp_path / 'missing.mcap')]) == 1

@@ -66,6 +66,11 @@ QOS_DEFAULT = QosProfile()
 QOS_SENSOR_DATA = QosProfile(depth=5, reliability='best_effort')
 # For settings and results: late joiners of `ros2 bag play` still receive them.
 QOS_LATCHED = QosProfile(depth=1, durability='transient_local')
+# The truth an INS is scored against (truth/odometry, truth/imu_errors), in the node and in
+# the bags: reliable, so a reliable subscriber (rviz2's default, a scoring script) gets
+# every message, live and from `ros2 bag play`; a best-effort one (SensorDataQoS) matches
+# it too. Ten messages (1 s at the default 10 Hz) for a briefly late subscriber.
+QOS_TRUTH = QosProfile(depth=10, reliability='reliable')
 
 
 def _rmw_time(duration_ns):

@@ -3,7 +3,7 @@
 import numpy as np
 
 from qfa_ros.bag.imu_cdr import ImuEncoder
-from qfa_ros.bag.qos import QOS_DEFAULT, QOS_LATCHED, QOS_SENSOR_DATA
+from qfa_ros.bag.qos import QOS_LATCHED, QOS_SENSOR_DATA, QOS_TRUTH
 from qfa_ros.bag.trace import TraceWriter
 from qfa_ros.bag.traces import write_results
 from qfa_ros.bag.types import stamp
@@ -53,9 +53,9 @@ class ScenarioBag:
                                           variance], rate_covariance)
         self.truth_frame_id = truth_frame_id
         if truth_frame_id is not None:
-            self.bag.add_topic(TRUTH_TOPIC, 'nav_msgs/msg/Odometry', QOS_SENSOR_DATA)
+            self.bag.add_topic(TRUTH_TOPIC, 'nav_msgs/msg/Odometry', QOS_TRUTH)
             self.bag.add_topic(ORIGIN_TOPIC, 'sensor_msgs/msg/NavSatFix', QOS_LATCHED)
-            self.bag.add_topic(IMU_ERRORS_TOPIC, 'sensor_msgs/msg/Imu', QOS_DEFAULT)
+            self.bag.add_topic(IMU_ERRORS_TOPIC, 'sensor_msgs/msg/Imu', QOS_TRUTH)
         self.bag.add_topic(IMU_TOPIC, 'sensor_msgs/msg/Imu', QOS_SENSOR_DATA)
         self.bag.add_topic(TEMPERATURE_TOPIC, 'sensor_msgs/msg/Temperature', QOS_SENSOR_DATA)
         self.bag.add_topic(PHASE_TOPIC, 'std_msgs/msg/String', QOS_LATCHED)

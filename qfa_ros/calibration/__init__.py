@@ -3,6 +3,7 @@ Calibration: what the sensor does to estimate and correct itself.
 
 The forward- and feedback-gain self-estimation schedules of seed 1, the persisted
 calibration state, seed 2's double-exponential temperature fit and its fixed-point
-CORDIC evaluation, the paper experiment and the Monte Carlo studies. It may import the
-sensor model (``qfa_ros.model``), numpy and scipy; never ROS, never a bag format.
+CORDIC evaluation, the paper experiment and the Monte Carlo studies, and Kalibr's
+``imu.yaml`` (the noise calibration a VIO/INS tool takes). It may import the sensor model
+(``qfa_ros.model``), numpy, scipy and PyYAML; never ROS, never a bag format.
 """

@@ -30,6 +30,7 @@ from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom, sensor_config
+from qfa_ros.model.imu_noise import emulated_config
 from qfa_ros.model.parallel import run_chains
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
@@ -80,6 +81,13 @@ def static_sensor():
             trajectories.static(45.0, 0.0, 0.0, yaw=0.0))
 
 
+def with_imu_noise(config, args):
+    """Return ``config`` with the noise of ``--imu-yaml`` (read in :func:`main`), if any."""
+    if args.imu_noise is None:
+        return config
+    return emulated_config(config, args.imu_noise)
+
+
 def run_static(args, out=None):
     """
     Run the default sensor, level and static, for ``args.duration`` s and summarize it.
@@ -91,7 +99,7 @@ def run_static(args, out=None):
     """
     out = out or sys.stdout
     config, profile = static_sensor()
-    config = sensor_config(args.error_profile, config)
+    config = with_imu_noise(sensor_config(args.error_profile, config), args)
     if args.out is None:
         config = dataclasses.replace(config, gyro=None)
     triad = QfaTriad(config, rng=args.seed, profile=profile, start_ns=args.start_ns)
@@ -175,7 +183,8 @@ def run_trajectory(args, out=None):
         print(f'qfa-sim: {error}', file=sys.stderr)
         return 2
     duration = args.duration if args.duration is not None else max(motion.duration, 60.0)
-    config = sensor_config(args.error_profile, TriadConfig(sample_rate_hz=args.rate))
+    config = with_imu_noise(
+        sensor_config(args.error_profile, TriadConfig(sample_rate_hz=args.rate)), args)
     triad = QfaTriad(config, rng=args.seed, profile=motion, start_ns=args.start_ns)
     chunk = int(round(CHUNK_SECONDS * config.sample_rate_hz))
     total = int(round(duration * config.sample_rate_hz))
@@ -391,6 +400,10 @@ def build_parser():
                         help='IMU sample rate [Hz] (default 1000; 10 kHz / rate integer)')
     motion.add_argument('--truth-rate', type=float, default=100.0,
                         help='ground-truth odometry rate [Hz] (default 100)')
+    parser.add_argument('--imu-yaml', metavar='IMU.yaml',
+                        help="static, trajectory: emulate a Kalibr imu.yaml's noise densities "
+                             'and random walks (the QFA loop and the rest of the sensor kept; '
+                             'docs/ins.md)')
     parser.add_argument('--error-profile', choices=ERROR_PROFILES, default='paper',
                         help='static, trajectory: paper (default, the sensor with its errors) '
                              'or ideal (every error source off; docs/ins.md)')
@@ -431,6 +444,20 @@ def main(argv=None):
         print(f'qfa-sim: --error-profile {args.error_profile} applies to static and trajectory '
               f'(the {args.scenario} scenario estimates the errors it needs)', file=sys.stderr)
         return 2
+    args.imu_noise = None
+    if args.imu_yaml is not None:
+        if args.scenario not in ('static', 'trajectory'):
+            print(f'qfa-sim: --imu-yaml applies to static and trajectory (the {args.scenario} '
+                  'scenario runs the sensor it estimates)', file=sys.stderr)
+            return 2
+        from qfa_ros.calibration.kalibr_yaml import load_imu_yaml
+        try:
+            args.imu_noise = load_imu_yaml(args.imu_yaml)
+            # Below the loop's own floor: refused now, not in the scenario.
+            with_imu_noise(sensor_config(args.error_profile, TriadConfig()), args)
+        except ValueError as error:
+            print(f'qfa-sim: --imu-yaml: {error}', file=sys.stderr)
+            return 2
     if args.out is not None and not args.out.endswith('.mcap'):
         print('qfa-sim: --out must name a .mcap file', file=sys.stderr)
         return 2

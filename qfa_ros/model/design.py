@@ -195,6 +195,14 @@ class LinearLoop:
         averaging = sum(z ** -k for k in range(decimation)) / decimation
         return response * scale * averaging
 
+    def adc_response(self, freq_hz, decimation=1):
+        """Return the published output per ADC code, ``s_nom D A / (1 + L)`` [(m/s^2)/count]."""
+        z = self._z(freq_hz)
+        averaging = sum(z ** -k for k in range(decimation)) / decimation
+        loop = self.gains.feedback_gain * self._plant(z) * self.controller.transfer(z) / z
+        scale = nominal_gains(self.hw).feedback_gain / self.hw.pendulosity
+        return scale * self.controller.transfer(z) * averaging / (1.0 + loop)
+
     def noise_shares(self, decimation=1, points=2 ** 16):
         r"""
         Return how white noise at the loop input and at the ADC reaches a published sample.
@@ -219,11 +227,7 @@ class LinearLoop:
             raise ValueError('decimation must be >= 1 and points >= 16')
         rate = 1.0 / self.loop_period
         freq = (np.arange(points) + 0.5) * rate / points
-        z = self._z(freq)
-        averaging = sum(z ** -k for k in range(decimation)) / decimation
-        loop = self.gains.feedback_gain * self._plant(z) * self.controller.transfer(z) / z
-        scale = nominal_gains(self.hw).feedback_gain / self.hw.pendulosity
-        adc = scale * self.controller.transfer(z) * averaging / (1.0 + loop)
+        adc = self.adc_response(freq, decimation)
         white = decimation * np.mean(np.abs(self.closed_loop(freq, decimation)) ** 2)
         return float(white), float(np.sqrt(np.mean(np.abs(adc) ** 2)))
 
@@ -248,6 +252,13 @@ class LinearLoop:
         return crossover, phase_margin, gain_margin, bandwidth
 
 
+def designed_loop(config):
+    """Return the :class:`LinearLoop` of a TriadConfig's hardware and controller targets."""
+    controller = design_controller(config.hardware, config.loop_rate_hz, config.crossover_hz,
+                                   config.integrator_ratio, config.lead_pole_ratio)
+    return LinearLoop(config.hardware, controller, config.loop_rate_hz)
+
+
 def published_acceleration_variance(config):
     """
     Return the ``linear_acceleration_covariance`` diagonal of ``config`` [(m/s^2)^2].
@@ -261,8 +272,5 @@ def published_acceleration_variance(config):
     config : qfa_ros.model.triad.TriadConfig
         Hardware, loop and sample rate, controller targets and noise.
     """
-    controller = design_controller(config.hardware, config.loop_rate_hz, config.crossover_hz,
-                                   config.integrator_ratio, config.lead_pole_ratio)
-    loop = LinearLoop(config.hardware, controller, config.loop_rate_hz)
-    white_share, adc_gain = loop.noise_shares(config.decimation)
+    white_share, adc_gain = designed_loop(config).noise_shares(config.decimation)
     return acceleration_variance(config.noise, config.sample_rate_hz, white_share, adc_gain)

@@ -92,9 +92,20 @@ def transport_rate_enu(latitude, height, velocity):
     return np.stack([-v[..., 1] / (r_n + height), east, east * np.tan(latitude)], axis=-1)
 
 
-LOCATION_LIMITS = (('latitude_deg', -89.9, 89.9), ('longitude_deg', -180.0, 360.0),
+LOCATION_LIMITS = (('latitude_deg', -90.0, 90.0), ('longitude_deg', -180.0, 360.0),
                    ('height_m', -12000.0, 100000.0))
-"""Usable range of each geodetic coordinate (the normal-gravity formula's and the poles')."""
+"""Usable range of each geodetic coordinate (the normal-gravity formula's heights).
+
+The poles are included: normal gravity, the Earth rate (all vertical there), the radii and
+a body at rest are regular at +-90 deg. What divides by ``cos(latitude)`` is motion in
+longitude: :data:`MOVING_LATITUDE_LIMIT_DEG`.
+"""
+MOVING_LATITUDE_LIMIT_DEG = 89.9
+"""Largest |latitude| [deg] of a path integrated from its east velocity (a drive).
+
+The longitude rate ``v_E / ((R_E + h) cos(latitude))`` diverges at a pole, and a path
+through one leaves its meridian: within 0.1 deg (11 km) of a pole a drive is refused.
+"""
 
 
 def check_location(latitude_deg, longitude_deg, height_m):

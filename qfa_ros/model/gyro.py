@@ -21,7 +21,8 @@ to the Allan floor ``B`` (as :mod:`qfa_ros.model.noise` does for the acceleromet
 once per block of ``m`` samples (``m T`` at most a tenth of the shortest correlation
 time, and 0.1 s) and hold over it: their Allan deviation is unchanged from ``m T`` on,
 where the ARW dwarfs them anyway (0.38 deg/h against 0.003 deg/h at 0.1 s with the
-defaults), and they cost ``1/m`` of the random numbers.
+defaults), and they cost ``1/m`` of the random numbers; a rate random walk without
+bias instability (an emulated Kalibr ``imu.yaml``) steps every sample (``m = 1``).
 ``s, a, b, M, G, b_T, s_T`` are drawn once per unit from zero-mean normal laws with the
 configured 1-sigma spreads.
 """
@@ -185,6 +186,10 @@ class GyroTriad:
         self._white_std = config.arw / math.sqrt(self.dt)
         block_s = min(0.1 * min(config.correlation_times), 0.1)
         self._block = max(1, int(block_s / self.dt))
+        if config.bias_instability == 0 and config.rate_random_walk > 0:
+            # A rate random walk alone (an emulated imu.yaml) steps every sample, as
+            # Kalibr's discrete model does.
+            self._block = 1
         period = self._block * self.dt
         self._phi = np.exp(-period / np.asarray(config.correlation_times, dtype=float))
         variance = flicker_component_variance(config)

@@ -370,6 +370,58 @@ def design_step(config, controller, steps):
     return np.cumsum(impulse)[:steps]
 
 
+CORRECTION_SETTLE_BAND = 1e-3
+"""Band [fraction of the correction] within which a corrected output counts as settled.
+
+0.1 %: 0.3 ug after a 300 ppm correction at 1 g, 3 ug (the bias instability) after
+3000 ppm.
+"""
+
+
+@dataclass(frozen=True)
+class SampleTransient:
+    """
+    The published samples' answer to a step of the feedback gain, relative to the step.
+
+    A new feedback word (``N_VREF``, what a feedback-gain correction writes) scales the
+    torque per count at once; the loop answers as it answers a step of its input, and
+    each published sample is the mean of ``decimation`` loop outputs.
+
+    Attributes
+    ----------
+    first_fraction : float
+        Share of the step in the first sample with the new word.
+    peak_fraction : float
+        Largest sample over the step (the overshoot is ``peak_fraction - 1``).
+    settled_samples : int
+        Samples after the first from which every sample is within ``band`` of the step.
+    band : float
+        The settling band [fraction of the step].
+    """
+
+    first_fraction: float
+    peak_fraction: float
+    settled_samples: int
+    band: float
+
+
+def feedback_step_transient(config, controller, band=CORRECTION_SETTLE_BAND, samples=200):
+    """
+    Return the :class:`SampleTransient` of the published output after a feedback-gain step.
+
+    The linearized design's step response (:func:`design_step`) over ``samples``
+    published samples, averaged over each sample's ``config.decimation`` loop steps; the
+    compiled loop follows it within its quantization (``test_node_ins``).
+    """
+    if not 0 < band < 1 or samples < 2:
+        raise ValueError(f'band must be in (0, 1) and samples >= 2, got {band!r}, {samples!r}')
+    per_sample = design_step(config, controller, samples * config.decimation).reshape(
+        samples, config.decimation).mean(axis=1)
+    outside = np.nonzero(np.abs(per_sample - 1.0) > band)[0]
+    settled = int(outside[-1]) + 1 if len(outside) else 0
+    return SampleTransient(float(per_sample[0]), float(per_sample.max()), settled, band)
+
+
 def step_figures(response, settle_band, rate):
     """Return (overshoot, 10-90 % rise time [s], settling time [s]) of a unit step curve."""
     overshoot = float(response.max() - 1.0)

@@ -36,15 +36,22 @@ class NoiseConfig:
         published per-sample covariance describes it. Chosen, not from a source.
     adc_noise : float
         White noise at the ADC input, standard deviation [count].
+    random_walk : float
+        Bias random walk K [(m/s^2)/sqrt(s) = m/s^3/sqrt(Hz)]: a bias ``b' = K w(t)``
+        (``w`` unit white noise), Kalibr's ``accelerometer_random_walk``; its Allan
+        deviation is ``K sqrt(tau / 3)``. Default 0: the sensor's own bias wanders as the
+        Gauss-Markov sum above; an emulated ``imu.yaml`` (:mod:`qfa_ros.model.imu_noise`)
+        sets this instead.
     """
 
     noise_density: float = 1.5 * MICRO_G
     bias_instability: float = 3.0 * MICRO_G
     correlation_times: tuple = (60.0, 600.0, 6000.0, 60000.0)
     adc_noise: float = 4.0
+    random_walk: float = 0.0
 
     def __post_init__(self):
-        for name in ('noise_density', 'bias_instability', 'adc_noise'):
+        for name in ('noise_density', 'bias_instability', 'adc_noise', 'random_walk'):
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0:
                 raise ValueError(f'{name} must be finite and >= 0, got {value!r}')
@@ -91,7 +98,9 @@ class NoiseSource:
     White acceleration noise per loop step ``w ~ N(0, N^2 f_loop)``; the bias
     instability processes advance at the sample rate, ``b[k] = phi b[k-1] + v[k]``,
     ``phi = exp(-dt/T)``, ``v ~ N(0, q^2 (1 - phi^2))``, and are held over each
-    decimation block; ADC noise ``n ~ N(0, sigma_adc^2)`` per loop step [count].
+    decimation block; a bias random walk ``K`` is one more such process, with ``phi = 1``
+    and ``v ~ N(0, K^2 dt)``, started at zero; ADC noise ``n ~ N(0, sigma_adc^2)`` per
+    loop step [count].
     Every random number of axis ``i`` comes from ``streams[i]``, the child
     ``'triad.noise'`` ``i`` of ``rng`` (:mod:`qfa_ros.model.streams`):
     :func:`qfa_ros.model.kernel.run_axis` draws them in a fixed order,
@@ -109,10 +118,11 @@ class NoiseSource:
     gm_block : int
         Samples per Gauss-Markov step.
     phi, drive_std : float64[k]
-        ``phi`` and ``q sqrt(1 - phi^2)`` [m/s^2] per Gauss-Markov component and step
-        (``k = 0`` without bias instability).
+        ``phi`` and ``q sqrt(1 - phi^2)`` [m/s^2] per Gauss-Markov component and step,
+        then ``1`` and ``K sqrt(dt)`` of the random walk (``k = 0`` without either).
     bias_state : float64[n_axes, k]
-        Gauss-Markov states [m/s^2], started in their stationary distribution.
+        Gauss-Markov states [m/s^2], started in their stationary distribution; the
+        random walk's, at zero.
     """
 
     def __init__(self, config, n_axes, loop_rate_hz, sample_rate_hz, rng):
@@ -128,8 +138,12 @@ class NoiseSource:
         # 1/block of its random numbers (it was 14 % of the kernel's time per sample).
         self.gm_block = max(1, int(min(GAUSS_MARKOV_BLOCK_S,
                                        0.1 * min(config.correlation_times)) * sample_rate_hz))
+        if config.random_walk > 0 and config.bias_instability == 0:
+            # A random walk alone (an emulated imu.yaml) steps every sample, Kalibr's
+            # discrete model exactly: one normal a sample, about 5 % of the kernel's.
+            self.gm_block = 1
+        dt = self.gm_block / sample_rate_hz
         if config.bias_instability > 0:
-            dt = self.gm_block / sample_rate_hz
             self.phi = np.exp(-dt / np.asarray(config.correlation_times, dtype=float))
             variance = flicker_component_variance(config)
             self.drive_std = np.sqrt(variance * (1.0 - self.phi ** 2))
@@ -139,6 +153,12 @@ class NoiseSource:
             self.phi = np.zeros(0)
             self.drive_std = np.zeros(0)
             self.bias_state = np.zeros((n_axes, 0))
+        if config.random_walk > 0:
+            # The walk's step comes after the Gauss-Markov ones in each stream (the
+            # kernel's order), so a sensor without a walk draws what it always drew.
+            self.phi = np.append(self.phi, 1.0)
+            self.drive_std = np.append(self.drive_std, config.random_walk * math.sqrt(dt))
+            self.bias_state = np.hstack([self.bias_state, np.zeros((n_axes, 1))])
 
 
 GAUSS_MARKOV_BLOCK_S = 0.1
@@ -183,9 +203,10 @@ def allan_deviation_model(config, tau):
     """
     Return the Allan deviation the noise model implies at ``tau`` [s] [m/s^2].
 
-    ``sigma^2(tau) = N^2 / tau + sum_j AVAR_GM(tau; q^2, T_j)``.
+    ``sigma^2(tau) = N^2 / tau + sum_j AVAR_GM(tau; q^2, T_j) + K^2 tau / 3``.
     """
     variance = flicker_component_variance(config)
     flicker = sum(gauss_markov_allan_variance(tau, variance, t)
                   for t in config.correlation_times) if variance else 0.0
-    return float(np.sqrt(config.noise_density ** 2 / tau + flicker))
+    return float(np.sqrt(config.noise_density ** 2 / tau + flicker
+                         + config.random_walk ** 2 * tau / 3.0))

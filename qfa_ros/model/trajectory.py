@@ -456,6 +456,10 @@ def vehicle_drive(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, yaw=math.p
     h = integrate(vu, h0)
     r_n, _ = earth.radii_of_curvature(lat0)
     lat = integrate(vn / (r_n + h), lat0)
+    if np.max(np.abs(lat)) > math.radians(earth.MOVING_LATITUDE_LIMIT_DEG):
+        raise ValueError(f'latitude_deg {latitude_deg:g}: the drive comes within '
+                         f'{90.0 - earth.MOVING_LATITUDE_LIMIT_DEG:g} deg of a pole, where '
+                         'its longitude rate diverges')
     _, r_e = earth.radii_of_curvature(lat)
     lon = integrate(ve / ((r_e + h) * np.cos(lat)), lon0)
     channels = np.stack([lat, lon, h, np.zeros_like(t), -climb, heading], axis=-1)

@@ -22,7 +22,13 @@ from qfa_ros.ros.calibration import CalibrationKeeper
 from qfa_ros.ros.diagnostics import Diagnostics, temperature_status
 from qfa_ros.ros.ground_truth import GroundTruthInput
 from qfa_ros.ros.input_topic import InputSubscription
-from qfa_ros.ros.params import check_all, input_profile, load_trajectory_file, make_triad
+from qfa_ros.ros.params import (
+    check_all,
+    input_profile,
+    load_imu_noise,
+    load_trajectory_file,
+    make_triad,
+)
 from qfa_ros.ros.recording import StreamRecording
 from qfa_ros.ros.runtime_parameters import (
     apply_ambient,
@@ -71,13 +77,15 @@ class QfaNode(Node):
         # The live parameter values, shared (read-only) by every collaborator; written
         # only by RuntimeParameters, under _lock.
         self._values = values = declare_parameters(self)
-        # The trajectory file is read once here, before any service answers (the parameter
-        # is read-only); the state file below, also only at start.
+        # The trajectory file and the imu.yaml are read once here, before any service
+        # answers (the parameters are read-only); the state file below, also only at start.
         trajectory_file = load_trajectory_file(values)
-        reason = check_all(values, trajectory_file)
+        imu_noise = load_imu_noise(values)
+        reason = check_all(values, trajectory_file, imu_noise)
         if reason:
             raise ValueError(reason)
-        self._triad = make_triad(values, input_profile(values, trajectory_file=trajectory_file))
+        self._triad = make_triad(values, input_profile(values, trajectory_file=trajectory_file),
+                                 imu_noise)
         apply_ambient(self._triad, values)
         self._keeper = CalibrationKeeper(self._triad, values['state_file'], self.get_logger())
         apply_drift(self._triad, values)

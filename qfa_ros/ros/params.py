@@ -18,6 +18,7 @@ import textwrap
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.parameter import Parameter
 
+from qfa_ros.calibration import kalibr_yaml
 from qfa_ros.calibration.estimation import (
     FEEDBACK_ORDERS,
     FeedbackSettings,
@@ -29,6 +30,7 @@ from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model import trajectory as trajectories
 from qfa_ros.model.errors import error_profile, ERROR_PROFILES, PaperRoom, sensor_config
 from qfa_ros.model.gyro import GyroConfig
+from qfa_ros.model.imu_noise import emulated_config
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.profiles import SineProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig
@@ -184,6 +186,14 @@ PARAMETERS = (
                   0.0, 100000.0),
     ParameterSpec('noise.adc_counts', _NOISE.adc_noise, 'ADC input noise [count rms]', True,
                   0.0, 10000.0),
+    ParameterSpec('noise.imu_yaml', '',
+                  'Kalibr imu.yaml whose noise the sensor emulates (docs/ins.md): its '
+                  'accelerometer and gyroscope noise densities and random walks replace '
+                  'noise.density_ug_per_rthz, noise.bias_instability_ug and gyro.arw, '
+                  'bias_instability, rate_random_walk; the QFA loop, its ADC noise and the '
+                  'unit stay. Read once, at start (a regular file of at most '
+                  f'{kalibr_yaml.MAX_BYTES >> 10} KiB, ~ expanded); read-only, so no participant '
+                  'can make the node read a file', True),
     ParameterSpec('unit.draw', True,
                   'Draw the sensor as one unit within the datasheet spreads (turn-on bias, '
                   'thermal curves, aging, K2, misalignment; qfa_ros.model.unit); false: the '
@@ -218,7 +228,8 @@ PARAMETERS = (
                   0.0, 1.0e12),
     ParameterSpec('latitude_deg', 45.0,
                   'Geodetic latitude of the sensor (WGS-84) [deg]: normal gravity and Earth '
-                  'rate follow', False, -89.9, 89.9),
+                  'rate follow (at a pole: the Earth rate all vertical; a drive keeps 0.1 deg '
+                  'off it)', False, -90.0, 90.0),
     ParameterSpec('longitude_deg', 0.0, 'Longitude of the sensor (WGS-84) [deg]', False,
                   -180.0, 180.0),
     ParameterSpec('height_m', 0.0, 'Height of the sensor above the WGS-84 ellipsoid [m]',
@@ -626,16 +637,20 @@ def unit_of(values):
     return draw_unit(values['seed'] if seed < 0 else seed)
 
 
-def make_triad(values, profile=None):
+def make_triad(values, profile=None, imu_noise=None):
     """
     Return the :class:`QfaTriad` of the parameter ``values``: the unit, its aging, errors.
+
+    ``imu_noise`` is what :func:`load_imu_noise` read at start (None: the ``noise.*`` and
+    ``gyro.*`` noise).
 
     The error sources of ``sensor.error_profile`` (:mod:`qfa_ros.model.errors`) act
     through the thermal model's body temperature, with the drawn unit's own component
     coefficients (its I_ref and forward-chain temperature coefficients).
     """
     unit = unit_of(values)
-    triad = QfaTriad(triad_config(values, unit), rng=values['seed'], profile=profile)
+    triad = QfaTriad(triad_config(values, unit, imu_noise), rng=values['seed'],
+                     profile=profile)
     errors = error_profile(values['sensor.error_profile'])
     if unit is not None:
         unit.install_aging(triad)
@@ -645,13 +660,23 @@ def make_triad(values, profile=None):
     return triad
 
 
-def triad_config(values, unit=False):
+def triad_config(values, unit=False, imu_noise=None):
     """
     Return the :class:`TriadConfig` of the parameter ``values`` (ValueError names them).
 
     ``unit`` is the drawn unit (or None) when the caller has it already; by default it
-    is drawn from ``unit.*``.
+    is drawn from ``unit.*``. ``imu_noise`` (an
+    :class:`~qfa_ros.model.imu_noise.ImuNoiseFigures`, what ``noise.imu_yaml`` held)
+    replaces the configured noise processes (:func:`~qfa_ros.model.imu_noise.emulated_config`).
     """
+    config = _triad_config(values, unit)
+    if imu_noise is None:
+        return config
+    with _named('noise.imu_yaml'):
+        return emulated_config(config, imu_noise)
+
+
+def _triad_config(values, unit):
     thermal = thermal_config(values)
     with _named('noise'):
         noise = NoiseConfig(noise_density=values['noise.density_ug_per_rthz'] * MICRO_G,
@@ -721,6 +746,23 @@ def static_profile(values):
         return trajectories.static(values['latitude_deg'], values['longitude_deg'],
                                    values['height_m'], values['input.roll'],
                                    values['input.pitch'], values['input.yaw'])
+
+
+def load_imu_noise(values):
+    """
+    Return the :class:`~qfa_ros.model.imu_noise.ImuNoiseFigures` of ``noise.imu_yaml``.
+
+    None when the parameter is empty. Read once, at start, with the bounds of
+    :func:`~qfa_ros.calibration.kalibr_yaml.load_imu_yaml`.
+
+    :raises ValueError: The file cannot be used; the message names the parameter and
+        never quotes the file.
+    """
+    path = values['noise.imu_yaml']
+    if not path:
+        return None
+    with _named('noise.imu_yaml'):
+        return kalibr_yaml.load_imu_yaml(os.path.expanduser(path))
 
 
 def load_trajectory_file(values):
@@ -797,11 +839,12 @@ def input_profile(values, start_s=0.0, trajectory_file=None):
                                                      for k in range(len(times))))
 
 
-def check_all(values, trajectory_file=None):
+def check_all(values, trajectory_file=None, imu_noise=None):
     """
     Return why the parameter set ``values`` is inconsistent, or None.
 
-    Reads no file: ``trajectory_file`` is what :func:`load_trajectory_file` read at start.
+    Reads no file: ``trajectory_file`` is what :func:`load_trajectory_file` read at start,
+    ``imu_noise`` what :func:`load_imu_noise` read.
     """
     for name, value in values.items():
         reason = check_value(name, value)
@@ -811,7 +854,7 @@ def check_all(values, trajectory_file=None):
         return (f'stream.batch_s ({values["stream.batch_s"]:g}) must be shorter than '
                 f'stream.lead_s ({values["stream.lead_s"]:g})')
     try:
-        config = triad_config(values)
+        config = triad_config(values, imu_noise=imu_noise)
         problem = forward_sweep_problem(forward_settings(values), config.hardware,
                                         values['drift.forward_ppm'])
         if problem:

@@ -29,8 +29,9 @@ import numpy as np
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
-from qfa_ros.bag.qos import QOS_LATCHED, QosProfile
+from qfa_ros.bag.qos import QOS_LATCHED, QOS_TRUTH, QosProfile
 from qfa_ros.model.error_truth import error_truth
+from qfa_ros.model.loop_response import CORRECTION_SETTLE_BAND, feedback_step_transient
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G, PPM
 
@@ -97,7 +98,9 @@ class TruthPublisher:
         self._values = values
         self._stream = stream
         self.enabled = bool(values['truth.enabled'])
-        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        # One statement of the truth's QoS, shared with the bags (qfa_ros.bag.qos).
+        truth_qos = QoSProfile(depth=QOS_TRUTH.depth,
+                               reliability=ReliabilityPolicy[QOS_TRUTH.reliability.upper()])
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                              reliability=ReliabilityPolicy.RELIABLE)
         self.events = node.create_publisher(
@@ -106,9 +109,9 @@ class TruthPublisher:
                        reliability=ReliabilityPolicy.RELIABLE))
         self.odometry = self.origin = self.errors = None
         if self.enabled:
-            self.odometry = node.create_publisher(Odometry, 'truth/odometry', reliable)
+            self.odometry = node.create_publisher(Odometry, 'truth/odometry', truth_qos)
             self.origin = node.create_publisher(NavSatFix, 'truth/origin', latched)
-            self.errors = node.create_publisher(Imu, 'truth/imu_errors', reliable)
+            self.errors = node.create_publisher(Imu, 'truth/imu_errors', truth_qos)
         self._profile = None
         self._fingerprint = None
         self._before = None
@@ -167,6 +170,11 @@ class TruthPublisher:
                 self._last_kind = schedule.kind
             if grid.start_ns is None or grid.next_index == 0 or previous is None:
                 return
+            # No sample computed since the last tick (the sensor thread computes a batch
+            # every stream.batch_s, the timer runs on its own): the last one has had its
+            # truth already; a second message would repeat its stamp and state.
+            if position[0] == previous[0]:
+                return
             # The grid and the model advanced together since the last tick (no fast
             # schedule, no skip between): the last computed sample ends at triad.time.
             in_step = position[0] - previous[0] == position[1] - previous[1]
@@ -183,12 +191,12 @@ class TruthPublisher:
                 if marked_words != self._fingerprint:
                     messages.append(('event', self._event(
                         kind or self._last_kind or _changed(self._fingerprint, marked_words),
-                        marked_words, marked_truth, int(grid.stamp_ns(index)))))
+                        marked_words, marked_truth, index)))
                 self._fingerprint, self._before = marked_words, marked_truth
             if self._fingerprint is not None and words != self._fingerprint:
                 messages.append(('event', self._event(
                     self._last_kind or _changed(self._fingerprint, words), words, truth,
-                    stamp_ns)))
+                    grid.next_index - 1)))
             self._fingerprint, self._before = words, truth
             self._last_kind = None
             if self.enabled:
@@ -214,18 +222,30 @@ class TruthPublisher:
         topics = {self.events.topic_name: QosProfile(depth=EVENT_DEPTH,
                                                      durability='transient_local')}
         if self.enabled:
-            topics[self.odometry.topic_name] = QosProfile(depth=10)
-            topics[self.errors.topic_name] = QosProfile(depth=10)
+            topics[self.odometry.topic_name] = QOS_TRUTH
+            topics[self.errors.topic_name] = QOS_TRUTH
             topics[self.origin.topic_name] = QOS_LATCHED
         return topics
 
-    def _event(self, kind, words, truth, stamp_ns):
-        """Return the event of the correction ``kind`` to ``words``, against the one before."""
+    def _event(self, kind, words, truth, index):
+        """
+        Return the event of the correction ``kind`` to ``words``, against the one before.
+
+        ``index`` is the grid index of the first sample with the correction.
+        """
         before = self._before
+        grid = self._stream.grid
+        stamp_ns = int(grid.stamp_ns(index))
         scale = (np.diag(truth.accel_matrix) - np.diag(before.accel_matrix)) / PPM
         bias = (truth.accel_bias - before.accel_bias) / MICRO_G
         gyro = np.nan_to_num(truth.gyro_bias - before.gyro_bias) / DEG_PER_HOUR
+        first, peak, settled = self._transient(words)
+        settled_ns = int(grid.stamp_ns(index + settled))
         values = [('kind', kind), ('stamp_ns', str(stamp_ns)),
+                  ('settled_stamp_ns', str(settled_ns)),
+                  ('transient_first_fraction', f'{first:.3f}'),
+                  ('transient_peak_fraction', f'{peak:.3f}'),
+                  ('settle_band', f'{CORRECTION_SETTLE_BAND:g}'),
                   ('temperature_compensation', 'on' if words[1][0] else 'off')]
         for i, axis in enumerate('xyz'):
             values += [(f'accel_scale_change_ppm_{axis}', f'{scale[i]:.3f}'),
@@ -233,9 +253,32 @@ class TruthPublisher:
                        (f'gyro_bias_change_deg_per_h_{axis}', f'{gyro[i]:.6f}')]
         return DiagnosticStatus(
             level=DiagnosticStatus.OK, name=f'{self._node.get_name()}: calibration event',
-            message=f'{kind} applied in place from stamp {stamp_ns}',
+            message=f'{kind} applied in place from stamp {stamp_ns}, output settled from '
+                    f'stamp {settled_ns}',
             hardware_id=self._values['hardware_id'],
             values=[KeyValue(key=k, value=v) for k, v in values])
+
+    def _transient(self, words):
+        """
+        Return (first fraction, peak fraction, settled samples) of a correction's output.
+
+        A new feedback word (N_VREF) makes the loop answer as to a step of its input
+        (:func:`~qfa_ros.model.loop_response.feedback_step_transient`, the changed axes'
+        worst); the forward gain moves no settled output (a loop at rest, no transient
+        above its quantization), and the temperature compensation and the gyro bias
+        correction are digital: a step at the first sample.
+        """
+        changed = [axis for axis, (after, before) in enumerate(zip(words[0],
+                                                                   self._fingerprint[0]))
+                   if after[1] != before[1]]
+        if not changed:
+            return 1.0, 1.0, 0
+        transients = [feedback_step_transient(self._triad.config,
+                                              self._triad.axes[axis].controller)
+                      for axis in changed]
+        return (min(t.first_fraction for t in transients),
+                max(t.peak_fraction for t in transients),
+                max(t.settled_samples for t in transients))
 
     def _origin_message(self, profile, stamp_ns):
         k = profile.kinematics(np.array([profile.start]))
