@@ -185,6 +185,10 @@ class Pacer:
         self._queue = collections.deque()
         self._generation = 0
         self._stop = False
+        # _gate protects _paused; held around each publication, so that once pause()
+        # returns nothing more is published.
+        self._gate = threading.Lock()
+        self._paused = False
         self.published = 0
         self.late = 0
         self.max_delay_ns = 0
@@ -227,6 +231,17 @@ class Pacer:
             self._generation += 1
             self.last_stamp_ns = None
 
+    def pause(self):
+        """Publish nothing more and forget the queue; return once no publication is under way."""
+        with self._gate:
+            self._paused = True
+        self.clear()
+
+    def resume(self):
+        """Publish again what is queued from now on (:meth:`pause` emptied the queue)."""
+        with self._gate:
+            self._paused = False
+
     @property
     def pending(self):
         """Return how many messages wait for their instant."""
@@ -261,6 +276,7 @@ class Pacer:
         # publication): the messages in hand were stamped on the clock of that moment.
         simulated = clock.ros_time_is_active
         wait = self._wait_until
+        gate = self._gate
         previous, previous_stamp, tokens = self._previous
         for index, (stamp, publisher, msgtype, data) in enumerate(self._hand):
             self._hand_index = index
@@ -279,7 +295,10 @@ class Pacer:
                         return
                     tokens = 1.0
                 tokens -= 1.0
-            publisher.publish(data)
+            with gate:
+                if self._paused:
+                    return
+                publisher.publish(data)
             # After the call: a stall inside it (the GIL, the CPU) counts as the gap.
             previous, previous_stamp = time.time_ns(), stamp
             self._previous = previous, stamp, tokens

@@ -121,6 +121,10 @@ class SampleStream:
                                                / values['temperature_rate_hz']))
         self.schedule = None
         self.pause_reason = None
+        # Samples stamped before this are not published [ns]; None: nothing is published
+        # (a managed node's inactive state, :meth:`pause`). Under the node lock.
+        self.publish_from_ns = 0
+        self.unpublished = 0
         self.computed = 0
         self.withheld = 0
         self.skipped = 0
@@ -150,6 +154,30 @@ class SampleStream:
         self.recording_queue.start()
         self.pacer.start()
         self._thread.start()
+
+    def pause(self):
+        """
+        Publish nothing from now on; the sensor runs on (a managed node's ``deactivate``).
+
+        Returns once no publication is under way: nothing is published after it. The
+        samples still computed are counted (:attr:`unpublished`), not published or
+        recorded, and no longer computed ahead of the clock. Call without the node lock.
+        """
+        with self._lock:
+            self.publish_from_ns = None
+        self.pacer.pause()
+
+    def resume(self):
+        """
+        Publish again from the present on, on the same sample grid (``activate``).
+
+        The first sample published is the first one stamped at or after now; each one after
+        it follows on the grid. Call without the node lock.
+        """
+        self.pacer.resume()
+        with self._lock:
+            self.publish_from_ns = max(0, self._now_ns())
+        self._wake.set()
 
     def _started_publishing(self):
         if self.on_publishing is not None:
@@ -308,7 +336,11 @@ class SampleStream:
         limit = int(MAX_CATCH_UP_S * self._values['sample_rate_hz'])
         if backlog > limit:
             self._skip(backlog)
-        count = grid.due(self._compute_until(now)) - grid.next_index
+        until = self._compute_until(now)
+        if self.publish_from_ns is None:
+            # Not publishing: the sensor runs on, nothing is computed ahead.
+            until = min(until, now)
+        count = grid.due(until) - grid.next_index
         if count > 0:
             self._advance(count)
 
@@ -412,6 +444,11 @@ class SampleStream:
                 items.insert(bisect.bisect_right(imu_stamps, stamp),
                              (stamp, self._temperature_publisher, TEMPERATURE_TYPE,
                               serialize_message(message)))
+        publish_from = self.publish_from_ns
+        if publish_from is None or (items and items[0][0] < publish_from):
+            kept = [] if publish_from is None else [i for i in items if i[0] >= publish_from]
+            self.unpublished += len(items) - len(kept)
+            items = kept
         self.pacer.put(items)
 
     # Diagnostics ------------------------------------------------------------------------
@@ -436,6 +473,7 @@ class SampleStream:
                    ('messages waiting for their instant', pacer.pending),
                    ('samples withheld', self.withheld),
                    ('samples skipped', self.skipped),
+                   ('messages not published (node inactive)', self.unpublished),
                    (f'messages published > {LATE_NS / 1e6:g} ms late', pacer.late),
                    ('largest publication delay [ms]', f'{pacer.max_delay_ns / 1e6:.3f}'),
                    ('sensor time [s]', f'{triad.time:.3f}')]
