@@ -106,6 +106,8 @@ def test_every_transition_through_the_lifecycle_services(tmp_path):
     node = NodeProcess(domain, tmp_path, {
         'output_dir': str(tmp_path), 'state_file': str(state_file),
         'recorder.enabled': True, 'estimation.realtime': True,
+        # Half a second computed ahead: a quick reactivation finds samples not yet due.
+        'stream.lead_s': 0.5,
         # Inconsistent: the loop rate is no integer multiple of it.
         'sample_rate_hz': 3000.0}, managed=True)
     client = Client(domain)
@@ -142,12 +144,19 @@ def test_every_transition_through_the_lifecycle_services(tmp_path):
         answer = trigger(client, 'cancel')
         assert not answer.success and answer.message.startswith('inactive:')
 
-        # Second active period: a state change saved, then a schedule cancelled by the
-        # deactivation as ~/cancel would.
-        activated.append(client.node.get_clock().now().nanoseconds)
-        assert lifecycle.change('activate') == (True, 'active')
-        client.spin_until(lambda: imu.samples and imu.samples[-1][0] > activated[1] + 300e6,
-                          60, '300 ms of samples after the second activation')
+        # Second active period, deactivated and at once activated again (sooner than the
+        # samples the sensor thread had computed ahead were due).
+        for _ in range(2):
+            activated.append(client.node.get_clock().now().nanoseconds)
+            assert lifecycle.change('activate') == (True, 'active')
+            client.spin_until(lambda: imu.samples and imu.samples[-1][0] > activated[-1] + 3e8,
+                              60, '300 ms of samples after the activation')
+            if len(deactivated) == 1:
+                assert lifecycle.change('deactivate') == (True, 'inactive')
+                deactivated.append(lifecycle.answered_ns)
+
+        # Third: a state change saved, then a schedule cancelled by the deactivation as
+        # ~/cancel would.
         saved = client.call(SetBool, f'/{NODE}/set_compensation', SetBool.Request(data=False))
         assert saved.success, saved.message
         state_before = state_file.read_bytes()
@@ -160,7 +169,8 @@ def test_every_transition_through_the_lifecycle_services(tmp_path):
         assert not running.result().success
         assert 'cancelled by the deactivate transition' in running.result().message
 
-        received_inactive = [s for s in imu.samples if deactivated[0] < s[0] < activated[1]]
+        received_inactive = [s for s in imu.samples if any(
+            d < s[0] < a for d, a in zip(deactivated, activated[1:]))]
         assert lifecycle.change('cleanup') == (True, 'unconfigured')
         assert lifecycle.available() == {'configure', 'shutdown'}
         # Cleaned up: the state as saved before the cancelled schedule, the bag finished.
@@ -188,12 +198,13 @@ def test_every_transition_through_the_lifecycle_services(tmp_path):
 
     assert not received_inactive, 'a sample stamped while inactive was received'
     log_times = np.concatenate([times for _, times in periods])
-    inactive = (log_times > deactivated[0]) & (log_times < activated[1]) | (
-        log_times > deactivated[1])
+    inactive = log_times > deactivated[-1]
+    for deactivation, activation in zip(deactivated, activated[1:]):
+        inactive |= (log_times > deactivation) & (log_times < activation)
     assert not np.any(inactive), f'{np.count_nonzero(inactive)} samples published while inactive'
-    assert len(periods) == 2  # a file per active period, finished by its deactivation
+    assert len(periods) == 3  # a file per active period, finished by its deactivation
     publish_from = activation_stamps(log)
-    assert len(publish_from) == 3, log
+    assert len(publish_from) == 4, log
     grid_start = periods[0][0][0]
     for index, (stamps, log_times) in enumerate(periods):
         # Published only while active: after the activation was asked for, before the
@@ -201,7 +212,7 @@ def test_every_transition_through_the_lifecycle_services(tmp_path):
         assert stamps[0] >= activated[index] and log_times[0] >= activated[index]
         assert log_times[-1] <= deactivated[index] and stamps[-1] <= deactivated[index]
         # On the grid of the first sample; from the first stamp at or after the
-        # activation on, no sample missing (the second period until its schedule began).
+        # activation on, no sample missing (the last period until its schedule began).
         assert np.all((stamps - grid_start) % PERIOD_NS == 0)
         if index:
             assert stamps[0] == publish_from[index] + (grid_start - publish_from[index]) \

@@ -311,13 +311,16 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         self._diagnostics.timer.cancel()
         self._truth.timer.cancel()
         self._schedules.refusal = INACTIVE
-        with self._lock:
-            try:
-                cancelled, message = self._schedules.cancel(f'by the {transition} transition')
-            except Exception as error:
-                cancelled, message = True, f'cancel failed: {error}'
-        if cancelled:
-            self.get_logger().warning(f'{transition}: {message}')
+        if self._schedules.busy_kind is not None:
+            # Only then the node lock: the sensor thread holds it for each batch.
+            with self._lock:
+                try:
+                    cancelled, message = self._schedules.cancel(
+                        f'by the {transition} transition')
+                except Exception as error:
+                    cancelled, message = True, f'cancel failed: {error}'
+            if cancelled:
+                self.get_logger().warning(f'{transition}: {message}')
         self._stream.flush_recording()
         self._recording.split()
 

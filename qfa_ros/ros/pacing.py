@@ -185,11 +185,14 @@ class Pacer:
         self._queue = collections.deque()
         self._generation = 0
         self._stop = False
-        # _gate protects _paused; held around each publication, so that once pause()
-        # returns nothing more is published.
+        # _gate protects _paused and _publish_from_ns (nothing stamped earlier is
+        # published); held around each publication, so that once pause() returns nothing
+        # more is published.
         self._gate = threading.Lock()
         self._paused = False
+        self._publish_from_ns = 0
         self.published = 0
+        self.dropped = 0
         self.late = 0
         self.max_delay_ns = 0
         self.last_stamp_ns = None
@@ -232,15 +235,20 @@ class Pacer:
             self.last_stamp_ns = None
 
     def pause(self):
-        """Publish nothing more and forget the queue; return once no publication is under way."""
+        """
+        Publish nothing more; return once no publication is under way.
+
+        The queue is kept: each message is dropped when it comes due while paused, and one
+        due after :meth:`resume` is published then (a quick reactivation loses none).
+        """
         with self._gate:
             self._paused = True
-        self.clear()
 
-    def resume(self):
-        """Publish again what is queued from now on (:meth:`pause` emptied the queue)."""
+    def resume(self, from_ns):
+        """Publish again, each message stamped at or after ``from_ns`` [ns]."""
         with self._gate:
             self._paused = False
+            self._publish_from_ns = from_ns
 
     @property
     def pending(self):
@@ -296,9 +304,13 @@ class Pacer:
                     tokens = 1.0
                 tokens -= 1.0
             with gate:
-                if self._paused:
-                    return
-                publisher.publish(data)
+                dropped = self._paused or stamp < self._publish_from_ns
+                if not dropped:
+                    publisher.publish(data)
+            if dropped:
+                # Due while paused (a managed node inactive): neither sent nor recorded.
+                self.dropped += 1
+                continue
             # After the call: a stall inside it (the GIL, the CPU) counts as the gap.
             previous, previous_stamp = time.time_ns(), stamp
             self._previous = previous, stamp, tokens

@@ -122,7 +122,8 @@ class SampleStream:
         self.schedule = None
         self.pause_reason = None
         # Samples stamped before this are not published [ns]; None: nothing is published
-        # (a managed node's inactive state, :meth:`pause`). Under the node lock.
+        # (a managed node's inactive state, :meth:`pause`). Written by the executor, read
+        # by the sensor thread (one attribute: no lock; see pause and resume).
         self.publish_from_ns = 0
         self.unpublished = 0
         self.computed = 0
@@ -161,22 +162,24 @@ class SampleStream:
 
         Returns once no publication is under way: nothing is published after it. The
         samples still computed are counted (:attr:`unpublished`), not published or
-        recorded, and no longer computed ahead of the clock. Call without the node lock.
+        recorded, and no longer computed ahead of the clock. Takes no lock the sensor
+        thread holds: a batch it is computing goes to the pacer, which drops what comes due
+        while paused.
         """
-        with self._lock:
-            self.publish_from_ns = None
         self.pacer.pause()
+        self.publish_from_ns = None
 
     def resume(self):
         """
         Publish again from the present on, on the same sample grid (``activate``).
 
         The first sample published is the first one stamped at or after now; each one after
-        it follows on the grid. Call without the node lock.
+        it follows on the grid: those computed before the pause and not yet due are
+        published from the pacer's queue, the sensor thread computes on from there.
         """
-        self.pacer.resume()
-        with self._lock:
-            self.publish_from_ns = max(0, self._now_ns())
+        now = max(0, self._now_ns())
+        self.pacer.resume(now)
+        self.publish_from_ns = now
         self._wake.set()
 
     def _started_publishing(self):
@@ -473,7 +476,7 @@ class SampleStream:
                    ('messages waiting for their instant', pacer.pending),
                    ('samples withheld', self.withheld),
                    ('samples skipped', self.skipped),
-                   ('messages not published (node inactive)', self.unpublished),
+                   ('messages not published (node inactive)', self.unpublished + pacer.dropped),
                    (f'messages published > {LATE_NS / 1e6:g} ms late', pacer.late),
                    ('largest publication delay [ms]', f'{pacer.max_delay_ns / 1e6:.3f}'),
                    ('sensor time [s]', f'{triad.time:.3f}')]
