@@ -76,7 +76,8 @@ class QfaUnit:
         # only by RuntimeParameters, under _lock.
         self._values = values
         # The trajectory file is read once here, before any service answers (the parameter
-        # is read-only); the state file below, also only at start.
+        # is read-only); the state file below, also only at start (a managed node's start
+        # is its configure).
         trajectory_file = load_trajectory_file(values)
         reason = check_all(values, trajectory_file)
         if reason:
