@@ -31,6 +31,7 @@ setup(
             # One name per program in lib/qfa_ros: the node with ROS's underscore
             # (ros2 run qfa_ros qfa_node), the offline tools with their documented names.
             'qfa_node = qfa_ros.cli.node:main',
+            'qfa_lifecycle_node = qfa_ros.cli.node:lifecycle_main',
             'qfa-replay = qfa_ros.cli.replay:main',
             'qfa-report = qfa_ros.cli.report:main',
             'qfa-fleet = qfa_ros.cli.fleet:main',

@@ -123,9 +123,10 @@ class NodeProcess:
     :param domain: ROS domain id.
     :param directory: Where the parameters file and the log go.
     :param parameters: Parameter overrides.
+    :param managed: Run ``qfa_lifecycle_node`` (the managed node, unconfigured at start).
     """
 
-    def __init__(self, domain, directory, parameters=None, name=NODE):
+    def __init__(self, domain, directory, parameters=None, name=NODE, managed=False):
         self.domain = domain
         self.name = name
         directory = Path(directory)
@@ -136,8 +137,10 @@ class NodeProcess:
             {name: {'ros__parameters': dict(parameters or {})}}))
         self.log_path = self.params_file.with_suffix('.log')
         self._log = open(self.log_path, 'w')
+        program = ['-c', 'import sys; from qfa_ros.cli.node import lifecycle_main; '
+                   'sys.exit(lifecycle_main())'] if managed else ['-m', 'qfa_ros.cli.node']
         self.process = subprocess.Popen(
-            [sys.executable, '-m', 'qfa_ros.cli.node', '--ros-args', '-r', f'__node:={name}',
+            [sys.executable, *program, '--ros-args', '-r', f'__node:={name}',
              '--params-file', str(self.params_file)],
             env=node_environment(domain), stdout=self._log, stderr=subprocess.STDOUT,
             cwd=ROOT)

@@ -7,7 +7,10 @@ unrelated project), so ``ros2 launch`` cannot run here. Each launch file's
 ``launch``/``launch_ros`` classes it uses; every ``Node`` it describes is then started the
 way ``launch_ros`` starts it (the installed executable, ``__node``/``__ns`` remappings, one
 parameters file per entry), from a share directory laid out by ``setup.py``'s
-``data_files``, and asked for its name and parameters. What remains untested here is
+``data_files``, and asked for its name and parameters; the managed launch's
+``ChangeState`` events and ``OnStateTransition`` handlers are played as launch plays them
+(each event one ``~/change_state`` call, a handler whose node reached its goal state runs
+its actions once). What remains untested here is
 ``launch`` itself: ``test_launch_descriptions_load_with_ros2_launch`` runs where it is
 installed.
 """
@@ -24,7 +27,9 @@ import subprocess
 import sys
 import types
 
-from node_helpers import Client, domain_id, node_environment
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from node_helpers import Client, domain_id, ImuCollector, node_environment
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -67,16 +72,17 @@ def console_scripts():
 
 def load_description(path, monkeypatch, share):
     """Run ``generate_launch_description()`` of ``path``; return its entities."""
-    recorder = {name: (lambda kind: lambda *a, **k: Entity(kind, *a, **k))(name)
-                for name in ('LaunchDescription', 'DeclareLaunchArgument',
-                             'LaunchConfiguration', 'Node')}
-    for module_name, names in (('launch', ['LaunchDescription']),
-                               ('launch.actions', ['DeclareLaunchArgument']),
-                               ('launch.substitutions', ['LaunchConfiguration']),
-                               ('launch_ros', []), ('launch_ros.actions', ['Node'])):
+    for module_name, names in (
+            ('launch', ['LaunchDescription']),
+            ('launch.actions', ['DeclareLaunchArgument', 'EmitEvent', 'RegisterEventHandler']),
+            ('launch.events', ['matches_action']),
+            ('launch.substitutions', ['LaunchConfiguration']),
+            ('launch_ros', []), ('launch_ros.actions', ['Node', 'LifecycleNode']),
+            ('launch_ros.event_handlers', ['OnStateTransition']), ('launch_ros.events', []),
+            ('launch_ros.events.lifecycle', ['ChangeState'])):
         module = types.ModuleType(module_name)
         for name in names:
-            setattr(module, name, recorder[name])
+            setattr(module, name, (lambda kind: lambda *a, **k: Entity(kind, *a, **k))(name))
         monkeypatch.setitem(sys.modules, module_name, module)
     ament = types.ModuleType('ament_index_python.packages')
     ament.get_package_share_directory = lambda package: str({'qfa_ros': share}[package])
@@ -193,12 +199,66 @@ def test_two_units_launch_starts_two_namespaced_units_with_their_own_identity(
                for namespace, unit in zip(namespaces, units))
 
 
+def test_managed_units_launch_configures_both_in_order_then_activates_both(
+        tmp_path, monkeypatch):
+    share = install_share(tmp_path / 'install')
+    entities = load_description(LAUNCH / 'managed_units.launch.py', monkeypatch, share)
+    nodes = [e for e in entities if e.kind == 'LifecycleNode']
+    handlers = [e.args[0] for e in entities if e.kind == 'RegisterEventHandler']
+    assert len(nodes) == 2 and all(h.kind == 'OnStateTransition' for h in handlers)
+    assert all(h.kwargs['handle_once'] for h in handlers)  # a later deactivate stays
+    domain = domain_id('launch_managed')
+    processes = run_nodes([node_command(node, {}, tmp_path) for node in nodes], domain,
+                          tmp_path)
+    client = Client(domain)
+    imu = {node.kwargs['namespace']: ImuCollector(client, f'/{node.kwargs["namespace"]}'
+                                                  '/imu/data_raw') for node in nodes}
+    steps = []
+    try:
+        # As launch runs it: each EmitEvent(ChangeState) asks its node for the transition;
+        # an OnStateTransition whose node reached its goal state runs its entities once.
+        pending = [e for e in entities if e.kind == 'EmitEvent']
+        while pending:
+            event = pending.pop(0).kwargs['event']
+            assert event.kind == 'ChangeState'
+            matcher = event.kwargs['lifecycle_node_matcher']
+            assert matcher.kind == 'matches_action'
+            node, = matcher.args
+            name = f'/{node.kwargs["namespace"]}/{node.kwargs["name"]}'
+            request = ChangeState.Request()
+            request.transition.id = event.kwargs['transition_id']
+            assert client.call(ChangeState, f'{name}/change_state', request, 90.0).success
+            state = client.call(GetState, f'{name}/get_state',
+                                GetState.Request()).current_state.label
+            steps.append((node.kwargs['namespace'], request.transition.id, state,
+                          client.node.get_clock().now().nanoseconds))
+            for handler in list(handlers):
+                if handler.kwargs['target_lifecycle_node'] is node and \
+                        handler.kwargs['goal_state'] == state:
+                    handlers.remove(handler)
+                    pending.extend(handler.kwargs['entities'])
+        client.spin_until(lambda: all(len(c.samples) >= 100 for c in imu.values()), 60,
+                          '100 samples of each unit')
+    finally:
+        client.close()
+        stop(processes)
+    configure, activate = Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE
+    assert [step[:3] for step in steps] == [
+        ('imu_a', configure, 'inactive'), ('imu_b', configure, 'inactive'),
+        ('imu_a', activate, 'active'), ('imu_b', activate, 'active')]
+    # Neither unit published before both were configured.
+    both_configured = steps[1][3]
+    assert all(c.samples[0][0] > both_configured for c in imu.values())
+
+
 def test_launch_descriptions_load_with_ros2_launch():
     pytest.importorskip('launch_ros', reason='launch_ros is not installed (no Kilted wheel); '
                         'the other tests here run the descriptions without it')
     from launch.launch_description_sources import PythonLaunchDescriptionSource
     for name, entities in (('qfa.launch.py', ['DeclareLaunchArgument'] * 3 + ['Node']),
-                           ('two_units.launch.py', ['Node', 'Node'])):
+                           ('two_units.launch.py', ['Node', 'Node']),
+                           ('managed_units.launch.py', ['LifecycleNode'] * 2
+                            + ['RegisterEventHandler'] * 2 + ['EmitEvent'])):
         description = PythonLaunchDescriptionSource(
             str(LAUNCH / name)).try_get_launch_description_without_context()
         assert [type(e).__name__ for e in description.entities] == entities

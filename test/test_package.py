@@ -30,6 +30,7 @@ ROSDEP_KEYS = {
     'mcap': 'mcap-ros2-support', 'mcap_ros2': 'mcap-ros2-support',
     'launch': 'launch', 'launch_ros': 'launch_ros', 'tqdm': 'python3-tqdm',
     'nav_msgs': 'nav_msgs', 'rosbags': 'python3-rosbags-pip',
+    'lifecycle_msgs': 'lifecycle_msgs',
 }
 # No rosdep key exists for these (checked in rosdep/python.yaml): only the fleet studies
 # (qfa-fleet) use them, and they come from requirements/tools.txt with pip.

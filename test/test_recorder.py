@@ -687,6 +687,26 @@ def test_flight_recorder_splits_without_losing_messages(tmp_path, limits, seed):
     assert recovered == written
 
 
+def test_flight_recorder_split_finishes_the_file_now_and_goes_on_in_the_next(tmp_path):
+    with FlightRecorder(tmp_path, 'flight') as flight:
+        assert flight.split() is None  # no file open: nothing to finish, none started
+        flight.record('/a', 'std_msgs/msg/String', _string_cdr('first'), T0)
+        first = flight.split()
+        # Finished and listed while the recording goes on: readable as it is.
+        assert first == flight.files[0] and first.exists() and not list(
+            tmp_path.glob('**/*.part'))
+        with Rosbag2Reader(flight.bag_directory) as reader:
+            assert [bytes(d) for _, _, d in reader.messages()] == [_string_cdr('first')]
+        assert flight.split() is None
+        flight.record('/a', 'std_msgs/msg/String', _string_cdr('second'), T0 + 5)
+    assert [p.name for p in flight.files] == [f'{flight.bag_directory.name}_{i}.mcap'
+                                              for i in (0, 1)]
+    assert flight.split() is None  # closed
+    with Rosbag2Reader(flight.bag_directory) as reader:
+        assert [bytes(d) for _, _, d in reader.messages()] == [
+            _string_cdr('first'), _string_cdr('second')]
+
+
 @pytest.mark.parametrize('limits', [
     {'max_bytes': 6000},
     {'max_duration_ns': 250_000_000},

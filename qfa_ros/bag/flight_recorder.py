@@ -294,6 +294,20 @@ class FlightRecorder:
                 paths.append(self.bag_directory)
             return paths
 
+    def split(self):
+        """Finish the current file now, if one is open; the next message starts the next.
+
+        Returns
+        -------
+        pathlib.Path or None
+            The file finished (listed in ``metadata.yaml``), or None.
+        """
+        with self._lock:
+            if self._closed or self._writer is None:
+                return None
+            self._finish_current()
+            return self.files[-1]
+
     def close(self):
         """Finish the current file and the bag's ``metadata.yaml``; idempotent.
 

@@ -1,6 +1,9 @@
 """
 ``qfa_node`` (``ros2 run qfa_ros qfa_node``): run the emulated IMU until SIGINT/SIGTERM.
 
+``qfa_lifecycle_node`` runs its managed variant (REP-2004 lifecycle; ``ros2 lifecycle set
+/qfa_node configure`` ...), which a stop signal takes through its ``shutdown`` transition.
+
 SIGINT and SIGTERM stop the process within a few seconds in every case
 (:func:`shut_down`): the node's own writes (calibration state, flight recording) finish
 first; a middleware teardown that hangs is then abandoned with :data:`EXIT_HARD` and a
@@ -144,16 +147,28 @@ class ProcessTuning:
         """Shorten the GIL switch interval to :data:`SWITCH_INTERVAL_S` (first batch done)."""
         sys.setswitchinterval(SWITCH_INTERVAL_S)
 
+    def released(self):
+        """
+        Let the collector have the frozen objects again (a managed node removed its unit).
 
-def create_node(secured):
+        A unit removed at ``cleanup`` leaves garbage among the frozen objects, which no
+        collection would otherwise reclaim; the next ``configure`` freezes its own.
+        """
+        gc.unfreeze()
+
+
+def create_node(secured, managed=False):
     """Create the node; return ``(node, None)`` or ``(None, status)`` after a one-line report."""
     # Imported only now: the model takes seconds to load, a middleware refusal does not.
-    from qfa_ros.ros.node import QfaNode
+    if managed:
+        from qfa_ros.ros.lifecycle_node import QfaLifecycleNode as NodeClass
+    else:
+        from qfa_ros.ros.node import QfaNode as NodeClass
     try:
         with warnings.catch_warnings():
             # rclpy warns about the half-made rosout publisher of a node that failed.
             warnings.simplefilter('ignore', RuntimeWarning)
-            return QfaNode(NODE_NAME, process_tuning=ProcessTuning()), None
+            return NodeClass(NODE_NAME, process_tuning=ProcessTuning()), None
     except (rclpy_implementation.RCLError, ValueError) as error:
         return None, startup_failure('creating the node', error, secured)
 
@@ -176,8 +191,12 @@ EXIT_HARD = 3
 """Exit status when the process had to exit without the middleware teardown."""
 
 
-def main(args=None):
-    """Run the node until SIGINT or SIGTERM; exit with the status (2: invalid parameters)."""
+def main(args=None, managed=False):
+    """
+    Run the node until SIGINT or SIGTERM; exit with the status (2: invalid parameters).
+
+    :param managed: Run the managed (lifecycle) node, which starts unconfigured.
+    """
     use_shipped_fastdds_profile()
     secured, problem = require_security()
     if problem:
@@ -187,7 +206,7 @@ def main(args=None):
         return status
     # After rclpy.init: the stop signals are ours from here on.
     signals = StopSignals()
-    node, status = create_node(secured)
+    node, status = create_node(secured, managed)
     if node is None:
         rclpy.try_shutdown()
         return status
@@ -200,6 +219,8 @@ def main(args=None):
     except ExternalShutdownException:
         pass
     signals.stopping.set()
+    if managed:
+        node.finalize()
     status = shut_down(node, executor)
     # Skip the interpreter's finalization: nothing is left to write, and under `ros2
     # launch` with two units it was seen to hang after a complete teardown (until the
@@ -207,6 +228,11 @@ def main(args=None):
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(status)
+
+
+def lifecycle_main(args=None):
+    """``qfa_lifecycle_node``: run the managed node (unconfigured until told) as :func:`main`."""
+    return main(args, managed=True)
 
 
 class StopSignals:

@@ -46,7 +46,7 @@ class Diagnostics:
         self._recording = recording
         self._sources = sources
         self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        node.create_timer(1.0 / values['diagnostics_rate_hz'], self.timer_callback)
+        self.timer = node.create_timer(1.0 / values['diagnostics_rate_hz'], self.timer_callback)
 
     def array(self):
         """Return a :class:`DiagnosticArray` of every status (call with the node lock held)."""

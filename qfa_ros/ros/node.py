@@ -46,14 +46,14 @@ ANNOUNCE_AFTER_S = 1.0
 """The start-up lines are logged at the latest this long after construction [s, steady]."""
 
 
-class QfaNode(Node):
+class QfaUnit:
     """
-    Emulated self-calibrating IMU of three digital closed-loop QFA.
+    The emulated unit on a node: the model and its collaborators, wired in one place.
 
-    Publishes ``imu/data_raw``, ``imu/temperature``, ``/diagnostics`` and
-    ``~/is_calibrated``; serves ``~/capture_reference``, ``~/estimate_forward_gain``,
-    ``~/estimate_feedback_gain``, ``~/self_calibrate``, ``~/calibrate_temperature``,
-    ``~/calibrate_gyros``, ``~/set_compensation`` and ``~/cancel``.
+    Mixed into both nodes, so that there is one wiring: :class:`QfaNode` wires and starts
+    it at construction, :class:`~qfa_ros.ros.lifecycle_node.QfaLifecycleNode` at its
+    ``configure`` transition. :meth:`wire_unit` creates every publisher, service, timer
+    and subscription of the unit on the node it is mixed into.
 
     The node wires small collaborators: :class:`SampleStream` (the sensor thread that
     advances the model and publishes), :class:`ScheduleService` (schedules behind the
@@ -63,22 +63,29 @@ class QfaNode(Node):
     :class:`TruthPublisher`, :class:`StreamRecording`, :class:`Diagnostics` and
     :class:`StartupRecovery` (what a killed earlier run left unfinished). The
     executor thread serves parameters, services, diagnostics and the ground-truth input.
-
-    :param node_name: Node name.
-    :param process_tuning: The process's interpreter settings, applied by the sensor thread
-        (see :class:`SampleStream`); only a process that runs this node alone passes them.
-    :param kwargs: Passed to :class:`rclpy.node.Node` (e.g. ``context``,
-        ``parameter_overrides``).
-    :raises ValueError: A parameter is invalid; the message names it.
     """
 
-    def __init__(self, node_name='qfa_node', *, process_tuning=None, **kwargs):
-        super().__init__(node_name, **kwargs)
+    _stream = None
+    """The :class:`SampleStream` once :meth:`wire_unit` made it (None before)."""
+
+    def wire_unit(self, values, process_tuning=None):
+        """
+        Build the model from ``values`` and wire the collaborators; the stream is not started.
+
+        :param values: Every parameter's value by name (``declare_parameters``); kept as
+            the live values.
+        :param process_tuning: The process's interpreter settings, applied by the sensor
+            thread (see :class:`SampleStream`); only a process that runs this node alone
+            passes them.
+        :raises ValueError: A parameter is invalid or the trajectory file cannot be used;
+            the message names the parameter.
+        """
         # The live parameter values, shared (read-only) by every collaborator; written
         # only by RuntimeParameters, under _lock.
-        self._values = values = declare_parameters(self)
+        self._values = values
         # The trajectory file and the imu.yaml are read once here, before any service
-        # answers (the parameters are read-only); the state file below, also only at start.
+        # answers (the parameters are read-only); the state file below, also only at start
+        # (a managed node's start is its configure).
         trajectory_file = load_trajectory_file(values)
         imu_noise = load_imu_noise(values)
         reason = check_all(values, trajectory_file, imu_noise)
@@ -169,26 +176,10 @@ class QfaNode(Node):
             f'{self._keeper.startup_summary()}; unit '
             f'{f"drawn, seed {unit}" if values["unit.draw"] else "nominal"}; to start fresh '
             f'(uncompensated): -p state.fresh:=true']
-        # The start-up lines are logged (executor thread) once the first samples are out,
-        # or ANNOUNCE_AFTER_S of steady time after construction should none come (a topic
-        # input not yet arrived, no /clock): rclpy's logger finds its caller through
-        # inspect, whose first call resolves the path of every loaded module, ~70 ms that
-        # would otherwise delay the first sample.
-        self._stream.on_publishing = self.create_guard_condition(self.announce_start).trigger
-        self._announce_timer = self.create_timer(
-            ANNOUNCE_AFTER_S, self.announce_start, clock=Clock(clock_type=ClockType.STEADY_TIME))
         # What an earlier run left unfinished (a kill, a power cut), recovered in the
-        # background once the first samples are out (announce_start).
+        # background once the first samples are out (QfaNode.announce_start) or at
+        # configure (QfaLifecycleNode).
         self._startup_recovery = StartupRecovery(self, values)
-        self._stream.start()
-
-    def announce_start(self):
-        """Log what the node runs and which state it loaded; start the recovery (once)."""
-        lines, self._start_lines = self._start_lines, []
-        self._announce_timer.cancel()
-        self._startup_recovery.start()
-        for line in lines:
-            self.get_logger().info(line)
 
     @property
     def is_calibrated(self):
@@ -208,6 +199,8 @@ class QfaNode(Node):
         in the middleware, holding the lock), the state and the recording are written
         without the lock; nothing else touches them once the stream has stopped ticking.
         """
+        if self._stream is None:
+            return
         self._startup_recovery.stop(timeout_s)
         self._stream.stop(timeout_s)
         locked = self._lock.acquire(timeout=timeout_s)
@@ -224,3 +217,43 @@ class QfaNode(Node):
         finally:
             if locked:
                 self._lock.release()
+
+
+class QfaNode(QfaUnit, Node):
+    """
+    Emulated self-calibrating IMU of three digital closed-loop QFA.
+
+    Publishes ``imu/data_raw``, ``imu/temperature``, ``/diagnostics`` and
+    ``~/is_calibrated``; serves ``~/capture_reference``, ``~/estimate_forward_gain``,
+    ``~/estimate_feedback_gain``, ``~/self_calibrate``, ``~/calibrate_temperature``,
+    ``~/calibrate_gyros``, ``~/set_compensation`` and ``~/cancel``. The unit
+    (:class:`QfaUnit`) is wired and started at construction, and runs until :meth:`close`.
+
+    :param node_name: Node name.
+    :param process_tuning: The process's interpreter settings, applied by the sensor thread
+        (see :class:`SampleStream`); only a process that runs this node alone passes them.
+    :param kwargs: Passed to :class:`rclpy.node.Node` (e.g. ``context``,
+        ``parameter_overrides``).
+    :raises ValueError: A parameter is invalid; the message names it.
+    """
+
+    def __init__(self, node_name='qfa_node', *, process_tuning=None, **kwargs):
+        super().__init__(node_name, **kwargs)
+        self.wire_unit(declare_parameters(self), process_tuning)
+        # The start-up lines are logged (executor thread) once the first samples are out,
+        # or ANNOUNCE_AFTER_S of steady time after construction should none come (a topic
+        # input not yet arrived, no /clock): rclpy's logger finds its caller through
+        # inspect, whose first call resolves the path of every loaded module, ~70 ms that
+        # would otherwise delay the first sample.
+        self._stream.on_publishing = self.create_guard_condition(self.announce_start).trigger
+        self._announce_timer = self.create_timer(
+            ANNOUNCE_AFTER_S, self.announce_start, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._stream.start()
+
+    def announce_start(self):
+        """Log what the node runs and which state it loaded; start the recovery (once)."""
+        lines, self._start_lines = self._start_lines, []
+        self._announce_timer.cancel()
+        self._startup_recovery.start()
+        for line in lines:
+            self.get_logger().info(line)

@@ -211,9 +211,17 @@ class Pacer:
         self._queue = collections.deque()
         self._generation = 0
         self._stop = False
+        # _gate protects _paused and _publish_from_ns (nothing stamped earlier is
+        # published); held around each publication, so that once pause() returns nothing
+        # more is published.
+        self._gate = threading.Lock()
+        self._paused = False
+        self._publish_from_ns = 0
         self.published = 0
         self.late = 0
         self.dropped = 0
+        # Messages due while paused or stamped before the resumption: never published.
+        self.unpublished = 0
         self.max_delay_ns = 0
         self.last_stamp_ns = None
         # The messages taken off the queue, being published (pacer thread only).
@@ -254,6 +262,22 @@ class Pacer:
             self._generation += 1
             self.last_stamp_ns = None
 
+    def pause(self):
+        """
+        Publish nothing more; return once no publication is under way.
+
+        The queue is kept: each message is dropped when it comes due while paused, and one
+        due after :meth:`resume` is published then (a quick reactivation loses none).
+        """
+        with self._gate:
+            self._paused = True
+
+    def resume(self, from_ns):
+        """Publish again, each message stamped at or after ``from_ns`` [ns]."""
+        with self._gate:
+            self._paused = False
+            self._publish_from_ns = from_ns
+
     @property
     def pending(self):
         """Return how many messages wait for their instant."""
@@ -288,6 +312,7 @@ class Pacer:
         # publication): the messages in hand were stamped on the clock of that moment.
         simulated = clock.ros_time_is_active
         wait = self._wait_until
+        gate = self._gate
         previous, previous_stamp, tokens = self._previous
         for index, (stamp, publisher, msgtype, data) in enumerate(self._hand):
             self._hand_index = index
@@ -311,7 +336,14 @@ class Pacer:
                         return
                     tokens = 1.0
                 tokens -= 1.0
-            publisher.publish(data)
+            with gate:
+                dropped = self._paused or stamp < self._publish_from_ns
+                if not dropped:
+                    publisher.publish(data)
+            if dropped:
+                # Due while paused (a managed node inactive): neither sent nor recorded.
+                self.unpublished += 1
+                continue
             # After the call: a stall inside it (the GIL, the CPU) counts as the gap.
             previous, previous_stamp = time.time_ns(), stamp
             self._previous = previous, stamp, tokens

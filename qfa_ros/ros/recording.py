@@ -77,6 +77,9 @@ class StreamRecording:
         self.problem_level = DiagnosticStatus.OK
         self._next_check = 0.0
         self._checked_path = None
+        # Called with the problem (the recording's lock held, any thread; it must not block)
+        # when the recording stops for lack of free space: a managed node's fault.
+        self.on_free_space_floor = None
         # Protects the writer, its files and the fields above; re-entrant because a
         # failed write stops (closes) the recording from inside record, and a caller may
         # hold it around several calls (drain a queue, then restart).
@@ -101,6 +104,8 @@ class StreamRecording:
         self.problem, self.problem_level = problem, level
         self._node.get_logger().error(problem)
         self.close()
+        if level == DiagnosticStatus.ERROR and self.on_free_space_floor is not None:
+            self.on_free_space_floor(problem)
 
     def restart(self):
         """Close the current recording and open one with the present parameters."""
@@ -131,6 +136,19 @@ class StreamRecording:
             self._checked_path = None
         except (OSError, ValueError) as error:
             self._stop(f'recorder not started: {error}', DiagnosticStatus.WARN)
+
+    def split(self):
+        """Finish the current file now (readable as it is); the next message starts the next."""
+        with self.lock:
+            if self.recorder is None:
+                return
+            try:
+                path = self.recorder.split()
+            except (OSError, RecorderError) as error:
+                self._stop(f'recording stopped: {error}', DiagnosticStatus.WARN)
+                return
+            if path is not None:
+                self._node.get_logger().info(f'recording file finished: {path}')
 
     def close(self):
         """Finish the current file, if any; idempotent."""

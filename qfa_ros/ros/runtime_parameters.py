@@ -29,10 +29,15 @@ from qfa_ros.ros.params import (
 )
 
 
-def declare_parameters(node):
+def declare_parameters(node, read_only=True, refused=None):
     """
     Declare every parameter of the table on ``node``; return their start values by name.
 
+    :param read_only: False declares every parameter writable (the managed node refuses a
+        change of a read-only one itself, except in its unconfigured state).
+    :param refused: None, or a dict: a start value rclpy refuses (type, range) is then
+        recorded there (name: reason) and the parameter declared with its default, instead
+        of raising.
     :raises ValueError: A start value has the wrong type; the message names the parameter.
     """
     # Integers typed for doubles ([1, 2, 3], 2000) become doubles: in every change
@@ -40,9 +45,11 @@ def declare_parameters(node):
     node.add_pre_set_parameters_callback(
         lambda parameters: [as_declared_type(p) for p in parameters])
     for spec in PARAMETERS:
+        declared = descriptor(spec)
+        declared.read_only = declared.read_only and read_only
         try:
             try:
-                node.declare_parameter(spec.name, spec.default, descriptor(spec))
+                node.declare_parameter(spec.name, spec.default, declared)
             except InvalidParameterTypeException:
                 # Read the start value untyped; declare the double it means, if any.
                 given = node.declare_parameter(spec.name, spec.default,
@@ -51,10 +58,12 @@ def declare_parameters(node):
                 node.undeclare_parameter(spec.name)
                 if typed is given:
                     raise
-                node.declare_parameter(spec.name, typed.value, descriptor(spec),
-                                       ignore_override=True)
+                node.declare_parameter(spec.name, typed.value, declared, ignore_override=True)
         except ParameterException as error:
-            raise ValueError(str(error)) from None
+            if refused is None:
+                raise ValueError(str(error)) from None
+            refused[spec.name] = str(error)
+            node.declare_parameter(spec.name, spec.default, declared, ignore_override=True)
     return {spec.name: node.get_parameter(spec.name).value for spec in PARAMETERS}
 
 

@@ -34,7 +34,7 @@ SCHEDULE_PAUSE = {
 
 
 class ScheduleCancelledError(Exception):
-    """The running schedule was cancelled through ``~/cancel``; the sensor is restored."""
+    """The running schedule was cancelled (``~/cancel``, deactivation); the sensor is restored."""
 
 
 class SensorSnapshot:
@@ -139,6 +139,8 @@ class ScheduleService:
         self._guard = FreeSpaceGuard(values['min_free_bytes'])
         # Read by the executor thread only (services, parameters, diagnostics).
         self.busy_kind = None
+        # Why every call is refused now (a managed node not active), or None.
+        self.refusal = None
         self._snapshot = None
         self.last_results = {}
         self.last_trace = None
@@ -146,6 +148,8 @@ class ScheduleService:
 
     def busy_answer(self):
         """Return the reason a call must be refused now, or None."""
+        if self.refusal is not None:
+            return self.refusal
         if self.busy_kind is not None:
             return f'busy: {self.busy_kind} schedule running'
         return None
@@ -235,7 +239,7 @@ class ScheduleService:
         node.get_logger().info(response.message)
         return response
 
-    def cancel(self):
+    def cancel(self, cause='through ~/cancel'):
         """
         Abort the running schedule and restore the sensor as it was before the call.
 
@@ -245,6 +249,7 @@ class ScheduleService:
         and the pending call answers ``success: false``, ``... cancelled ...``. Call with
         the node lock held.
 
+        :param cause: How it was cancelled, for the pending call's answer.
         :returns: ``(success, message)`` for the ``~/cancel`` answer.
         """
         stream = self._stream
@@ -254,8 +259,8 @@ class ScheduleService:
                 return False, (f'{self.busy_kind} schedule has finished its sensor time and '
                                'is being saved: too late to cancel')
             return False, 'no schedule running'
-        run.abort(f'{run.kind} cancelled through ~/cancel: loops, loop words and calibration '
-                  'state restored as before the call; nothing saved', ScheduleCancelledError)
+        run.abort(f'{run.kind} cancelled {cause}: loops, loop words and calibration state '
+                  'restored as before the call; nothing saved', ScheduleCancelledError)
         self._snapshot.restore()
         if run.fast:
             stream.finish_fast_schedule()

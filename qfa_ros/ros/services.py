@@ -123,6 +123,9 @@ class CalibrationServices:
 
     def cancel_callback(self, request, response):
         """Abort the running schedule, restore the sensor and let the stream resume."""
+        if self._schedules.refusal is not None:
+            response.success, response.message = False, self._schedules.refusal
+            return response
         with self._lock:
             try:
                 response.success, response.message = self._schedules.cancel()

@@ -127,6 +127,11 @@ class SampleStream:
                                                / values['temperature_rate_hz']))
         self.schedule = None
         self.pause_reason = None
+        # Samples stamped before this are not published [ns]; None: nothing is published
+        # (a managed node's inactive state, :meth:`pause`). Written by the executor, read
+        # by the sensor thread (one attribute: no lock; see pause and resume).
+        self.publish_from_ns = 0
+        self.unpublished = 0
         self.computed = 0
         self.withheld = 0
         self.skipped = 0
@@ -158,6 +163,32 @@ class SampleStream:
         self.recording_queue.start()
         self.pacer.start()
         self._thread.start()
+
+    def pause(self):
+        """
+        Publish nothing from now on; the sensor runs on (a managed node's ``deactivate``).
+
+        Returns once no publication is under way: nothing is published after it. The
+        samples still computed are counted (:attr:`unpublished`), not published or
+        recorded, and no longer computed ahead of the clock. Takes no lock the sensor
+        thread holds: a batch it is computing goes to the pacer, which drops what comes due
+        while paused.
+        """
+        self.pacer.pause()
+        self.publish_from_ns = None
+
+    def resume(self):
+        """
+        Publish again from the present on, on the same sample grid (``activate``).
+
+        The first sample published is the first one stamped at or after now; each one after
+        it follows on the grid: those computed before the pause and not yet due are
+        published from the pacer's queue, the sensor thread computes on from there.
+        """
+        now = max(0, self._now_ns())
+        self.pacer.resume(now)
+        self.publish_from_ns = now
+        self._wake.set()
 
     def _started_publishing(self):
         if self.on_publishing is not None:
@@ -317,7 +348,11 @@ class SampleStream:
         if backlog > limit:
             self._skip(backlog)
         self._log_drops()
-        count = grid.due(self._compute_until(now)) - grid.next_index
+        until = self._compute_until(now)
+        if self.publish_from_ns is None:
+            # Not publishing: the sensor runs on, nothing is computed ahead.
+            until = min(until, now)
+        count = grid.due(until) - grid.next_index
         if count > 0:
             self._advance(count)
 
@@ -436,6 +471,11 @@ class SampleStream:
                 items.insert(bisect.bisect_right(imu_stamps, stamp),
                              (stamp, self._temperature_publisher, TEMPERATURE_TYPE,
                               serialize_message(message)))
+        publish_from = self.publish_from_ns
+        if publish_from is None or (items and items[0][0] < publish_from):
+            kept = [] if publish_from is None else [i for i in items if i[0] >= publish_from]
+            self.unpublished += len(items) - len(kept)
+            items = kept
         self.pacer.put(items)
 
     # Diagnostics ------------------------------------------------------------------------
@@ -460,6 +500,7 @@ class SampleStream:
                    ('messages waiting for their instant', pacer.pending),
                    ('samples withheld', self.withheld),
                    ('samples skipped', self.skipped),
+                   ('messages not published (node inactive)', self.unpublished + pacer.unpublished),
                    (f'messages published > {LATE_NS / 1e6:g} ms late', pacer.late),
                    (f'messages dropped > {STALE_NS / 1e9:g} s late', pacer.dropped),
                    ('largest publication delay [ms]', f'{pacer.max_delay_ns / 1e6:.3f}'),

@@ -120,7 +120,7 @@ class TruthPublisher:
         self._position = None
         self.published = 0
         self.event_count = 0
-        node.create_timer(1.0 / values['truth.rate_hz'], self.tick)
+        self.timer = node.create_timer(1.0 / values['truth.rate_hz'], self.tick)
 
     def chain(self, callback):
         """Return ``callback`` preceded by :meth:`mark` (the stream's schedule-end hook)."""
