@@ -17,4 +17,5 @@ layer              what                                                       ma
 =================  =========================================================  ===========
 """
 
-__version__ = '0.1.0'
+__version__ = '1.0.0'
+"""The release: package.xml's ``<version>`` (setup.py reads it there; test_package checks this)."""
