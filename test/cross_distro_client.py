@@ -39,7 +39,7 @@ def exchange(domain, timeout=60.0):
         client.subscribe(Bool, '/qfa_node/is_calibrated', lambda m: latched.append(m.data),
                          latched=True)
         client.spin_until(lambda: latched, timeout, 'the latched ~/is_calibrated')
-        answer = client.call(SetBool, '/qfa_node/set_compensation', SetBool.Request(data=False),
+        answer = client.call(SetBool, '/qfa_node/set_compensation', SetBool.Request(data=True),
                              timeout)
         accepted = client.set_parameters({'drift.feedback_ppm': [200.0, -150.0, 300.0]})
         refused = client.set_parameters({'drift.feedback_ppm': [math.nan, 0.0, 0.0]})
