@@ -212,4 +212,5 @@ def test_a_fast_dds_profile_given_by_either_name_reaches_fast_dds(tmp_path, vari
     result = subprocess.run([sys.executable, '-c', script], env=env, capture_output=True,
                             text=True, timeout=120)
     assert result.returncode == 0, result.stderr
-    assert f"Error parsing '{broken}'" in result.stderr, result.stderr
+    # Fast DDS 2.14 logs to stdout, 3.2 to stderr.
+    assert f"Error parsing '{broken}'" in result.stdout + result.stderr, result.stderr
