@@ -14,11 +14,16 @@ both (rclpy 7.1.6 and 9.1.2, the message packages 5.3.6 and 5.5.1):
   longer comments than Kilted's; every field, and so every type hash (RIHS01, over the
   fields only), is the same. The recorder embeds Kilted's text under both
   (:mod:`qfa_ros.bag.msgdefs`), so that a bag is the same bytes whichever is installed;
-  readers of both take it (``test/test_recorder.py``, ``docs/node.md``).
+  readers of both take it: rosbags' Jazzy and Kilted type stores parse it to the same
+  fields and RIHS01 hashes, and rosbag2 plays a topic by its type name (a generic
+  publisher) with the hash beside it, not by the text (``test/test_recorder.py``,
+  ``docs/replay_report.md``).
 - **rclpy.** The API the package calls is the same in 7 and 9 (the suite runs on both,
   ``make test ROS_DISTRO=jazzy``); an API that differs goes here.
-- **The bag metadata** names the distribution a recording was made under
-  (:func:`ros_distribution`), as rosbag2 does.
+- **Bag metadata.** ``ros_distro`` says ``kilted`` under both: the distribution whose
+  message definitions the bag embeds (readers take the definitions, not this name).
+- **The version line** (``qfa_node --version``) names the running one
+  (:func:`ros_distribution`).
 """
 
 import importlib.util
