@@ -25,7 +25,6 @@ foreign after that one re-execution, the program refuses to start in one line.
 import os
 from pathlib import Path
 import sys
-import sysconfig
 
 from qfa_ros.cli.interrupt import program_name
 
@@ -56,7 +55,14 @@ def own_library_directories(prefix=None, site_packages=None):
     sourced ROS 2, whose own ``setup.bash`` made the environment, or no ROS at all).
     """
     prefix = Path(sys.prefix if prefix is None else prefix)
-    site = Path(sysconfig.get_path('purelib') if site_packages is None else site_packages)
+    if site_packages is None:
+        # Imported by its .pth at start-up wherever the wheels are installed: its place is
+        # the wheels' site-packages, and finding it costs nothing.
+        bootstrapper = sys.modules.get('ros_wheels_bootstrapper')
+        if bootstrapper is None or not bootstrapper.__file__:
+            return None
+        site_packages = Path(bootstrapper.__file__).parents[1]
+    site = Path(site_packages)
     if not (site / 'ros_wheels_bootstrapper').is_dir():
         return None
     return [str(prefix / 'lib')] + sorted(str(p.resolve()) for p in site.glob('ros_*.libs')
