@@ -4,7 +4,7 @@
 # floor.txt and ros-jazzy.txt), `pip install .`, then from another directory:
 # qfa_node --version, qfa-sim, the shipped files found through the share directory and
 # ament_index, and the node started on the shipped parameters file, streaming to a
-# SensorDataQoS subscriber of the same venv. ROS_DOMAIN_ID (default 149) isolates it.
+# SensorDataQoS subscriber of the same venv. ROS_DOMAIN_ID (default 148) isolates it.
 # Usage: bash bench/fresh_install.sh [DIR]   (about 2-5 min, most of it pip)
 set -euo pipefail
 CLONE=$(cd "$(dirname "$0")/.." && pwd)
@@ -15,7 +15,7 @@ if [ "${ROS_DISTRO:-kilted}" = jazzy ]; then
 else
   REQUIREMENTS="-r $CLONE/requirements/base.txt -r $CLONE/requirements/ros.txt"
 fi
-export ROS_DOMAIN_ID=${ROS_DOMAIN_ID:-149} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+export ROS_DOMAIN_ID=${ROS_DOMAIN_ID:-148} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 run() { echo "\$ $*"; "$@"; echo; }
 cd "$DIR"
 run python3 -m venv venv
@@ -49,7 +49,7 @@ node = rclpy.create_node('qfa_install_check')
 stamps = []
 node.create_subscription(Imu, 'imu/data_raw', lambda m: stamps.append(m.header.stamp),
                          qos_profile_sensor_data)
-deadline = time.monotonic() + 120
+deadline = time.monotonic() + 300
 while len(stamps) < 2000 and time.monotonic() < deadline:
     rclpy.spin_once(node, timeout_sec=0.1)
 print(f'{len(stamps)} samples on imu/data_raw (SensorDataQoS)')
