@@ -27,7 +27,13 @@ import pytest
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Imu
 
-from qfa_ros.cli.own_libraries import BOOTSTRAP_GUARD
+from qfa_ros.cli.own_libraries import (
+    BOOTSTRAP_GUARD,
+    own_environment,
+    own_library_directories,
+    REEXEC_MARK,
+    use_own_ros_libraries,
+)
 from qfa_ros.ros.distro import ros_distribution
 
 PARAMETERS = {'state_file': '', 'sample_rate_hz': 1000.0}
@@ -190,6 +196,38 @@ def test_the_node_started_from_another_ros_environment_runs_on_its_own_libraries
     finally:
         for node in nodes.values():
             node.stop()
+
+
+def test_the_environment_a_node_of_this_venv_needs(tmp_path):
+    own = own_library_directories()
+    assert own[0] == str(Path(sys.prefix) / 'lib')
+    assert own_environment(os.environ, own) is None  # this process's: nothing to change
+    other = fake_environment(tmp_path / 'other', Path(sys.prefix))
+    python_path = tmp_path / 'site-packages'
+    (python_path / 'rclpy').mkdir(parents=True)
+    kept = tmp_path / 'mine'
+    kept.mkdir()
+    environ = {'LD_LIBRARY_PATH': f'{other}:{kept}', 'PYTHONPATH': f'{python_path}:{kept}',
+               'ROS_DISTRO': 'jazzy'}
+    env = own_environment(environ, own)
+    # This venv's directories first, the other's ROS libraries and rclpy gone, the rest kept.
+    assert env['LD_LIBRARY_PATH'].split(':') == own + [str(kept)]
+    assert env['PYTHONPATH'] == str(kept) and env[BOOTSTRAP_GUARD] == '1'
+    assert env['ROS_DISTRO'] == 'jazzy' and environ['LD_LIBRARY_PATH'] == f'{other}:{kept}'
+
+
+def test_a_node_still_in_another_environment_after_its_restart_refuses_in_one_line(
+        tmp_path, capsys):
+    lib = fake_environment(tmp_path / 'other', Path(sys.prefix))
+    environ = {'LD_LIBRARY_PATH': str(lib), BOOTSTRAP_GUARD: '1', REEXEC_MARK: '1'}
+    with pytest.raises(SystemExit) as stopped:
+        use_own_ros_libraries(environ, program='qfa_node')
+    assert stopped.value.code == 1
+    line = capsys.readouterr().err
+    assert line.count('\n') == 1 and line.startswith('qfa_node: cannot start on this ')
+    assert 'env -u LD_LIBRARY_PATH -u _ROS_WHEELS_BOOTSTRAP_COMPLETE -u PYTHONPATH' in line
+    # Other programs load no ROS library: nothing to check.
+    assert use_own_ros_libraries(environ, program='qfa-sim') is None
 
 
 @pytest.mark.parametrize('variable', ['FASTDDS_DEFAULT_PROFILES_FILE',
