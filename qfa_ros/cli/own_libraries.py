@@ -28,8 +28,8 @@ import sys
 
 from qfa_ros.cli.interrupt import program_name
 
-ROS_PROGRAMS = ('qfa_node', 'qfa-replay')
-"""The programs that load ROS 2 libraries."""
+ROS_PROGRAMS = ('qfa_node', 'qfa_lifecycle_node', 'qfa-replay')
+"""The programs that load ROS 2 libraries (a new ROS program's name goes here)."""
 
 BOOTSTRAP_GUARD = '_ROS_WHEELS_BOOTSTRAP_COMPLETE'
 """Set by the wheels' bootstrap once ``LD_LIBRARY_PATH`` is made (ros_wheels_bootstrapper)."""
