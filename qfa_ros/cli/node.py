@@ -24,7 +24,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.logging import get_logger
 from rclpy.signals import SignalHandlerOptions
 
-from qfa_ros import __version__
+from qfa_ros import VERSION
 from qfa_ros.ros.distro import ros_distribution
 from qfa_ros.ros.fastdds import use_shipped_fastdds_profile
 
@@ -180,7 +180,7 @@ EXIT_HARD = 3
 
 def version_line():
     """Return what ``qfa_node --version`` prints: the release and the ROS 2 distribution."""
-    return f'{NODE_NAME} {__version__} (qfa_ros; ROS 2 {ros_distribution() or "unknown"})'
+    return f'{NODE_NAME} {VERSION} (qfa_ros; ROS 2 {ros_distribution() or "unknown"})'
 
 
 def main(args=None):
