@@ -1,13 +1,36 @@
-# One-command set-up: every target below creates or refreshes .venv from the
+# One-command set-up: every target below creates or refreshes the venv from the
 # pinned requirements first. With a sourced ROS 2 (rclpy importable) the venv
 # sees the system packages and the ROS 2 wheels are not installed. setup.cfg puts the
-# executables in lib/qfa_ros (where `ros2 run` looks); they are linked into .venv/bin.
+# executables in lib/qfa_ros (where `ros2 run` looks); they are linked into the venv's bin.
+#
+# ROS_DISTRO chooses the wheel set: kilted (default; .venv, requirements/ros.txt and
+# base.txt) or jazzy, the LTS (.venv-jazzy, ros-jazzy.txt and the library floor
+# floor.txt: Ubuntu 24.04's numpy, scipy and numba), e.g. `make test ROS_DISTRO=jazzy`.
+# A sourced ROS 2 sets ROS_DISTRO itself: jazzy's venv then takes the floor with the
+# system rclpy, any other distribution .venv. Both venvs can exist side by side; each
+# keeps numba's cache of this tree in its own directory (the two numba versions would
+# overwrite each other's index in __pycache__).
 PYTHON ?= python3
+ROS_DISTRO ?= kilted
+ifeq ($(ROS_DISTRO),jazzy)
+VENV := .venv-jazzy
+ROS_WHEELS := requirements/ros-jazzy.txt
+LIBRARIES := requirements/floor.txt
+TOOLS := requirements/tools-floor.txt
+NUMBA_CACHE := $(CURDIR)/.venv-jazzy/numba_cache
+else
 VENV := .venv
+ROS_WHEELS := requirements/ros.txt
+LIBRARIES := requirements/base.txt
+TOOLS := requirements/tools.txt
+NUMBA_CACHE :=
+endif
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.qfa-installed
 NODE_STAMP := $(VENV)/.qfa-node
 DURATION ?= 10
+# More pytest arguments for `make test`, e.g. TESTS='-m ros' (the ROS-facing files only).
+TESTS ?=
 
 .PHONY: setup run sim test lint docs bench reproducibility bags figures clean
 
@@ -15,16 +38,21 @@ BAGS := bags/static_10s.mcap bags/paper_2019.mcap bags/temperature_cycle.mcap
 
 setup: $(STAMP)
 
-# What the node and qfa-sim need (requirements/base.txt, the ROS 2 wheels unless rclpy is
+# What the node and qfa-sim need (base.txt or floor.txt, the ROS 2 wheels unless rclpy is
 # on the system) and the package itself: all `make run` and `make sim` install.
-$(NODE_STAMP): requirements/ros.txt requirements/base.txt setup.py
+$(NODE_STAMP): $(ROS_WHEELS) $(LIBRARIES) setup.py
 	@if $(PYTHON) -c 'import rclpy' >/dev/null 2>&1; then \
 	  echo 'rclpy found on the system: using it, not the ROS 2 wheels'; \
 	  $(PYTHON) -m venv --system-site-packages $(VENV); ros=''; \
 	else \
-	  $(PYTHON) -m venv $(VENV); ros='-r requirements/ros.txt'; \
+	  $(PYTHON) -m venv $(VENV); ros='-r $(ROS_WHEELS)'; \
 	fi; \
-	$(PY) -m pip install -q --disable-pip-version-check -r requirements/base.txt $$ros && \
+	if [ -n '$(NUMBA_CACHE)' ]; then \
+	  site=$$($(PY) -c 'import sysconfig; print(sysconfig.get_path("purelib"))'); \
+	  line="import os; os.environ.setdefault('NUMBA_CACHE_DIR', '$(NUMBA_CACHE)')"; \
+	  [ -d "$$site" ] && echo "$$line" > "$$site/qfa_numba_cache.pth"; \
+	fi; \
+	$(PY) -m pip install -q --disable-pip-version-check -r $(LIBRARIES) $$ros && \
 	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e . && \
 	$(PY) -m compileall -q qfa_ros && \
 	$(PY) -m qfa_ros.cli.warm_cache && \
@@ -32,9 +60,9 @@ $(NODE_STAMP): requirements/ros.txt requirements/base.txt setup.py
 	touch $@
 
 # Everything: the fleet and figure tools, the test and documentation tools besides.
-$(STAMP): $(NODE_STAMP) requirements/tools.txt requirements/test.txt
+$(STAMP): $(NODE_STAMP) $(TOOLS) requirements/test.txt
 	@$(PY) -m pip install -q --disable-pip-version-check \
-	  -r requirements/tools.txt -r requirements/test.txt
+	  -r $(TOOLS) -r requirements/test.txt
 	@touch $@
 
 # The emulated sensor on DDS until Ctrl-C (the node finds config/fastdds_discovery.xml).
@@ -48,7 +76,7 @@ sim: $(NODE_STAMP)
 	$(VENV)/bin/qfa-sim static --duration $(DURATION)
 
 test: $(STAMP)
-	$(PY) -m pytest
+	$(PY) -m pytest $(TESTS)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

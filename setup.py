@@ -1,12 +1,17 @@
 from glob import glob
+from pathlib import Path
+import xml.etree.ElementTree as ET
 
 from setuptools import find_packages, setup
 
 package_name = 'qfa_ros'
+# The one version of the release: package.xml's (qfa_ros.__version__ and CHANGELOG.rst
+# follow it; test/test_package.py checks them).
+version = ET.parse(Path(__file__).with_name('package.xml')).getroot().findtext('version')
 
 setup(
     name=package_name,
-    version='0.1.0',
+    version=version,
     packages=find_packages(exclude=['test']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),

@@ -17,4 +17,7 @@ layer              what                                                       ma
 =================  =========================================================  ===========
 """
 
-__version__ = '0.1.0'
+VERSION = '1.0.0'
+"""The release: package.xml's ``<version>`` (setup.py reads it there; test_package checks this)."""
+
+__version__ = VERSION

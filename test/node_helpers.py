@@ -20,16 +20,26 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from qfa_ros.model.unit import draw_unit
 from qfa_ros.model.units import MICRO_G
 from qfa_ros.ros.bounds import LARGEST_CHAMBER, LARGEST_FEEDBACK, LARGEST_FORWARD
+from qfa_ros.ros.distro import ros_distribution, SUPPORTED_DISTRIBUTIONS
+from qfa_ros.ros.fastdds import use_shipped_fastdds_profile
 from qfa_ros.ros.params import PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES_FILE = ROOT / 'config' / 'fastdds_discovery.xml'
 NODE = 'qfa_node'
 
-# The test process is a long-running participant too: the discovery profile and the
-# localhost-only discovery apply to it as to the node.
+# The test process is a long-running participant too: the discovery profile (under the
+# name this distribution's Fast DDS reads) and the localhost-only discovery apply to it as
+# to the node.
 os.environ.setdefault('FASTDDS_DEFAULT_PROFILES_FILE', str(PROFILES_FILE))
+use_shipped_fastdds_profile()
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+VENVS = {'kilted': ROOT / '.venv', 'jazzy': ROOT / '.venv-jazzy'}
+"""The venv of each distribution (the Makefile's ``ROS_DISTRO``)."""
+
+BOTH_DISTRIBUTIONS_ENV = 'QFA_TEST_BOTH_DISTRIBUTIONS'
+"""Set (by .ci/run): a test that needs the other distribution's venv fails without it."""
 
 
 def unit_output(specific_force, seed=1, temperature_c=25.0, bias_ug=(0.0, 0.0, 0.0)):
@@ -106,9 +116,38 @@ _DOMAIN_TAGS = {}
 """Tags in the order they were first given a domain in this test process."""
 
 
-def node_environment(domain):
-    """Return the environment of a node process isolated on ``domain``."""
+def other_distribution():
+    """
+    Return ``(distribution, python)``: the other supported distribution and its venv's python.
+
+    Skips the test when that venv was not set up (``make setup ROS_DISTRO=...``), fails it
+    instead with :data:`BOTH_DISTRIBUTIONS_ENV` set.
+    """
+    import pytest
+    mine = ros_distribution()
+    other = next(d for d in SUPPORTED_DISTRIBUTIONS if d != mine)
+    python = VENVS[other] / 'bin' / 'python'
+    if not python.exists():
+        reason = (f'no {other} venv ({VENVS[other].name}): make setup ROS_DISTRO={other}; '
+                  f'this is {mine}')
+        if os.environ.get(BOTH_DISTRIBUTIONS_ENV):
+            pytest.fail(reason)
+        pytest.skip(reason)
+    return other, python
+
+
+def node_environment(domain, python=None):
+    """
+    Return the environment of a node process isolated on ``domain``.
+
+    :param python: The python that runs the process. Another venv's gets an environment
+        as its own shell would give it: without this venv's library path and the wheels'
+        bootstrap guard (its bootstrap makes them), nor this venv's numba cache directory.
+    """
     env = dict(os.environ)
+    if python is not None and Path(python).parents[1] != Path(sys.prefix):
+        for name in ('LD_LIBRARY_PATH', '_ROS_WHEELS_BOOTSTRAP_COMPLETE', 'NUMBA_CACHE_DIR'):
+            env.pop(name, None)
     env['ROS_DOMAIN_ID'] = str(domain)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['FASTDDS_DEFAULT_PROFILES_FILE'] = str(PROFILES_FILE)
@@ -124,9 +163,14 @@ class NodeProcess:
     :param directory: Where the parameters file and the log go.
     :param parameters: Parameter overrides.
     :param managed: Run ``qfa_lifecycle_node`` (the managed node, unconfigured at start).
+    :param python: The python that runs it (default: this one).
+    :param command: The command that starts it, before ``--ros-args`` (default:
+        ``PYTHON -m qfa_ros.cli.node``, or the lifecycle node's ``main`` when ``managed``).
+    :param env: Its environment (default: :func:`node_environment`).
     """
 
-    def __init__(self, domain, directory, parameters=None, name=NODE, managed=False):
+    def __init__(self, domain, directory, parameters=None, name=NODE, managed=False,
+                 python=None, command=None, env=None):
         self.domain = domain
         self.name = name
         directory = Path(directory)
@@ -139,11 +183,12 @@ class NodeProcess:
         self._log = open(self.log_path, 'w')
         program = ['-c', 'import sys; from qfa_ros.cli.node import lifecycle_main; '
                    'sys.exit(lifecycle_main())'] if managed else ['-m', 'qfa_ros.cli.node']
+        command = command or [python or sys.executable, *program]
         self.process = subprocess.Popen(
-            [sys.executable, *program, '--ros-args', '-r', f'__node:={name}',
+            [*command, '--ros-args', '-r', f'__node:={name}',
              '--params-file', str(self.params_file)],
-            env=node_environment(domain), stdout=self._log, stderr=subprocess.STDOUT,
-            cwd=ROOT)
+            env=env or node_environment(domain, python), stdout=self._log,
+            stderr=subprocess.STDOUT, cwd=ROOT)
 
     @property
     def pid(self):

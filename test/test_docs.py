@@ -5,12 +5,16 @@ import re
 import subprocess
 import sys
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_docs_site_builds_with_warnings_as_errors(tmp_path):
     # What `make docs` runs. A page missing from every toctree, a broken cross-reference,
     # a docstring autodoc cannot render or a bad directive fails the build.
+    pytest.importorskip('pyarrow', reason='the API reference imports the fleet studies, '
+                        'which need pyarrow (numpy 2): not on the library floor')
     result = subprocess.run(
         [sys.executable, '-m', 'sphinx', '-W', '--keep-going', '-q', '-b', 'html',
          '-d', str(tmp_path / 'doctrees'), str(ROOT / 'docs'), str(tmp_path / 'html')],

@@ -11,15 +11,19 @@ import sys
 import time
 
 import numpy as np
-import pyarrow.parquet as pq
 import pytest
 from statistics_helpers import normal_bound
 
-from qfa_ros.cli.fleet import main as fleet_main
-from qfa_ros.fleet.runner import code_digest, parts_directory, run_study
-from qfa_ros.fleet.study import Study, StudyError
-from qfa_ros.fleet.summary import format_summary
-from qfa_ros.fleet.unit import simulate_unit
+# On the library floor (.venv-jazzy) the fleet studies' tools are not installed: pyarrow 26
+# needs numpy 2 (requirements/tools-floor.txt).
+pq = pytest.importorskip('pyarrow.parquet', reason='the fleet studies need pyarrow, which '
+                         'needs numpy 2: not on the library floor (tools-floor.txt)')
+
+from qfa_ros.cli.fleet import main as fleet_main  # noqa: E402
+from qfa_ros.fleet.runner import code_digest, parts_directory, run_study  # noqa: E402
+from qfa_ros.fleet.study import Study, StudyError  # noqa: E402
+from qfa_ros.fleet.summary import format_summary  # noqa: E402
+from qfa_ros.fleet.unit import simulate_unit  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 # A short schedule keeps a unit at about a second of CPU.

@@ -4,6 +4,7 @@ import ast
 import configparser
 from glob import glob
 import importlib
+import importlib.util
 import os
 from pathlib import Path
 import shutil
@@ -151,9 +152,9 @@ exit 0
 """A python that logs its arguments, answers ``import rclpy`` with $FAKE_RCLPY, makes venvs."""
 
 
-def make_target(tmp_path, target, rclpy_status):
+def make_target(tmp_path, target, rclpy_status, distro=None):
     """Run ``make TARGET`` on a copy of the project with a fake python; return its calls."""
-    project = tmp_path / f'project{rclpy_status}'
+    project = tmp_path / f'project{rclpy_status}{distro or ""}'
     if not project.exists():
         project.mkdir()
         for name in ('Makefile', 'setup.py', 'requirements'):
@@ -164,16 +165,24 @@ def make_target(tmp_path, target, rclpy_status):
     python.chmod(0o755)
     log = project / 'calls.log'
     log.unlink(missing_ok=True)
+    # ROS_DISTRO as a sourced ROS 2 exports it, or as `make ... ROS_DISTRO=jazzy` gives it.
+    env = make_environment()
+    if distro:
+        env['ROS_DISTRO'] = distro
     subprocess.run(['make', '-s', target, f'PYTHON={python}'], cwd=project, check=True,
                    capture_output=True, timeout=60,
-                   env={**make_environment(), 'FAKE_LOG': str(log),
-                        'FAKE_RCLPY': str(rclpy_status)})
+                   env={**env, 'FAKE_LOG': str(log), 'FAKE_RCLPY': str(rclpy_status)})
     return log.read_text().splitlines() if log.exists() else []
 
 
 def make_environment():
-    """Return this environment without a parent make's variables (CI runs us under make)."""
-    return {k: v for k, v in os.environ.items() if k not in ('MAKEFLAGS', 'MAKELEVEL', 'MFLAGS')}
+    """
+    Return this environment without a parent make's variables (CI runs us under make).
+
+    Nor ``ROS_DISTRO``, which a sourced ROS 2 exports and the Makefile reads.
+    """
+    return {k: v for k, v in os.environ.items()
+            if k not in ('MAKEFLAGS', 'MAKELEVEL', 'MFLAGS', 'ROS_DISTRO')}
 
 
 def requirement_files(calls):
@@ -186,28 +195,78 @@ def requirement_files(calls):
     return files
 
 
+WHEEL_SETS = {None: ('.venv', 'requirements/base.txt', 'requirements/ros.txt',
+                     'requirements/tools.txt'),
+              'kilted': ('.venv', 'requirements/base.txt', 'requirements/ros.txt',
+                         'requirements/tools.txt'),
+              'jazzy': ('.venv-jazzy', 'requirements/floor.txt', 'requirements/ros-jazzy.txt',
+                        'requirements/tools-floor.txt')}
+"""Per ROS_DISTRO: the venv, its libraries, its ROS 2 wheels and its tools (the Makefile)."""
+
+
 def test_make_run_installs_the_node_only_and_make_setup_the_rest(tmp_path):
-    for rclpy_status, system, ros in ((1, False, True), (0, True, False)):
-        # What `make run` needs: base.txt, and the ROS 2 wheels only without a system rclpy.
-        calls = make_target(tmp_path, '.venv/.qfa-node', rclpy_status)
-        venv = next(call for call in calls if call.startswith('-m venv'))
-        assert ('--system-site-packages' in venv.split()) == system, calls
-        assert requirement_files(calls) == {'requirements/base.txt'} | (
-            {'requirements/ros.txt'} if ros else set()), calls
-        assert any(call.startswith('-m pip install') and call.endswith('-e .')
-                   for call in calls), calls
-        # `make setup` afterwards adds the tools and the test packages, and redoes nothing.
-        calls = make_target(tmp_path, 'setup', rclpy_status)
-        assert requirement_files(calls) == {'requirements/tools.txt',
-                                            'requirements/test.txt'}, calls
-        assert not any(call.startswith('-m venv') for call in calls), calls
+    for distro, (venv, libraries, wheels, tools) in WHEEL_SETS.items():
+        for rclpy_status, system, ros in ((1, False, True), (0, True, False)):
+            # What `make run` needs: the libraries, and the distribution's ROS 2 wheels only
+            # without a system rclpy.
+            calls = make_target(tmp_path, f'{venv}/.qfa-node', rclpy_status, distro)
+            venv_call = next(call for call in calls if call.startswith('-m venv'))
+            assert ('--system-site-packages' in venv_call.split()) == system, calls
+            assert venv_call.split()[-1] == venv, calls
+            assert requirement_files(calls) == {libraries} | ({wheels} if ros else set()), \
+                calls
+            assert any(call.startswith('-m pip install') and call.endswith('-e .')
+                       for call in calls), calls
+            # `make setup` afterwards adds the tools and the test packages, and redoes nothing.
+            calls = make_target(tmp_path, 'setup', rclpy_status, distro)
+            assert requirement_files(calls) == {tools, 'requirements/test.txt'}, calls
+            assert not any(call.startswith('-m venv') for call in calls), calls
     # `make run` and `make sim` wait for the node's set-up only, `make test` for all of it.
-    for target, prerequisite in (('run', '.venv/.qfa-node'), ('sim', '.venv/.qfa-node'),
-                                 ('test', '.venv/.qfa-installed')):
-        database = subprocess.run(['make', '-pnq', target], cwd=ROOT, env=make_environment(),
-                                  timeout=60, capture_output=True, text=True).stdout
-        rule = next(line for line in database.splitlines() if line.startswith(f'{target}:'))
-        assert rule.split(':', 1)[1].split() == [prerequisite], rule
+    for distro, (venv, *_) in WHEEL_SETS.items():
+        for target, prerequisite in (('run', f'{venv}/.qfa-node'), ('sim', f'{venv}/.qfa-node'),
+                                     ('test', f'{venv}/.qfa-installed')):
+            database = subprocess.run(['make', '-pnq', target] + ([f'ROS_DISTRO={distro}']
+                                                                  if distro else []),
+                                      cwd=ROOT, env=make_environment(), timeout=60,
+                                      capture_output=True, text=True).stdout
+            rule = next(line for line in database.splitlines()
+                        if line.startswith(f'{target}:'))
+            assert rule.split(':', 1)[1].split() == [prerequisite], rule
+
+
+def test_the_floor_differs_from_the_pins_in_the_floor_libraries_alone():
+    def pins(name):
+        lines = (line.split('#')[0].strip()
+                 for line in (ROOT / 'requirements' / name).read_text().splitlines())
+        return dict(line.split('==') for line in lines if line)
+
+    base, floor = pins('base.txt'), pins('floor.txt')
+    assert set(base) == set(floor)
+    differing = {name for name in base if base[name] != floor[name]}
+    assert differing == {'numpy', 'scipy', 'numba', 'llvmlite'}
+    # The floor is what package.xml promises (version_gte of its rosdep keys).
+    root = ET.parse(ROOT / 'package.xml').getroot()
+    stated = {e.text: e.get('version_gte') for e in root.findall('exec_depend')
+              if e.get('version_gte')}
+    assert stated == {f'python3-{name}': floor[name] for name in ('numpy', 'scipy', 'numba')}
+    assert pins('tools-floor.txt') == {'matplotlib': pins('tools.txt')['matplotlib']}
+
+
+def test_one_version_in_package_xml_setup_py_the_node_and_the_changelog():
+    from catkin_pkg.changelog import get_changelog_from_path
+
+    version = ET.parse(ROOT / 'package.xml').getroot().findtext('version')
+    setup = subprocess.run([sys.executable, 'setup.py', '--version'], cwd=ROOT, timeout=120,
+                           capture_output=True, text=True, check=True)
+    assert setup.stdout.split()[-1] == version
+    import qfa_ros
+    assert qfa_ros.__version__ == version
+    node = subprocess.run([sys.executable, '-m', 'qfa_ros.cli.node', '--version'], cwd=ROOT,
+                          timeout=120, capture_output=True, text=True, check=True)
+    assert node.stdout.startswith(f'qfa_node {version} (qfa_ros; ROS 2 '), node.stdout
+    changelog = get_changelog_from_path(str(ROOT / 'CHANGELOG.rst'), 'qfa_ros')
+    released = [str(entry[0]) for entry in changelog.foreach_version(reverse=True)]
+    assert released[0] == version, 'CHANGELOG.rst: the newest entry is not the release'
 
 
 def test_make_test_runs_pytest_and_ci_runs_make_test(tmp_path):
@@ -218,12 +277,17 @@ def test_make_test_runs_pytest_and_ci_runs_make_test(tmp_path):
                          text=True, check=True, timeout=60)
     assert dry.stdout.split() == ['.venv/bin/python', '-m', 'pytest']
     fake_make = tmp_path / 'make'
-    fake_make.write_text('#!/bin/sh\necho "$*" > "$FAKE_LOG"\n')
+    fake_make.write_text('#!/bin/sh\necho "$QFA_TEST_BOTH_DISTRIBUTIONS $*" >> "$FAKE_LOG"\n')
     fake_make.chmod(0o755)
     subprocess.run(['bash', str(ROOT / '.ci' / 'run')], check=True, timeout=60,
-                   env={**os.environ, 'PATH': f'{tmp_path}:{os.environ["PATH"]}',
-                        'FAKE_LOG': str(tmp_path / 'make.log')})
-    assert (tmp_path / 'make.log').read_text().split() == ['test']
+                   capture_output=True,
+                   env={**make_environment(), 'PATH': f'{tmp_path}:{os.environ["PATH"]}',
+                        'FAKE_LOG': str(tmp_path / 'make.log'),
+                        'QFA_TEST_BOTH_DISTRIBUTIONS': ''})
+    # Both venvs first (the cross-distribution tests need both), then the README's test
+    # command on Kilted and on Jazzy, each told that the other venv is there.
+    assert (tmp_path / 'make.log').read_text().splitlines() == [
+        ' setup', ' setup ROS_DISTRO=jazzy', '1 test', '1 test ROS_DISTRO=jazzy']
 
 
 def test_requirements_are_pinned():
@@ -245,7 +309,10 @@ ROS_PACKAGES = ('rclpy', 'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'std_srvs'
 
 
 def test_model_and_recording_modules_never_import_ros():
-    modules = sorted(f'{layer}.{p.stem}' for layer in ROS_FREE_LAYERS
+    # The fleet layer needs pyarrow, which the library floor (.venv-jazzy) has not.
+    layers = [layer for layer in ROS_FREE_LAYERS
+              if layer != 'fleet' or importlib.util.find_spec('pyarrow') is not None]
+    modules = sorted(f'{layer}.{p.stem}' for layer in layers
                      for p in (ROOT / 'qfa_ros' / layer).glob('*.py'))
     assert {'model.triad', 'model.kernel', 'calibration.estimation', 'bag.writer',
             'bag.imu_cdr', 'model.thermal'} <= set(modules)

@@ -12,7 +12,9 @@ def rotations(rng, count=5000):
     axes = rng.normal(size=(count, 3))
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
     half_turns = Rotation.from_rotvec(np.pi * axes)
-    return Rotation.concatenate([Rotation.random(count, rng=rng), half_turns,
+    # Uniform on SO(3): normalized Gaussian quaternions (Rotation.random's rng= needs
+    # scipy 1.15; the floor is 1.11).
+    return Rotation.concatenate([Rotation.from_quat(rng.normal(size=(count, 4))), half_turns,
                                  Rotation.identity(), Rotation.from_rotvec([0.0, 0.0, np.pi])])
 
 

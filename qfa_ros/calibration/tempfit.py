@@ -138,6 +138,32 @@ def _grid_start(u, y, baseline=False, max_cancellation_bits=None):
 
 _MAX_SCALED_BETA = 8.0
 _MIN_SCALED_SEPARATION = 0.5
+_SECOND_TERM_F = 10.0
+"""The F statistic a fit's second exponential must exceed to be kept.
+
+``F = ((SSE1 - SSE2) / 2) / (SSE2 / (n - p))``, the MSE reduction the pair's two more
+parameters buy against its residual (``p`` parameters of the pair fit, ``n`` points):
+two parameters fitted to noise alone give ``F`` above 10 in about one fit of 10 000
+(``F(2, 50)``). Data one exponential explains (plus the baseline) leave the pair
+unidentifiable: every ``(beta2, alpha2)`` along a flat valley fits, and the alternation
+stops wherever the rounding of the linear algebra leaves it -- the second term vanishing
+with ``beta2`` at the grid's edge, or two near-equal exponents whose cancelling alphas
+cost the fixed-point words bits (seen for ``1e-3 e^(2V)``: from 0 to 7.4 cancelled bits
+with the OpenBLAS kernel). Such data get the single exponential (``alpha2 = 0``), the
+same on every machine."""
+
+_SSE_RESOLUTION = 1e-20
+"""SSE differences below this many times the points are rounding (``y`` at unit rms)."""
+
+
+def _second_term_needed(sse_single, sse_pair, points, parameters):
+    """Whether the pair's SSE is significantly below the single exponential's (F test)."""
+    gain = sse_single - sse_pair
+    if gain <= _SSE_RESOLUTION * points:
+        return False
+    if points <= parameters or sse_pair <= 0.0:
+        return True
+    return gain / 2.0 > _SECOND_TERM_F * sse_pair / (points - parameters)
 
 
 def _well_separated(s):
@@ -147,7 +173,7 @@ def _well_separated(s):
     alphas: the float fit barely improves while the fixed-point words lose every bit.
     """
     return bool(np.all(np.abs(s) <= _MAX_SCALED_BETA)
-                and abs(s[0] - s[1]) >= _MIN_SCALED_SEPARATION)
+                and (len(s) < 2 or abs(s[0] - s[1]) >= _MIN_SCALED_SEPARATION))
 
 
 def _sorted_fit(alpha, beta):
@@ -232,6 +258,71 @@ def _start_exponents(scaling, beta0, baseline=False, max_cancellation_bits=None)
     return scaling.to_scaled(beta0)
 
 
+def _single_start(u, y, baseline):
+    """Return the scaled exponent of the grid with the lowest projected SSE, as an array."""
+    sse = [float(r @ r) for r in (_solve_alpha(u, y, np.array([g]), baseline)[1]
+                                  for g in _START_GRID)]
+    return np.array([_START_GRID[int(np.argmin(sse))]])
+
+
+def _refine(u, y, s, baseline, tol, max_iter, max_cancellation_bits=None):
+    """
+    Refine the scaled exponents ``s`` (one or two) by the seed's alternation.
+
+    With the exponents fixed, the alphas by linear least squares; then a
+    Levenberg-Marquardt step on the exponents only, the alphas projected out (Kaufman's
+    variable-projection Jacobian ``(I - P) dPhi/dbeta alpha``), accepted only if the MSE
+    after re-solving the alphas does not increase, the exponents stay evaluable
+    (:func:`_well_separated`) and, if bounded, the cancellation within the bound.
+
+    :returns: ``(s, alpha, mse, iterations, converged, history)`` on the scaled problem.
+    """
+    count = len(s)
+    alpha, residual, basis = _solve_alpha(u, y, s, baseline)
+    mse = float(residual @ residual) / u.size
+    history = [mse]
+    damping = 1e-3
+    converged = False
+    iterations = 0
+    for iterations in range(1, max_iter + 1):
+        derivative = basis[:, :count] * u[:, None] * alpha[None, :count]
+        # Kaufman: project the derivative onto the complement of span(basis)
+        coefficients = np.linalg.lstsq(basis, derivative, rcond=None)[0]
+        jacobian = derivative - basis @ coefficients
+        normal = jacobian.T @ jacobian
+        gradient = jacobian.T @ residual
+        accepted = False
+        for _ in range(_LM_MAX_TRIALS):
+            damped = normal + damping * np.diag(np.diag(normal) + 1e-300)
+            try:
+                step = np.linalg.solve(damped, gradient)
+            except np.linalg.LinAlgError:
+                damping *= 10.0
+                continue
+            s_new = s + step
+            alpha_new, residual_new, basis_new = _solve_alpha(u, y, s_new, baseline)
+            mse_new = float(residual_new @ residual_new) / u.size
+            if np.all(np.isfinite(s_new)) and mse_new <= mse and (
+                    not baseline or _well_separated(s_new)) and (
+                    max_cancellation_bits is None
+                    or cancellation_bits(basis_new, alpha_new) <= max_cancellation_bits):
+                accepted = True
+                break
+            damping *= 10.0
+        if not accepted:
+            # no descent direction left: the MSE is stationary at this bound
+            converged = True
+            break
+        change = mse - mse_new
+        s, alpha, residual, basis, mse = s_new, alpha_new, residual_new, basis_new, mse_new
+        history.append(mse)
+        damping = max(damping / 10.0, 1e-12)
+        if change <= tol * mse + 1e-300:
+            converged = True
+            break
+    return s, alpha, mse, iterations, converged, history
+
+
 def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
                            baseline=False, max_cancellation_bits=None):
     r"""
@@ -244,6 +335,9 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
     variable-projection Jacobian ``(I - P) dPhi/dbeta alpha``), accepted only if the
     MSE after re-solving the alphas decreases.  The problem is solved on
     ``u = (V - center)/half_range`` and unit-rms ``y`` and mapped back exactly.
+    Data a single exponential explains as well (:data:`_SECOND_TERM_F`) get it,
+    ``alpha2 = 0``: the pair is not identifiable there, and where the alternation stops
+    would depend on the machine's rounding.
 
     Parameters
     ----------
@@ -283,48 +377,17 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
     scaling = _Scaling(v, y)
     u, ys = scaling.u, scaling.y
     s = _start_exponents(scaling, beta0, baseline, max_cancellation_bits)
-    alpha, residual, basis = _solve_alpha(u, ys, s, baseline)
-    mse = float(residual @ residual) / u.size
-    history = [mse * scaling.y_scale ** 2]
-    damping = 1e-3
-    converged = False
-    iterations = 0
-    for iterations in range(1, max_iter + 1):
-        derivative = basis[:, :2] * u[:, None] * alpha[None, :2]
-        # Kaufman: project the derivative onto the complement of span(basis)
-        coefficients = np.linalg.lstsq(basis, derivative, rcond=None)[0]
-        jacobian = derivative - basis @ coefficients
-        normal = jacobian.T @ jacobian
-        gradient = jacobian.T @ residual
-        accepted = False
-        for _ in range(_LM_MAX_TRIALS):
-            damped = normal + damping * np.diag(np.diag(normal) + 1e-300)
-            try:
-                step = np.linalg.solve(damped, gradient)
-            except np.linalg.LinAlgError:
-                damping *= 10.0
-                continue
-            s_new = s + step
-            alpha_new, residual_new, basis_new = _solve_alpha(u, ys, s_new, baseline)
-            mse_new = float(residual_new @ residual_new) / u.size
-            if np.all(np.isfinite(s_new)) and mse_new <= mse and (
-                    not baseline or _well_separated(s_new)) and (
-                    max_cancellation_bits is None
-                    or cancellation_bits(basis_new, alpha_new) <= max_cancellation_bits):
-                accepted = True
-                break
-            damping *= 10.0
-        if not accepted:
-            # no descent direction left: the MSE is stationary at this bound
-            converged = True
-            break
-        change = mse - mse_new
-        s, alpha, residual, basis, mse = s_new, alpha_new, residual_new, basis_new, mse_new
-        history.append(mse * scaling.y_scale ** 2)
-        damping = max(damping / 10.0, 1e-12)
-        if change <= tol * mse + 1e-300:
-            converged = True
-            break
+    s, alpha, mse, iterations, converged, history = _refine(
+        u, ys, s, baseline, tol, max_iter, max_cancellation_bits)
+    if max_cancellation_bits is None and beta0 is None:
+        single = _refine(u, ys, _single_start(u, ys, baseline), baseline, tol, max_iter)
+        parameters = 4 + (2 if baseline else 0)
+        if not _second_term_needed(single[2] * u.size, mse * u.size, u.size, parameters):
+            s1, alpha1, mse, iterations, converged, history = single
+            # The second term vanishes; its exponent is the first's (no new range).
+            s = np.array([s1[0], s1[0]])
+            alpha = np.concatenate([alpha1[:1], [0.0], alpha1[1:]])
+    history = [value * scaling.y_scale ** 2 for value in history]
     alpha_phys, beta_phys = scaling.to_physical(alpha[:2], s)
     line = (0.0, 0.0)
     if baseline:

@@ -27,6 +27,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.logging import get_logger
 from rclpy.signals import SignalHandlerOptions
 
+from qfa_ros import VERSION
+from qfa_ros.ros.distro import ros_distribution
 from qfa_ros.ros.fastdds import use_shipped_fastdds_profile
 
 NODE_NAME = 'qfa_node'
@@ -191,12 +193,25 @@ EXIT_HARD = 3
 """Exit status when the process had to exit without the middleware teardown."""
 
 
+def version_line():
+    """Return what ``qfa_node --version`` prints: the release and the ROS 2 distribution."""
+    return f'{NODE_NAME} {VERSION} (qfa_ros; ROS 2 {ros_distribution() or "unknown"})'
+
+
 def main(args=None, managed=False):
     """
     Run the node until SIGINT or SIGTERM; exit with the status (2: invalid parameters).
 
+    ``--version`` (before any ``--ros-args``) prints :func:`version_line` and exits.
+
     :param managed: Run the managed (lifecycle) node, which starts unconfigured.
     """
+    own_args = list(sys.argv if args is None else args)
+    if '--ros-args' in own_args:
+        own_args = own_args[:own_args.index('--ros-args')]
+    if '--version' in own_args:
+        print(version_line())
+        return 0
     use_shipped_fastdds_profile()
     secured, problem = require_security()
     if problem:

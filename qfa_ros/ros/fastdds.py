@@ -4,6 +4,13 @@ import os
 from pathlib import Path
 import sys
 
+from qfa_ros.ros.distro import (
+    FASTDDS_VARIABLE,
+    FASTRTPS_VARIABLE,
+    profiles_file_variable,
+    ros_distribution,
+)
+
 FASTDDS_PROFILE_NAME = 'fastdds_discovery.xml'
 
 
@@ -27,9 +34,9 @@ def shipped_fastdds_profile():
     return path if path.is_file() else None
 
 
-def use_shipped_fastdds_profile(environ=None):
+def use_shipped_fastdds_profile(environ=None, distribution=None):
     """
-    Point ``FASTDDS_DEFAULT_PROFILES_FILE`` at the shipped profile unless it is set.
+    Point the Fast DDS profile variable at the shipped profile unless one is set.
 
     Fast DDS 3.2 drops a running participant's discovery reply that lands before a
     new participant's receivers are up and repeats it only with its next periodic
@@ -37,14 +44,21 @@ def use_shipped_fastdds_profile(environ=None):
     announcements 100 ms apart and then announces every 1 s (measured in
     ``bench/results/discovery.md``). Call before ``rclpy.init``.
 
-    Returns
-    -------
-    str or None
-        The profile now in effect (the user's own or the shipped one).
+    The variable is the one the running distribution's Fast DDS reads
+    (:func:`qfa_ros.ros.distro.profiles_file_variable`: ``FASTRTPS_DEFAULT_PROFILES_FILE``
+    on Jazzy, ``FASTDDS_DEFAULT_PROFILES_FILE`` on Kilted). A profile the user set under
+    either name is the one in effect (Jazzy's Fast DDS would ignore the documented
+    ``FASTDDS_DEFAULT_PROFILES_FILE``, so it is copied to the name Jazzy reads).
+
+    :param distribution: The ROS 2 distribution (default: :func:`ros_distribution`).
+    :returns: The profile now in effect (the user's own or the shipped one), or None.
     """
     environ = os.environ if environ is None else environ
-    if not environ.get('FASTDDS_DEFAULT_PROFILES_FILE'):
-        profile = shipped_fastdds_profile()
+    distribution = ros_distribution(environ) if distribution is None else distribution
+    variable = profiles_file_variable(distribution)
+    other = FASTRTPS_VARIABLE if variable == FASTDDS_VARIABLE else FASTDDS_VARIABLE
+    if not environ.get(variable):
+        profile = environ.get(other) or shipped_fastdds_profile()
         if profile is not None:
-            environ['FASTDDS_DEFAULT_PROFILES_FILE'] = str(profile)
-    return environ.get('FASTDDS_DEFAULT_PROFILES_FILE')
+            environ[variable] = str(profile)
+    return environ.get(variable)
