@@ -249,7 +249,7 @@ def test_the_node_reads_its_imu_yaml_once_bounded_and_emulates_it(tmp_path):
     ideal = triad_config(defaults(**{'sensor.error_profile': 'ideal'}), imu_noise=noise)
     assert ideal.noise.noise_density == 2.0e-5 and ideal.noise.random_walk == 1.0e-4
     for path, expected in ((tmp_path / 'missing', 'cannot open'),
-                           ('/proc/self/environ', '/proc, /sys and /dev'),
+                           ('/proc/self/environ', 'on the kernel file system proc'),
                            (tmp_path, 'not a regular file')):
         with pytest.raises(ValueError) as caught:
             load_imu_noise(defaults(**{'noise.imu_yaml': str(path)}))
