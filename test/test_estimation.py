@@ -471,5 +471,6 @@ def test_old_state_without_reference_settings_is_refused_with_a_reason():
     again = CalibrationState.from_dict(json.loads(json.dumps(state.to_dict())))
     assert again.reference_settings == state.reference_settings
     bad = {**state.to_dict(), 'reference_settings': {'feedback': {'order': [1]}}}
-    with pytest.raises(ValueError, match='malformed'):
+    with pytest.raises(ValueError, match='reference_settings.feedback must map names to '
+                       'scalars'):
         CalibrationState.from_dict(bad)

@@ -32,6 +32,9 @@ ROSDEP_KEYS = {
     'launch': 'launch', 'launch_ros': 'launch_ros', 'tqdm': 'python3-tqdm',
     'nav_msgs': 'nav_msgs', 'rosbags': 'python3-rosbags-pip',
     'lifecycle_msgs': 'lifecycle_msgs',
+    # No key of their own: mcap requires both (its chunk compressions), and
+    # mcap-ros2-support's pip install brings mcap.
+    'lz4': 'mcap-ros2-support', 'zstandard': 'mcap-ros2-support',
 }
 # No rosdep key exists for these (checked in rosdep/python.yaml): only the fleet studies
 # (qfa-fleet) use them, and they come from requirements/tools.txt with pip.
@@ -125,10 +128,12 @@ def test_console_scripts_install_where_ros2_run_finds_them():
     keywords = setup_keywords()
     scripts = ast.literal_eval(keywords['entry_points'])['console_scripts']
     targets = dict((part.strip() for part in entry.split('=')) for entry in scripts)
-    assert set(targets) == {'qfa-sim', 'qfa_node', 'qfa-replay', 'qfa-report', 'qfa-fleet'}
+    assert set(targets) == {'qfa-sim', 'qfa_node', 'qfa_lifecycle_node', 'qfa-replay',
+                            'qfa-report', 'qfa-fleet'}
     assert len(set(targets.values())) == len(targets), 'one executable name per program'
     assert targets['qfa-sim'] == 'qfa_ros.cli.sim:main'
     assert targets['qfa_node'] == 'qfa_ros.cli.node:main'
+    assert targets['qfa_lifecycle_node'] == 'qfa_ros.cli.node:lifecycle_main'
     for target in targets.values():
         module, function = target.split(':')
         assert callable(getattr(importlib.import_module(module), function)), target

@@ -173,6 +173,11 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
             self._keep_unit_entities(before)
             return self._failed('configure', error)
         self._keep_unit_entities(before)
+        # rclpy runs the set-parameters callbacks last added first and stops at the first
+        # refusal: the state's rules (read-only while configured) must come before the
+        # unit's callback, which applies the change (RuntimeParameters).
+        self.remove_on_set_parameters_callback(self._check_by_state)
+        self.add_on_set_parameters_callback(self._check_by_state)
         if self._recording.problem_level == DiagnosticStatus.ERROR:
             # The recorder could not start for lack of free space.
             problem = self._recording.problem
@@ -334,8 +339,7 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
             self.close(TRANSITION_CLOSE_TIMEOUT_S)
             problem = self._keeper.problem if self._keeper.unsaved else None
         if self._parameter_changes is not None:
-            self.remove_on_set_parameters_callback(self._parameter_changes.validate_callback)
-            self.remove_post_set_parameters_callback(self._parameter_changes.apply_callback)
+            self.remove_on_set_parameters_callback(self._parameter_changes.set_callback)
         for (_, destroy), entities in zip(_destroyers(self), self._unit_entities):
             for entity in entities:
                 destroy(entity)
