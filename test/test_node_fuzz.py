@@ -42,7 +42,7 @@ from sensor_msgs.msg import Imu
 from std_srvs.srv import SetBool, Trigger
 
 from qfa_ros.model.trajectory import SCRIPTS
-from qfa_ros.ros.params import PARAMETERS
+from qfa_ros.ros.params import PARAMETERS, SPECS
 
 CASES = int(os.environ.get('QFA_FUZZ_CASES', '2000'))
 SECRET = 'SECRET_TOKEN=fuzz-must-not-echo'
@@ -58,6 +58,8 @@ REASON_LIMIT = 1000
 """Longest refusal [characters]: it names the parameter and the rule, it echoes no megabyte."""
 LARGEST_ARRAY = 10_000
 """More elements than any array parameter takes: a stranger's array is refused."""
+LONGEST_NAME = 255
+"""Longest file name the file system takes [bytes]: a recording in a longer one cannot start."""
 HUGE_ARRAYS = (10_001, 200_000)
 OFFSETS_S = (30.0, 3000.0, 1.0e6)
 """Ground-truth stamps far off the window, ahead and behind [s]."""
@@ -87,7 +89,11 @@ def path_values(root, out, pid):
             'ü/ñ', ' ']
 
 
-LONG_STRINGS = ('x' * 5000, 'y' * 100_000)
+LONG_STRINGS = ('x' * 5000, 'y' * 100_000, 'z' * 2000)
+"""Longer than any string parameter takes, and one within the limit (a directory name the
+file system refuses)."""
+MAX_QUOTED = 64
+"""Most characters of a stranger's value a refusal quotes back (``params.MAX_SHOWN``)."""
 
 
 def typed(type_, strategy):
@@ -140,20 +146,29 @@ def near(spec, paths):
         high = 1e6 if spec.high is None else spec.high
         element = st.floats(low, high) | st.sampled_from([math.nan, math.inf, high * 2])
         length = spec.length or len(default)
+        # On and past the size's edge, every element in range and increasing (the step
+        # times must): only the size can refuse it.
+        sizes = [spec.max_length, spec.max_length + 1] if spec.max_length else [length + 1]
+        ramp = st.sampled_from([*sizes, *HUGE_ARRAYS]).map(
+            lambda n: [low + (high - low) * k / n for k in range(n)])
         return typed(Parameter.Type.DOUBLE_ARRAY,
                      st.lists(element, min_size=length, max_size=length)
-                     | st.lists(element, max_size=length + 3))
+                     | st.lists(element, max_size=length + 3) | ramp)
     if spec.choices:
-        return typed(Parameter.Type.STRING, st.sampled_from(spec.choices))
-    return typed(Parameter.Type.STRING, st.sampled_from([default, *paths]))
+        return typed(Parameter.Type.STRING, st.sampled_from([*spec.choices, *LONG_STRINGS]))
+    return typed(Parameter.Type.STRING, st.sampled_from([default, *paths, *LONG_STRINGS]))
 
 
 def cases(paths):
     """Return the strategy of one case: changes, ground-truth messages, switches."""
     writable = [spec for spec in PARAMETERS if not spec.read_only]
     # Writable parameters as often as all read-only ones together: only their values
-    # reach the node's own checks (rclpy refuses a read-only one first).
-    spec = st.sampled_from(writable) | st.sampled_from(PARAMETERS)
+    # reach the node's own checks (rclpy refuses a read-only one first). As often again
+    # the writable strings and arrays, whose values reach the node's path, choice and size
+    # checks, and the switch of the recording, whose effect can fail.
+    shaped = [spec for spec in writable if isinstance(spec.default, (str, list))]
+    spec = st.sampled_from(writable) | st.sampled_from(PARAMETERS) \
+        | st.sampled_from([*shaped, SPECS['recorder.enabled']])
     change = spec.flatmap(lambda spec: st.tuples(
         st.just(spec.name), st.one_of(near(spec, paths), near(spec, paths), hostile(paths))))
     changes = st.lists(change, min_size=1, max_size=3, unique_by=lambda c: c[0])
@@ -307,6 +322,14 @@ def test_a_strangers_parameters_and_messages_break_nothing(tmp_path):
         @seed(20261127)
         @given(cases(paths))
         def one_case(case):
+            try:
+                check_case(case)
+            except AssertionError as error:
+                # Which case failed, out of how many (bench/planted_defects.py reads it).
+                error.args = (f'case {answers["sets"]} of {CASES}: {error}',)
+                raise
+
+        def check_case(case):
             changes, messages, switches = case
             request = SetParameters.Request()
             request.parameters = [Parameter(name, type_, value).to_parameter_msg()
@@ -321,8 +344,10 @@ def test_a_strangers_parameters_and_messages_break_nothing(tmp_path):
                 answers['refused'] += not result.successful
                 answers['accepted'] += result.successful
                 if result.successful:
-                    assert not (isinstance(value, list) and len(value) > LARGEST_ARRAY), \
-                        f'{name}: an array of {len(value)} elements accepted'
+                    spec = SPECS[name]
+                    size = spec.max_length or spec.length or LARGEST_ARRAY
+                    assert not (isinstance(value, list) and len(value) > size), \
+                        f'{name}: an array of {len(value)} elements accepted (at most {size})'
                     accepted[name] = value
                 else:
                     reason = result.reason
@@ -332,12 +357,17 @@ def test_a_strangers_parameters_and_messages_break_nothing(tmp_path):
                         name.rsplit('.', 1)[0] in reason
                         or reason.startswith('Wrong parameter type')), \
                         f'{name}: a refusal of {len(reason)} characters: {reason[:300]}'
+                    # Not even 65 characters of a long string, whichever parameter held it
+                    # (a recording started in a directory set before quotes that one).
+                    assert not any(text[:MAX_QUOTED + 1] in reason for text in LONG_STRINGS), \
+                        f'{name}: the refusal quotes a long string: {reason[:300]}'
                     told = [text for text in secrets if text in reason]
                     assert not told, f'{name}: the refusal tells {told}: {reason}'
             directory = accepted['recorder.directory']
-            assert not (accepted['recorder.enabled'] and directory.split('/')[0] in (
-                'blocked', 'fifo_dir')), f'a recording accepted where none can start: ' \
-                f'{directory}'
+            assert not (accepted['recorder.enabled'] and (
+                directory.split('/')[0] in ('blocked', 'fifo_dir')
+                or any(len(part) > LONGEST_NAME for part in directory.split('/')))), \
+                f'a recording accepted where none can start: {directory[:100]}'
             for stamp, values, covariance in messages:
                 truth.publish(imu_message(stamp, values, covariance,
                                           accepted['input.stamp_window_s']))
