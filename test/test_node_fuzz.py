@@ -165,10 +165,12 @@ def cases(paths):
     # Writable parameters as often as all read-only ones together: only their values
     # reach the node's own checks (rclpy refuses a read-only one first). As often again
     # the writable strings and arrays, whose values reach the node's path, choice and size
-    # checks, and the switch of the recording, whose effect can fail.
+    # checks; and as often again the directories and the recording's switch, the effect
+    # a stranger's value can make fail.
     shaped = [spec for spec in writable if isinstance(spec.default, (str, list))]
-    spec = st.sampled_from(writable) | st.sampled_from(PARAMETERS) \
-        | st.sampled_from([*shaped, SPECS['recorder.enabled']])
+    recording = [SPECS[name] for name in ('trace_dir', 'recorder.directory', 'recorder.enabled')]
+    spec = st.one_of(*(st.sampled_from(specs) for specs in (writable, PARAMETERS, shaped,
+                                                             recording)))
     change = spec.flatmap(lambda spec: st.tuples(
         st.just(spec.name), st.one_of(near(spec, paths), near(spec, paths), hostile(paths))))
     changes = st.lists(change, min_size=1, max_size=3, unique_by=lambda c: c[0])
