@@ -2,20 +2,22 @@
 A stranger on the domain: thousands of parameter sets, ground-truth messages, switches.
 
 Property-based (hypothesis, seeded so a failure replays). Each case sets one to three
-parameters, writable ones as often as read-only ones, to values from their ranges, just
-past their edges, NaN and infinities, other types, long strings, arrays of up to 200 000
-elements and paths of every kind (a secret file, FIFOs, devices, ``/proc/self/cwd``,
-``/proc/self/fd/N``, another process's ``/proc/<pid>/cwd``, symlinks planted under the
-output directory leading out of it or in a loop, a file where a directory would go,
-escapes); publishes a few ground-truth ``Imu`` messages stamped relative to the node's clock
-when sent (mostly inside the stamp window, so the value checks behind it are reached,
-some on its edges, far off and absurd), with random values; and now and then switches the
-stored corrections on or off. Invariants: every set answered, every refusal short and
-naming the parameter, no answer or log line quoting a file or telling where a path leads;
-no accepted array of a stranger's size, no accepted recorder setting the node cannot honour;
-the node up with tightly bounded memory, nothing written outside ``output_dir`` (a link
-planted where a temporary file could go leads nowhere), no non-finite sample (specific force
-or rate), one calibration event per switch; once the parameters are back to their defaults
+parameters, nine in ten writable (the strings and arrays a quarter of the time, the
+directories and the recording's switch another quarter), to values from their ranges, on
+and just past their edges (sizes and lengths too), NaN and infinities, other types, long
+strings, arrays of up to 200 000 elements and paths of every kind (a secret file, FIFOs,
+devices, ``/proc/self/cwd``, ``/proc/self/fd/N``, another process's ``/proc/<pid>/cwd``,
+symlinks planted under the output directory leading out of it or in a loop, a file where
+a directory would go, escapes); publishes a few ground-truth ``Imu`` messages stamped
+relative to the node's clock when sent (mostly inside the stamp window, so the value
+checks behind it are reached, some on its edges, far off and absurd), with random values;
+and now and then switches the stored corrections on or off. Invariants: every set
+answered, every refusal short and naming the parameter, no answer or log line quoting a
+file or telling where a path leads; no refusal quoting a long string, no accepted array
+over its parameter's size, no accepted recorder setting the node cannot honour; the node
+up with tightly bounded memory, nothing written outside ``output_dir`` (a link planted
+where a temporary file could go leads nowhere), no non-finite sample (specific force or
+rate), one calibration event per switch; once the parameters are back to their defaults
 the stream at its rate again, from the topic too after a message stamped far ahead; and
 the node starts again on a state file nested too deeply.
 """
