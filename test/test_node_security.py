@@ -173,7 +173,16 @@ def test_a_change_whose_effect_fails_is_refused(setup):
     assert not result.successful
     assert 'recorder.enabled not changed' in result.reason and 'recorder not started' \
         in result.reason, result.reason
+    # The parameter and the system's words, not the path (resolved, as long as the value).
+    assert 'recorder.directory: Not a directory' in result.reason, result.reason
+    assert str(setup.output) not in result.reason, result.reason
     assert client.get_parameters(['recorder.enabled']) == [False]
+    # A directory name the file system refuses, 4000 characters: none of it quoted back.
+    long_name = 'z' * 4000
+    assert client.set_parameters({'recorder.directory': long_name})[0].successful
+    result, = client.set_parameters({'recorder.enabled': True})
+    assert not result.successful and len(result.reason) < 300, result.reason[:300]
+    assert 'recorder.directory: File name too long' in result.reason, result.reason
     result, = client.set_parameters({'recorder.directory': 'recordings'})
     assert result.successful, result.reason
     # The node goes on: the same change where a recording can start is accepted.

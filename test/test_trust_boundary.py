@@ -454,6 +454,22 @@ def test_documented_bounds_are_the_computed_ones():
                         f'{path.name}: {match.group(0)!r} where the bound is {bound:.0f} s'
 
 
+def test_every_test_the_security_page_names_exists():
+    # docs/security.md's table: each line with the tests that hold it, as
+    # `test_file.py::test_name` or `::test_name` (the file named before it on the line).
+    root = Path(__file__).resolve().parents[1]
+    named = 0
+    for line in (root / 'docs' / 'security.md').read_text().splitlines():
+        file = None
+        for match in re.finditer(r'`(test_\w+\.py)?::(test_\w+)`', line):
+            file = match.group(1) or file
+            assert file, f'{match.group(0)} names no file: {line[:80]}'
+            assert re.search(rf'^def {match.group(2)}\(', (root / 'test' / file).read_text(),
+                             re.MULTILINE), f'docs/security.md names {file}::{match.group(2)}'
+            named += 1
+    assert named >= 20
+
+
 def test_a_node_named_a_hostile_trajectory_file_refuses_to_start_without_quoting_it(tmp_path):
     secret = tmp_path / 'secret.csv'
     secret.write_text(f'{SECRET}\n')

@@ -105,11 +105,11 @@ def read_regular_file(path, max_bytes):
     try:
         resolved = Path(name).resolve()
     except (OSError, RuntimeError) as error:
-        raise UntrustedFileError(f'{name}: cannot resolve: {_reason(error)}') from None
+        raise UntrustedFileError(f'{name}: cannot resolve: {system_reason(error)}') from None
     try:
         descriptor = _open_without_symlinks(resolved)
     except OSError as error:
-        raise UntrustedFileError(f'{name}: cannot open: {_reason(error)}') from None
+        raise UntrustedFileError(f'{name}: cannot open: {system_reason(error)}') from None
     try:
         info = os.fstat(descriptor)
         kind = PSEUDO_FILE_SYSTEMS.get(file_system_type(descriptor))
@@ -133,7 +133,7 @@ def read_regular_file(path, max_bytes):
             raise UntrustedFileError(f'{name}: grew past the {max_bytes} bytes read')
         return b''.join(chunks)
     except OSError as error:
-        raise UntrustedFileError(f'{name}: cannot read: {_reason(error)}') from None
+        raise UntrustedFileError(f'{name}: cannot read: {system_reason(error)}') from None
     finally:
         os.close(descriptor)
 
@@ -200,7 +200,7 @@ def _create_temporary(path):
                 raise
 
 
-def _reason(error):
+def system_reason(error):
     """Return the system's words for ``error`` (never a file's content nor a path)."""
     if isinstance(error, RuntimeError):
         return 'symlink loop'  # pathlib's resolve(); its message names the path

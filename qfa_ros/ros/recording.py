@@ -8,6 +8,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.serialization import serialize_message
 
 from qfa_ros.bag.files import make_durable, RecorderError
+from qfa_ros.model.files import system_reason
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.bounds import confined_directory
 
@@ -33,14 +34,19 @@ class FreeSpaceGuard:
         self.floor_bytes = int(floor_bytes)
         self._usage = usage
 
-    def shortfall(self, directory):
-        """Return why nothing more may be written under ``directory``, or None."""
+    def shortfall(self, directory, name):
+        """
+        Return why nothing more may be written under ``directory``, or None.
+
+        ``name``: the parameter that set ``directory``, what the reason names (a
+        participant reads it: never the resolved path, as long as the value).
+        """
         try:
             free = self._usage(directory).free
         except OSError as error:
-            return f'free space of {directory} unknown ({error})'
+            return f'free space of {name} unknown ({system_reason(error)})'
         if free < self.floor_bytes + GUARD_BAND_BYTES:
-            return (f'only {free / MIB:.0f} MiB free on the file system of {directory}; '
+            return (f'only {free / MIB:.0f} MiB free on the file system of {name}; '
                     f'min_free_bytes keeps {self.floor_bytes / MIB:.0f} MiB free')
         return None
 
@@ -121,7 +127,7 @@ class StreamRecording:
         try:
             directory = confined_directory(values, 'recorder.directory')
             directory.mkdir(parents=True, exist_ok=True)
-            shortfall = self._guard.shortfall(directory)
+            shortfall = self._guard.shortfall(directory, 'recorder.directory')
             if shortfall:
                 self._stop(f'recorder not started: {shortfall}', DiagnosticStatus.ERROR)
                 return
@@ -135,7 +141,11 @@ class StreamRecording:
             self._next_check = time.monotonic() + FREE_SPACE_CHECK_S
             self._checked_path = None
         except (OSError, ValueError) as error:
-            self._stop(f'recorder not started: {error}', DiagnosticStatus.WARN)
+            # What a participant reads (a refused change, /rosout): the rule or the
+            # system's words, never the path (resolved, and as long as the value).
+            reason = f'recorder.directory: {system_reason(error)}' \
+                if isinstance(error, OSError) else error
+            self._stop(f'recorder not started: {reason}', DiagnosticStatus.WARN)
 
     def split(self):
         """Finish the current file now (readable as it is); the next message starts the next."""
@@ -222,7 +232,7 @@ class StreamRecording:
         if now >= self._next_check or path != self._checked_path:
             # Each new file and every FREE_SPACE_CHECK_S: one statvfs call.
             self._next_check, self._checked_path = now + FREE_SPACE_CHECK_S, path
-            shortfall = self._guard.shortfall(self.directory)
+            shortfall = self._guard.shortfall(self.directory, 'recorder.directory')
             if shortfall:
                 self._stop(f'recording stopped: {shortfall}', DiagnosticStatus.ERROR)
 

@@ -11,11 +11,13 @@ back exactly as it was before the call.
 """
 
 import copy
+import errno
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.task import Future
 
 from qfa_ros.calibration.schedule import EstimationError
+from qfa_ros.model.files import system_reason
 from qfa_ros.model.triad import AXES, concatenate
 from qfa_ros.model.units import DEG_PER_HOUR
 from qfa_ros.ros.bounds import confined_directory
@@ -214,16 +216,19 @@ class ScheduleService:
             # Resolved again now: a symlink may have changed since the parameter was set.
             directory = confined_directory(self._values, 'trace_dir')
             directory.mkdir(parents=True, exist_ok=True)
-            shortfall = self._guard.shortfall(directory)
+            shortfall = self._guard.shortfall(directory, 'trace_dir')
             if shortfall:
-                raise OSError(shortfall)
+                raise OSError(errno.ENOSPC, shortfall)
             # Imported here: the MCAP writer's packages load only when a trace is written.
             from qfa_ros.bag.traces import trace_path, write_estimation_trace
             self.last_trace = write_estimation_trace(
                 trace_path(directory, kind, node.get_clock().now().nanoseconds), kind, results,
                 source=node.get_fully_qualified_name())
         except (OSError, ValueError) as error:
-            problems.append(f'trace not written to {self._values["trace_dir"]} ({error})')
+            # The rule or the system's words: the caller may be a stranger, and the
+            # path (resolved, as long as the value) is not its business.
+            reason = system_reason(error) if isinstance(error, OSError) else error
+            problems.append(f'trace not written to trace_dir ({reason})')
         problem = keeper.save()
         if problem:
             problems.append(problem)
