@@ -519,15 +519,17 @@ class SampleStream:
             values.append(('sensor thread error', self.sensor_error))
         level, message = DiagnosticStatus.OK, 'publishing'
         dropped_at = self._drops_logged[1]
-        if self._last_skip is not None and time.monotonic() - self._last_skip < SKIP_WARN_S:
+        # A pause is the state the stream is in (a schedule asked for it): said first;
+        # skips and drops since are counted in the values.
+        if self.pause_reason:
+            level, message = DiagnosticStatus.WARN, f'paused: {self.pause_reason}'
+        elif self._last_skip is not None and time.monotonic() - self._last_skip < SKIP_WARN_S:
             level, message = DiagnosticStatus.WARN, \
                 f'{self.skip_note}; {self.skipped} samples skipped since start'
         elif dropped_at is not None and time.monotonic() - dropped_at < SKIP_WARN_S:
             level, message = DiagnosticStatus.WARN, \
                 f'{pacer.dropped} messages dropped more than {STALE_NS / 1e9:g} s late ' \
                 'since start: the publishing thread was held up'
-        elif self.pause_reason:
-            level, message = DiagnosticStatus.WARN, f'paused: {self.pause_reason}'
         elif self.saturated.any():
             level, message = DiagnosticStatus.WARN, 'publishing; output saturated at times'
         if recording.problem:
