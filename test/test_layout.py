@@ -202,7 +202,7 @@ LONG_MODULES = {
     'report/figures.py': (700, 'every figure reads the same loaded bag contents'),
     'ros/params.py': (960, 'the parameter table and what is derived from it (the sizes, '
                       'read-only rules and imu.yaml of issues 36 and 38 in the same table)'),
-    'ros/stream.py': (560, 'the sensor thread\'s tick, its pause and resume on the grid '
+    'ros/stream.py': (560, "the sensor thread's tick, its pause and resume on the grid "
                       '(issue 39) and the status that counts what it did not publish'),
 }
 """Modules allowed over LONG_MODULE_LINES: path -> (line budget, why it stays one module).
