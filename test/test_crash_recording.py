@@ -13,7 +13,10 @@ on failure. ``bench/crash_recording.py`` does the same twenty times and more.
 A witness that falls behind (this process starved by a busy machine) still holds samples
 of a killed node when the next one starts: DDS delivers what it had received, the node
 dead or not. Each node is judged by the samples stamped after it was started
-(:meth:`Witness.expect`), never by a previous node's.
+(:meth:`Witness.expect`), never by a previous node's; the first test makes its witness
+fall behind before the first kill (:data:`WITNESS_BEHIND_S`) so that this is exercised.
+A recording node is killed at an instant it writes a ``.part``
+(``crash_helpers.stop_mid_file``), not between two files.
 """
 
 import os
