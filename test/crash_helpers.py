@@ -222,3 +222,28 @@ def part_reached(directory, size):
         parts = list(Path(directory).glob('*.mcap.part'))
         return not parts or any(part.stat().st_size >= size for part in parts)
     return reached
+
+
+def stop_mid_file(process, recordings, timeout=60.0, retry_s=0.005):
+    """
+    SIGSTOP ``process`` at an instant its flight recorder is writing a file.
+
+    Between two files (the one finished published and listed or about to be, the next not
+    yet begun: a few fsyncs long, longer on a busy disk) a kill leaves a bag whose
+    ``metadata.yaml`` at most needs rewriting, or nothing to recover at all
+    (``test_recovery.py`` covers it). To be sure a ``.part`` is left, the process is
+    stopped, looked at, and let run ``retry_s`` more while no ``.part`` without its
+    finished name is in a bag directory of ``recordings``.
+
+    :returns: When it was stopped (system clock) [ns]; the process is left stopped.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        stopped = time.time_ns()
+        os.kill(process.pid, signal.SIGSTOP)
+        parts = Path(recordings).glob('*/*.mcap.part')
+        if any(not part.with_suffix('').exists() for part in parts):
+            return stopped
+        assert time.monotonic() < deadline, f'no .part in {recordings} in {timeout} s'
+        os.kill(process.pid, signal.SIGCONT)
+        time.sleep(retry_s)
