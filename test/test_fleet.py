@@ -1,5 +1,6 @@
 """Fleet studies: validation before work, identical results whatever the workers, resume."""
 
+from contextlib import contextmanager
 import importlib.util
 import json
 import os
@@ -190,6 +191,22 @@ def test_results_of_other_model_code_are_not_mixed_in(tmp_path):
         run_study(study, out, workers=1, progress=False)
 
 
+@contextmanager
+def sigint_as_at_a_terminal():
+    """
+    Start commands with SIGINT at its default, as a terminal's foreground command has it.
+
+    A suite started in the background of a script (``pytest &``) inherits SIGINT ignored,
+    and so would a command it starts, which then rightly keeps ignoring it (as Python and
+    the shells do). A handler of this process becomes the default in a child at ``exec``.
+    """
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 @pytest.mark.parametrize('when', ['starting', 'running'])
 def test_ctrl_c_stops_a_study_with_one_line_and_keeps_its_batches(tmp_path, when):
     study_file = write_study(tmp_path / 'study.yaml', {**CHEAP, 'units': 4})
@@ -200,10 +217,11 @@ def test_ctrl_c_stops_a_study_with_one_line_and_keeps_its_batches(tmp_path, when
              else (lambda: bool(list(parts.glob('batch-*.parquet')))))
     env = {**os.environ, 'PYTHONPATH': str(ROOT)}
     # Ctrl-C signals the terminal's whole process group: the command and its workers.
-    process = subprocess.Popen(
-        [sys.executable, '-m', 'qfa_ros.cli.fleet', str(study_file), '--workers', '1',
-         '--no-progress'], cwd=tmp_path, env=env, start_new_session=True,
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    with sigint_as_at_a_terminal():
+        process = subprocess.Popen(
+            [sys.executable, '-m', 'qfa_ros.cli.fleet', str(study_file), '--workers', '1',
+             '--no-progress'], cwd=tmp_path, env=env, start_new_session=True,
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 240
     try:
         while time.monotonic() < deadline and not ready():
