@@ -35,7 +35,7 @@ from qfa_ros.bag.flight_recorder import FlightRecorder
 from qfa_ros.bag.qos import QOS_LATCHED, QosProfile
 from qfa_ros.bag.types import encode_message
 from qfa_ros.model.triad import NS_PER_S
-from qfa_ros.ros.pacing import Pacer
+from qfa_ros.ros.pacing import CATCH_UP_BURST, CATCH_UP_SPACING_NS, LATE_NS, Pacer
 
 T0 = 1_700_000_000_000_000_000
 STAMP = struct.Struct('<iI')
@@ -216,15 +216,23 @@ SOAK_S = 30.0
 """Node time of parameter changes and splits after the baseline [s]."""
 PAUSE_MARGIN_NS = 500_000_000
 """A gap this close to a schedule call (request to answer) is the schedule's pause [ns]."""
-LOSS_BOUND = 0.05
-"""Samples the SensorDataQoS subscriber may miss outside pauses, as a fraction, beside those
-it missed while it was itself behind; what the node published is accounted for exactly.
-Seen: none on a quiet machine, up to 2.7 % (single samples) with this test process sharing
-two cores at load 15-20; a node publishing each 0.1 s batch at once would lose 80 %."""
+LOSS_BOUND = 0.01
+"""Samples the SensorDataQoS subscriber may lose outside pauses, as a fraction: those the node
+published (by its recording) neither late in a paced catch-up after its own stall nor while
+this process took nothing for ``STARVED_NS``. Seen: none in 8 runs (six of them two copies
+at once with ``--busy-cores 2``, load 8-9), where the subscriber missed up to 7 % of the
+samples, each while it was behind or after the node published it late (up to 1.3 s: the
+old judgement, by the lateness of the sample read after a hole, failed 2 runs in 2 at load
+14 with 11-13 % lost "while it kept up"); a node publishing each 0.1 s batch late and back
+to back loses 45 %."""
 STARVED_NS = 4 * PERIOD_NS
-"""A keep-last-5 reader that reads the sample after a hole this long after the node sent it
-had the four sent after it waiting too: the hole was the reader's (this test process
-starved on a busy machine; seen: 2.4 s at load 27), not the node's."""
+"""A keep-last-5 reader that takes nothing for this long after the node published a sample
+lets four more in on its history at the grid's pace: a sample it then misses is its own
+loss (this test process starved on a busy machine; seen: 2.4 s at load 27), not the
+node's. Judged from the missing sample's publication (the node's recording), not from the
+lateness of the sample read after the hole: a reader back after a long stall reads first
+the oldest of the five it kept, published four periods (16 ms) before the newest, and the
+pacer's jitter put that on either side of 16 ms (seen: a 247 ms stall judged kept up)."""
 
 ROTATION = [
     ('drift.forward_ppm', lambda i: [100.0 * (i % 3), -50.0, 20.0 * i % 200]),
@@ -242,14 +250,11 @@ class RawStamps:
     def __init__(self, client):
         self.stamps = []
         self.received = []
-        self.sent = []
         client.node.create_subscription(Imu, 'imu/data_raw', self.callback,
                                         qos_profile_sensor_data, raw=True)
 
-    def callback(self, data, info):
+    def callback(self, data):
         self.received.append(time.time_ns())
-        # The DDS source timestamp: when the node's writer sent it.
-        self.sent.append(info['source_timestamp'])
         sec, nanosec = STAMP.unpack_from(data, 4)
         self.stamps.append(sec * 1_000_000_000 + nanosec)
 
@@ -303,11 +308,12 @@ def test_a_minute_of_splits_parameter_changes_and_a_calibration(tmp_path):
 
     Every stamp on the grid; every sample the node did not publish accounted for by its own
     counters (withheld during the schedules, skipped or dropped after a stall), none outside
-    a schedule's pause otherwise; the subscriber's losses outside pauses within
-    ``LOSS_BOUND``; descriptors and threads back to their level after the splits, no
-    recording file held open but the current one; every split file within
-    ``recorder.max_bytes``, readable by rosbags and the mcap reader with the counts
-    metadata.yaml lists, no ``.part`` left; the state file readable.
+    a schedule's pause otherwise; of the samples the subscriber missed outside pauses, those
+    the node published on time while it kept reading within ``LOSS_BOUND``; descriptors and
+    threads back to their level after the splits, no recording file held open but the
+    current one; every split file within ``recorder.max_bytes``, readable by rosbags and
+    the mcap reader with the counts metadata.yaml lists, no ``.part`` left; the state file
+    readable.
     """
     domain = domain_id('short soak')
     out = tmp_path / 'out'
@@ -403,28 +409,65 @@ def test_a_minute_of_splits_parameter_changes_and_a_calibration(tmp_path):
     withheld = int(counters['samples withheld'])
     unpublished = int(counters['samples skipped']) + int(
         next(v for k, v in counters.items() if k.startswith('messages dropped')))
-    assert withheld > 0 and any(inside(h, windows) for h in holes)
     missing = sum(h[2] for h in holes)
     assert missing <= withheld + unpublished, (
         f'{missing} samples missing from the recording; the node accounts for {withheld} '
         f'withheld and {unpublished} skipped or dropped; holes (s after the first sample, '
         f'samples): {[((h[0] - stamps[0]) / 1e9, h[2]) for h in holes][:10]}')
-    outside = sum(h[2] for h in holes if not inside(h, windows))
+    # A fast schedule withholds the samples that fall due while it computes, beyond those
+    # computed ahead before it began (stream.lead_s): one computed within that lead
+    # withholds none and leaves no hole (docs/node.md, Estimation schedules; seen: a
+    # self-calibration answered in 84 ms). So no count is promised, but every sample
+    # withheld is a hole in a pause, and every hole in a pause one withheld (or dropped).
+    paused = sum(h[2] for h in holes if inside(h, windows))
+    assert withheld <= paused <= withheld + unpublished, (
+        f'{paused} samples missing from the recording during the schedules, {withheld} '
+        f'withheld by the node ({unpublished} skipped or dropped); pauses (s after the first '
+        f'sample): {[((a - stamps[0]) / 1e9, (b - stamps[0]) / 1e9) for a, b in windows]}')
+    outside = missing - paused
     assert outside <= unpublished, f'{outside} samples never published outside the pauses'
+    # The node's account of lateness, which the subscriber's losses below rely on.
+    late_key = f'messages published > {LATE_NS / 1e6:g} ms late'
+    published_late = np.count_nonzero((recorded[:, 1] - stamps > LATE_NS)
+                                      & (recorded[:, 1] <= read_ns))
+    assert published_late <= int(counters[late_key]), (
+        f'{published_late} samples recorded as published more than {LATE_NS / 1e6:g} ms '
+        f'late, the node counts {counters[late_key]}')
 
-    # What the subscriber saw: on the grid; losses outside the pauses bounded, but for
-    # those it caused itself by reading late.
-    stamps = np.asarray(received.stamps, dtype=np.int64)
-    assert np.all((stamps - stamps[0]) % PERIOD_NS == 0)
-    unique, first = np.unique(stamps, return_index=True)
-    lateness = dict(zip(unique.tolist(), (np.asarray(received.received)[first]
-                                          - np.asarray(received.sent)[first])))
-    holes = [h for h in gaps(unique) if not inside(h, windows)]
-    starved = [h for h in holes if lateness[h[1]] >= STARVED_NS]
-    lost = sum(h[2] for h in holes) - sum(h[2] for h in starved)
+    # What the subscriber saw: on the grid. Each sample it missed outside the pauses is one
+    # the node never published (accounted for above), one it published late in a catch-up
+    # after its own stall (counted by the node; paced: CATCH_UP_BURST back to back, then a
+    # spacing, which its recording shows), one published while this process took nothing
+    # for STARVED_NS after (its own loss), or lost: bounded.
+    received_stamps = np.asarray(received.stamps, dtype=np.int64)
+    assert np.all((received_stamps - received_stamps[0]) % PERIOD_NS == 0)
+    unique, first = np.unique(received_stamps, return_index=True)
+    read_at = dict(zip(unique.tolist(), np.asarray(received.received)[first].tolist()))
+    published_at = dict(zip(stamps.tolist(), recorded[:, 1].tolist()))
+    missed = {'not published': 0, 'published late': 0, 'while behind': 0, 'lost': 0}
+    lost_holes = []
+    for before, after, count in gaps(unique):
+        if inside((before, after, count), windows):
+            continue
+        lost = 0
+        for stamp in range(before + PERIOD_NS, after, PERIOD_NS):
+            sent = published_at.get(stamp)
+            if sent is None:
+                missed['not published'] += 1
+            elif sent - stamp > LATE_NS and sent - published_at.get(
+                    stamp - (CATCH_UP_BURST + 1) * PERIOD_NS, 0) >= CATCH_UP_SPACING_NS:
+                missed['published late'] += 1
+            elif read_at[after] - sent >= STARVED_NS:
+                missed['while behind'] += 1
+            else:
+                lost += 1
+        if lost:
+            missed['lost'] += lost
+            lost_holes.append(((before - unique[0]) / 1e9, count, lost,
+                               (read_at[after] - read_at[before]) / 1e6))
     span = (unique[-1] - unique[0]) // PERIOD_NS
-    assert lost <= LOSS_BOUND * span, (
-        f'{lost} of {span} samples lost outside the pauses while the subscriber kept up '
-        f'(and {sum(h[2] for h in starved)} while it was behind); the largest holes (s '
-        f'after the first sample, samples, ms between sending and reading the next): '
-        f'{[((h[0] - unique[0]) / 1e9, h[2], lateness[h[1]] / 1e6) for h in holes][:8]}')
+    assert missed['lost'] <= LOSS_BOUND * span, (
+        f'{missed["lost"]} of {span} samples lost outside the pauses, neither in a paced '
+        f'catch-up nor while the subscriber was behind; missed in all: {missed}; the largest '
+        f'holes (s after the first sample, samples missing, of them lost, ms between the '
+        f'reads around it): {sorted(lost_holes, key=lambda h: -h[2])[:8]}')
