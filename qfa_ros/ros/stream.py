@@ -129,8 +129,13 @@ class SampleStream:
         self.pause_reason = None
         # Samples stamped before this are not published [ns]; None: nothing is published
         # (a managed node's inactive state, :meth:`pause`). Written by the executor, read
-        # by the sensor thread (one attribute: no lock; see pause and resume).
+        # by the sensor thread; resume and a batch's hand-over under _publishing_lock.
         self.publish_from_ns = 0
+        # Protects publish_from_ns against a batch's hand-over to the pacer: a resumption
+        # (executor thread) takes its instant and resumes the pacer either wholly before a
+        # batch is filtered and queued (sensor thread) or wholly after; else a batch
+        # computed up to an instant after the resumption could be discarded as inactive.
+        self._publishing_lock = threading.Lock()
         self.unpublished = 0
         self.computed = 0
         self.withheld = 0
@@ -185,9 +190,10 @@ class SampleStream:
         it follows on the grid: those computed before the pause and not yet due are
         published from the pacer's queue, the sensor thread computes on from there.
         """
-        now = max(0, self._now_ns())
-        self.pacer.resume(now)
-        self.publish_from_ns = now
+        with self._publishing_lock:
+            now = max(0, self._now_ns())
+            self.publish_from_ns = now
+            self.pacer.resume(now)
         self._wake.set()
 
     def _started_publishing(self):
@@ -471,12 +477,14 @@ class SampleStream:
                 items.insert(bisect.bisect_right(imu_stamps, stamp),
                              (stamp, self._temperature_publisher, TEMPERATURE_TYPE,
                               serialize_message(message)))
-        publish_from = self.publish_from_ns
-        if publish_from is None or (items and items[0][0] < publish_from):
-            kept = [] if publish_from is None else [i for i in items if i[0] >= publish_from]
-            self.unpublished += len(items) - len(kept)
-            items = kept
-        self.pacer.put(items)
+        with self._publishing_lock:
+            publish_from = self.publish_from_ns
+            if publish_from is None or (items and items[0][0] < publish_from):
+                kept = [] if publish_from is None \
+                    else [i for i in items if i[0] >= publish_from]
+                self.unpublished += len(items) - len(kept)
+                items = kept
+            self.pacer.put(items)
 
     # Diagnostics ------------------------------------------------------------------------
     def status(self):
