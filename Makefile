@@ -29,7 +29,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.qfa-installed
 NODE_STAMP := $(VENV)/.qfa-node
 DURATION ?= 10
-# More pytest arguments for `make test`, e.g. TESTS='-m ros' (the ROS-facing files only).
+# More pytest arguments for `make test`, e.g. TESTS='test/test_node_stream.py -x'.
 TESTS ?=
 
 .PHONY: setup run sim test lint docs bench reproducibility bags figures clean
