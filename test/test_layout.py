@@ -194,8 +194,6 @@ LONG_MODULES = {
     'calibration/estimation.py': (850, 'the three schedules share the sensor port and checks'),
     'calibration/temperature.py': (600, 'the chamber program, its tumble records and their '
                                    'fit (with the lag estimate) share one block format'),
-    'calibration/tempfit.py': (1000, 'the fits (the single exponential where the pair is '
-                               'not identifiable), their comparison and the compensator'),
     'model/trajectory.py': (700, 'the pose, its exact kinematics and the scripts'),
     'model/trajectory_means.py': (650, 'the fits, their integrals and the mean polynomials'),
     'model/triad.py': (750, 'the assembly every run advances together'),

@@ -16,7 +16,7 @@ from qfa_ros.calibration.temperature import (
     temperature_schedule,
     TemperatureSettings,
 )
-from qfa_ros.calibration.tempfit import ThermalCompensation
+from qfa_ros.calibration.thermal_compensation import ThermalCompensation
 from qfa_ros.calibration.verification import verify_attitudes, verify_cycle
 from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.model.errors import ErrorProfile

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from qfa_ros.calibration.tempfit import ThermalCompensation
+from qfa_ros.calibration.thermal_compensation import ThermalCompensation
 from qfa_ros.model.triad import AXES
 
 

@@ -40,7 +40,7 @@ from qfa_ros.calibration.schedule import (
     samples_for,
     sensor_time_ns,
 )
-from qfa_ros.calibration.tempfit import calibrate_zero_bias, ThermalCompensation
+from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias, ThermalCompensation
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED, TriadConfig
 from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY

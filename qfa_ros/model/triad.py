@@ -271,7 +271,7 @@ class QfaTriad:
         # Gyro bias correction [rad/s] the firmware subtracts from the published rate
         # (a gyro bias schedule estimates it); zero until one ran.
         self.gyro_bias_correction = np.zeros(3)
-        # Temperature compensation: an object with apply(accel, v_temp) -> accel (tempfit).
+        # Temperature compensation: apply(accel, v_temp) -> accel (a ThermalCompensation).
         self.temperature_compensator = None
         self.temperature_compensation = False
         # Calibration fixture (dividing head): a profile replacing every input while set.
