@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from qfa_ros.calibration.schedule import EstimationError, SensorPort
+from qfa_ros.calibration.schedule import EstimationError, require_closed, SensorPort
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED
 from qfa_ros.model.units import MICRO_G, PPM
 
@@ -54,8 +54,8 @@ class ForwardSettings:
     def __post_init__(self):
         _check_int('points', self.points, 2, 1000)
         _check_int('step', self.step, 1, 2 ** 14)
-        _check_time('settle_s', self.settle_s, allow_zero=True)
-        _check_time('average_s', self.average_s)
+        check_seconds('settle_s', self.settle_s, allow_zero=True)
+        check_seconds('average_s', self.average_s)
         if self.order not in FORWARD_ORDERS:
             raise ValueError(f'order must be one of {FORWARD_ORDERS}, got {self.order!r}')
 
@@ -113,8 +113,8 @@ class FeedbackSettings:
 
     def __post_init__(self):
         _check_int('cycles', self.cycles, 1, 10000)
-        _check_time('settle_s', self.settle_s, allow_zero=True)
-        _check_time('average_s', self.average_s)
+        check_seconds('settle_s', self.settle_s, allow_zero=True)
+        check_seconds('average_s', self.average_s)
         if self.order not in FEEDBACK_ORDERS:
             raise ValueError(f'order must be one of {FEEDBACK_ORDERS}, got {self.order!r}')
         if not math.isfinite(self.bias_instability) or self.bias_instability < 0:
@@ -302,23 +302,19 @@ def _check_int(name, value, low, high):
         raise ValueError(f'{name} must be an integer in [{low}, {high}], got {value!r}')
 
 
-def _check_time(name, value, allow_zero=False):
+def check_seconds(name, value, allow_zero=False):
+    """Raise ValueError naming ``name`` unless ``value`` is a time [s] > 0 (>= 0 if allowed)."""
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0 \
             or (value == 0 and not allow_zero):
         raise ValueError(f'{name} must be a {"non-negative" if allow_zero else "positive"} '
                          f'number of seconds, got {value!r}')
 
 
-def _segment(port, settle_s, average_s):
+def measure_segment(port, settle_s, average_s):
     """Yield the discard and averaging requests of one segment; return the averaged output."""
     if settle_s > 0:
         yield port.samples_for(settle_s)
     return port.view((yield port.samples_for(average_s)))
-
-
-def _require_closed(port):
-    if not port.loops_closed():
-        raise EstimationError('a loop is open: another schedule is running')
 
 
 def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capture=False,
@@ -339,7 +335,7 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
     port = SensorPort.of(sensor)
     if not capture:
         _check_ready('forward', settings, port, state, check_settings)
-    _require_closed(port)
+    require_closed(port)
     start_ns = port.sensor_time_ns()
     axes = range(port.n_axes)
     base = [port.n_fpga(axis) for axis in axes]
@@ -351,7 +347,7 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
         for i in indices:
             for axis in axes:
                 port.set_n_fpga(axis, base[axis] + i * settings.step)
-            out = yield from _segment(port, settings.settle_s, settings.average_s)
+            out = yield from measure_segment(port, settings.settle_s, settings.average_s)
             if np.any(out.flags & FLAG_ADC_CLIPPED):
                 raise EstimationError('ADC clipped during the forward sweep: reduce step')
             means.append(out.counts.mean(axis=0))
@@ -362,7 +358,7 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
             port.set_n_fpga(axis, base[axis])
             port.set_open_loop(axis, False)
     # Wait for the loops to settle so that the schedule ends with valid output.
-    yield from _segment(port, 0.0, port.settle_time_s)
+    yield from measure_segment(port, 0.0, port.settle_time_s)
     delta_n = np.asarray(indices, dtype=float) * settings.step
     means = np.asarray(means)
     design = np.column_stack([delta_n, np.ones_like(delta_n)])
@@ -404,7 +400,7 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
                             start_ns, port.sensor_time_ns())
 
 
-def _switching(port, sequence, settings, check_motion=True):
+def switched_segments(port, sequence, settings, check_motion=True):
     """
     Switch I_ref in ``sequence`` order; return segment means, stds, times, readings.
 
@@ -419,7 +415,7 @@ def _switching(port, sequence, settings, check_motion=True):
         for on in sequence:
             for axis in axes:
                 port.set_reference_current(axis, on)
-            out = yield from _segment(port, settings.settle_s, settings.average_s)
+            out = yield from measure_segment(port, settings.settle_s, settings.average_s)
             if np.any(out.saturated):
                 # Any flag: DA2 or ADC clipped, or beyond the rated range.
                 raise EstimationError('output saturated: the input must be in range')
@@ -434,7 +430,7 @@ def _switching(port, sequence, settings, check_motion=True):
         for axis in axes:
             port.set_reference_current(axis, False)
     # Let the loops settle from the last switching so that the schedule ends valid.
-    yield from _segment(port, 0.0, settings.settle_s + port.settle_time_s)
+    yield from measure_segment(port, 0.0, settings.settle_s + port.settle_time_s)
     return (np.asarray(means), np.asarray(stds), np.asarray(times), np.asarray(readings),
             np.asarray(allan))
 
@@ -504,10 +500,10 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
                 or not port.has_temperature_sensor:
             raise EstimationError('temperature correction needs the on-board temperature '
                                   'reading at the reference and now')
-    _require_closed(port)
+    require_closed(port)
     start_ns = port.sensor_time_ns()
     sequence = settings.sequence()
-    means, stds, times, readings, allan = yield from _switching(port, sequence, settings)
+    means, stds, times, readings, allan = yield from switched_segments(port, sequence, settings)
     on = np.asarray(sequence)
     if len(on) >= 4:
         _check_between_segments(port, settings, on, times, means, allan)
@@ -642,8 +638,8 @@ class ReferenceTcSettings:
                 or np.ptp(temps) < 1.0:
             raise ValueError('plateaus_c must be at least two finite temperatures spanning '
                              f'1 degC or more, got {self.plateaus_c!r}')
-        _check_time('soak_s', self.soak_s, allow_zero=True)
-        _check_time('position_s', self.position_s)
+        check_seconds('soak_s', self.soak_s, allow_zero=True)
+        check_seconds('position_s', self.position_s)
         if not isinstance(self.switching, FeedbackSettings):
             raise ValueError('switching must be FeedbackSettings')
 
@@ -699,7 +695,7 @@ def reference_tc_schedule(sensor, bench, state, settings=ReferenceTcSettings(), 
     of kind ``reference_tc`` (``estimate_ppm`` in ppm/degC).
     """
     port = SensorPort.of(sensor)
-    _require_closed(port)
+    require_closed(port)
     start_ns = port.sensor_time_ns()
     readings, ratios, times = [], [], []
     try:
@@ -709,12 +705,12 @@ def reference_tc_schedule(sensor, bench, state, settings=ReferenceTcSettings(), 
             levels, steps, temps = {}, [], []
             for sign in (1, -1):
                 bench.set_position(sign)
-                out = yield from _segment(port, 0.1, settings.position_s)
+                out = yield from measure_segment(port, 0.1, settings.position_s)
                 if np.any(out.saturated):
                     raise EstimationError('output saturated in the fixture position')
                 levels[sign] = out.counts.mean(axis=0)
                 temps.append(float(np.mean(port.temperature_c(out.v_temp))))
-                means, _, seg_times, seg_temps, _ = yield from _switching(
+                means, _, seg_times, seg_temps, _ = yield from switched_segments(
                     port, settings.switching.sequence(), settings.switching, check_motion=False)
                 on = np.asarray(settings.switching.sequence(), dtype=float)
                 design = np.column_stack([on, np.ones(len(on))])
@@ -775,9 +771,9 @@ def plateau_step(sensor, index=None, chamber_c=None, settings=PLATEAU_SWITCHING)
     segments [degC], the step and its standard error per axis [count].
     """
     port = SensorPort.of(sensor)
-    _require_closed(port)
+    require_closed(port)
     sequence = settings.sequence()
-    means, _, times, readings, _ = yield from _switching(port, sequence, settings,
+    means, _, times, readings, _ = yield from switched_segments(port, sequence, settings,
                                                         check_motion=False)
     on = np.asarray(sequence, dtype=float)
     design = np.column_stack([on, np.ones(len(on))])
