@@ -25,13 +25,14 @@ import math
 import numpy as np
 
 from qfa_ros.calibration.chamber import ChamberBench, idle
-from qfa_ros.calibration.estimation import capture_reference, reference_tc_schedule, self_calibrate
+from qfa_ros.calibration.estimation import capture_reference, self_calibrate
 from qfa_ros.calibration.experiments import (
     measure_scale,
     OBSERVABLE_FEEDBACK,
     OBSERVABLE_FORWARD,
     split_drift,
 )
+from qfa_ros.calibration.reference_tc import reference_tc_schedule
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.fleet.temperature_unit import simulate_temperature_unit
