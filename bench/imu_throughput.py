@@ -44,7 +44,8 @@ def main():
 
     from qfa_ros.cli.sim import CHUNK_SECONDS
     from qfa_ros.model import trajectory
-    from qfa_ros.model.triad import QfaTriad, TriadConfig
+    from qfa_ros.model.triad import QfaTriad
+    from qfa_ros.model.triad_config import TriadConfig
 
     drive = trajectory.vehicle_drive()
     cases = {

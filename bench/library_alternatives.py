@@ -28,7 +28,7 @@ from scipy.spatial.transform import Rotation
 
 from qfa_ros.model.design import COEF_FRAC_BITS, design_controller, LinearLoop
 from qfa_ros.model.trajectory import dcm_to_quaternion, euler_to_dcm, quaternion_to_dcm
-from qfa_ros.model.triad import TriadConfig
+from qfa_ros.model.triad_config import TriadConfig
 
 SPATIAL = 'scipy.spatial.transform'
 NODE_IMPORTS = 'numpy, scipy.linalg, numba, rclpy'

@@ -26,7 +26,8 @@ from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_calibration, TemperatureSettings
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_unit
 
 ROOT = Path(__file__).resolve().parents[1]

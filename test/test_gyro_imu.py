@@ -19,7 +19,8 @@ from qfa_ros.cli import sim
 from qfa_ros.model import earth
 from qfa_ros.model import trajectory as tr
 from qfa_ros.model.gyro import GyroConfig, GyroTriad
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import DEG_PER_HOUR, PPM
 from qfa_ros.ros.ground_truth import GroundTruthInput
 from qfa_ros.ros.params import PARAMETERS

@@ -18,7 +18,8 @@ from qfa_ros.model.noise import (
     gauss_markov_allan_variance,
     NoiseConfig,
 )
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 
 sys.path.insert(0, os.path.dirname(__file__))
 import ins_errors  # noqa: E402

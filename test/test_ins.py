@@ -21,7 +21,8 @@ from qfa_ros.model.geodetic import enu_to_geodetic
 from qfa_ros.model.gyro import GyroConfig
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_unit
 from qfa_ros.ros.params import make_triad, PARAMETERS
 

@@ -196,7 +196,6 @@ LONG_MODULES = {
                                    'fit (with the lag estimate) share one block format'),
     'model/trajectory.py': (700, 'the pose, its exact kinematics and the scripts'),
     'model/trajectory_means.py': (650, 'the fits, their integrals and the mean polynomials'),
-    'model/triad.py': (750, 'the assembly every run advances together'),
     'report/figures.py': (700, 'every figure reads the same loaded bag contents'),
     'ros/params.py': (960, 'the parameter table and what is derived from it (the sizes, '
                       'read-only rules and imu.yaml of issues 36 and 38 in the same table)'),

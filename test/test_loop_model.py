@@ -32,14 +32,9 @@ from qfa_ros.model.noise import allan_deviation_model, NoiseConfig
 from qfa_ros.model.parallel import run_chains
 from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig, ThermalModel
-from qfa_ros.model.triad import (
-    concatenate,
-    FLAG_DA2_CLIPPED,
-    FLAG_OVER_RANGE,
-    QfaTriad,
-    TriadConfig,
-    TriadOutput,
-)
+from qfa_ros.model.triad import FLAG_DA2_CLIPPED, FLAG_OVER_RANGE, QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
+from qfa_ros.model.triad_output import concatenate, TriadOutput
 from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -23,7 +23,8 @@ from qfa_ros.model.errors import ErrorProfile
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_unit
 from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 

@@ -17,7 +17,8 @@ import math
 
 import numpy as np
 
-from qfa_ros.model.triad import AXES, concatenate
+from qfa_ros.model.triad import AXES
+from qfa_ros.model.triad_output import concatenate
 
 
 class EstimationError(ValueError):

@@ -38,7 +38,8 @@ from qfa_ros.calibration.schedule import (
 )
 from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias, ThermalCompensation
 from qfa_ros.model.profiles import StaticProfile
-from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED, TriadConfig
+from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 
 AMBIENT_FIELDS = ('ambient_profile', 'ambient_c', 'cycle_low_c', 'cycle_high_c',

@@ -39,7 +39,8 @@ from qfa_ros.fleet.temperature_unit import simulate_temperature_unit
 from qfa_ros.model import streams
 from qfa_ros.model.errors import error_profile, PaperRoom
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.model.triad import AXES, QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_component_tcs, install_component_tcs
 from qfa_ros.model.units import MICRO_G, PPM
 

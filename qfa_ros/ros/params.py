@@ -34,7 +34,8 @@ from qfa_ros.model.imu_noise import emulated_config
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.profiles import SineProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_unit
 from qfa_ros.model.units import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G, STANDARD_GRAVITY
 from qfa_ros.ros.bounds import (
