@@ -194,7 +194,6 @@ LONG_MODULES = {
     'calibration/estimation.py': (850, 'the three schedules share the sensor port and checks'),
     'calibration/temperature.py': (600, 'the chamber program, its tumble records and their '
                                    'fit (with the lag estimate) share one block format'),
-    'model/trajectory.py': (700, 'the pose, its exact kinematics and the scripts'),
     'model/trajectory_means.py': (650, 'the fits, their integrals and the mean polynomials'),
     'report/figures.py': (700, 'every figure reads the same loaded bag contents'),
     'ros/params.py': (960, 'the parameter table and what is derived from it (the sizes, '

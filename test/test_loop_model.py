@@ -15,8 +15,7 @@ from statistics_helpers import allan_edf_flicker, allan_edf_white, assert_varian
 from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.cli.sim import static_sensor
 from qfa_ros.model import axis as axis_module
-from qfa_ros.model import kernel
-from qfa_ros.model import trajectory as trajectories
+from qfa_ros.model import kernel, trajectories
 from qfa_ros.model.allan import allan_deviation, allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop, matrix_exponential, pendulum_matrices
 from qfa_ros.model.drift import SECONDS_PER_YEAR

@@ -25,7 +25,7 @@ from tqdm import tqdm
 
 from qfa_ros.calibration.schedule import sensor_time_ns
 from qfa_ros.cli.interrupt import stops_quietly
-from qfa_ros.model import trajectory as trajectories
+from qfa_ros.model import trajectories
 from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.error_truth import error_truth

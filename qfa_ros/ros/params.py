@@ -27,7 +27,7 @@ from qfa_ros.calibration.estimation import (
 )
 from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
-from qfa_ros.model import trajectory as trajectories
+from qfa_ros.model import trajectories
 from qfa_ros.model.errors import error_profile, ERROR_PROFILES, PaperRoom, sensor_config
 from qfa_ros.model.gyro import GyroConfig
 from qfa_ros.model.imu_noise import emulated_config
@@ -771,7 +771,7 @@ def load_trajectory_file(values):
     Return the :class:`~qfa_ros.model.trajectory.Trajectory` of ``input.trajectory_file``.
 
     None when the parameter is empty. Read once, at start, with the bounds of
-    :func:`~qfa_ros.model.trajectory.load_csv`.
+    :func:`~qfa_ros.model.trajectories.load_csv`.
 
     :raises ValueError: The file cannot be used; the message names the parameter and
         never quotes the file.
