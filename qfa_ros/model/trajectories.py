@@ -26,7 +26,7 @@ import numpy as np
 
 from qfa_ros.model import earth
 from qfa_ros.model.files import read_regular_file
-from qfa_ros.model.trajectory import quintic_coefficients, quintic_poly, Trajectory
+from qfa_ros.model.trajectory import quintic_coefficients, Trajectory
 from qfa_ros.model.units import DEGREE
 
 MAX_CSV_BYTES = 16 << 20
@@ -54,7 +54,7 @@ def _dwells(location, attitudes, dwell_s, move_s):
         t -= dwell_s
     poses = np.array(poses)
     zero = np.zeros_like(poses)
-    return quintic_poly(times, poses, zero, zero)
+    return quintic_coefficients(times, poses, zero, zero)
 
 
 def static(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, roll=0.0, pitch=0.0,
@@ -99,7 +99,7 @@ def rate_table_turn(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, rate_deg
     values = np.array([location + (0.0, 0.0, y) for y in yaw_k])
     rates = np.zeros_like(values)
     rates[:, 5] = rate_k
-    return Trajectory(quintic_poly(times, values, rates, np.zeros_like(values)),
+    return Trajectory(quintic_coefficients(times, values, rates, np.zeros_like(values)),
                       'rate-table turn')
 
 
@@ -171,7 +171,7 @@ def vehicle_drive(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, yaw=math.p
         index = np.append(index, len(t) - 1)
     rates[[0, -1]] = 0.0
     accelerations[[0, -1]] = 0.0
-    return Trajectory(quintic_poly(t[index], channels[index], rates[index],
+    return Trajectory(quintic_coefficients(t[index], channels[index], rates[index],
                                    accelerations[index]), 'vehicle drive')
 
 
@@ -184,7 +184,7 @@ def _vibration(location, duration_s, frequency_hz, knots_per_cycle, motion):
     values, rates, accelerations = motion(t)
     values = values + np.array(location + (0.0, 0.0, 0.0))
     # The body rests at the end poses before and after: the rates step there.
-    return Trajectory(quintic_poly(t, values, rates, accelerations))
+    return Trajectory(quintic_coefficients(t, values, rates, accelerations))
 
 
 def _sine(amplitude, w, s, c):

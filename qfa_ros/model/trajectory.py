@@ -256,17 +256,6 @@ class Trajectory:
         return position, dcm_to_quaternion(dcm0), velocity_body, k['body_rate']
 
 
-def quintic_poly(times, values, rates, accelerations):
-    """
-    Return the C2 piecewise quintic through knot values, rates and accelerations.
-
-    A :class:`scipy.interpolate.PPoly`; :func:`quintic_coefficients` gives its ``(c, x)``.
-    """
-    from scipy.interpolate import PPoly
-    return PPoly(*quintic_coefficients(times, values, rates, accelerations),
-                 extrapolate=False)
-
-
 def quintic_coefficients(times, values, rates, accelerations):
     """
     Return ``(c, x)`` of the C2 piecewise quintic through knot values, rates, accelerations.
