@@ -457,23 +457,23 @@ class PolynomialFit:
 
 
 def fit_polynomial(v, y, order):
-    """Fit a polynomial of ``order`` by least squares on scaled ``v``; return PolynomialFit."""
+    """
+    Fit a polynomial of ``order`` by least squares on scaled ``v``; return PolynomialFit.
+
+    :meth:`numpy.polynomial.Polynomial.fit` maps the data's span onto [-1, 1] (the
+    scaled coefficients) and :meth:`~numpy.polynomial.Polynomial.convert` gives the
+    coefficients in ``v``.
+    """
     if isinstance(order, bool) or not isinstance(order, int) or not 0 <= order <= 10:
         raise ValueError(f'order must be an integer in [0, 10], got {order!r}')
     v, y = _as_data(v, y, order + 1)
-    center = 0.5 * (v.max() + v.min())
-    half_range = 0.5 * (v.max() - v.min())
-    u = (v - center) / half_range
-    scaled = np.linalg.lstsq(np.vander(u, order + 1), y, rcond=None)[0]
-    # expand p(u) with u = (v - c)/h into powers of v
-    raw = np.poly1d(0.0)
-    for power, coefficient in enumerate(scaled[::-1]):
-        raw = raw + coefficient * np.poly1d([1.0 / half_range, -center / half_range]) ** power
-    raw_coefficients = np.concatenate([np.zeros(order + 1 - raw.coeffs.size), raw.coeffs])
-    prediction = np.polyval(scaled, u)
-    rmse, r_squared = _goodness(y, prediction)
-    return PolynomialFit(tuple(float(c) for c in raw_coefficients), rmse, r_squared, order,
-                         float(center), float(half_range), tuple(float(c) for c in scaled))
+    series = np.polynomial.Polynomial.fit(v, y, order)
+    low, high = series.domain
+    scaled, raw = (tuple(float(c) for c in np.pad(s.coef, (0, order + 1 - s.coef.size))[::-1])
+                   for s in (series, series.convert()))
+    rmse, r_squared = _goodness(y, series(v))
+    return PolynomialFit(raw, rmse, r_squared, order, float(0.5 * (high + low)),
+                         float(0.5 * (high - low)), scaled)
 
 
 def bin_by_temperature(v_temp, values, n_bins=100, min_count=1):
