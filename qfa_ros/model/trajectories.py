@@ -175,16 +175,28 @@ def vehicle_drive(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, yaw=math.p
                                    accelerations[index]), 'vehicle drive')
 
 
-def _vibration(location, duration_s, frequency_hz, knots_per_cycle, motion):
-    """Knots of a periodic ``motion(t) -> (values, rates, accelerations)`` (m, 6)."""
+def _vibration(name, location, duration_s, frequency_hz, knots_per_cycle, yaw, amplitude_deg,
+               second):
+    """
+    Return a roll ``A sin(w t)`` and a second motion in step with it, knots per cycle.
+
+    ``second(s, c, w)`` returns the second channel's index and its values, rates and
+    accelerations, given ``s = sin(w t)`` and ``c = cos(w t)``.
+    """
     if not frequency_hz > 0 or not duration_s > 0:
         raise ValueError('frequency_hz and duration_s must be positive')
     t = np.arange(0.0, duration_s, 1.0 / (frequency_hz * knots_per_cycle))
     t = np.append(t, duration_s)
-    values, rates, accelerations = motion(t)
+    w = 2 * math.pi * frequency_hz
+    values, rates, accelerations = (np.zeros((len(t), 6)) for _ in range(3))
+    s, c = np.sin(w * t), np.cos(w * t)
+    values[:, 3], rates[:, 3], accelerations[:, 3] = _sine(math.radians(amplitude_deg), w, s, c)
+    channel, *motion = second(s, c, w)
+    values[:, channel], rates[:, channel], accelerations[:, channel] = motion
+    values[:, 5] = yaw
     values = values + np.array(location + (0.0, 0.0, 0.0))
     # The body rests at the end poses before and after: the rates step there.
-    return Trajectory(quintic_coefficients(t, values, rates, accelerations))
+    return Trajectory(quintic_coefficients(t, values, rates, accelerations), name)
 
 
 def _sine(amplitude, w, s, c):
@@ -201,20 +213,9 @@ def coning(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0.5
     accumulates a z attitude drift of about ``pi f A^2`` [rad/s].
     """
     location = _location(latitude_deg, longitude_deg, height_m)
-    amplitude, w = math.radians(amplitude_deg), 2 * math.pi * frequency_hz
-
-    def motion(t):
-        values, rates, accelerations = (np.zeros((len(t), 6)) for _ in range(3))
-        s, c = np.sin(w * t), np.cos(w * t)
-        values[:, 3], rates[:, 3], accelerations[:, 3] = _sine(amplitude, w, s, c)
-        values[:, 4], rates[:, 4], accelerations[:, 4] = \
-            amplitude * (c - 1), -amplitude * w * s, -amplitude * w * w * c
-        values[:, 5] = yaw
-        return values, rates, accelerations
-
-    trajectory = _vibration(location, duration_s, frequency_hz, knots_per_cycle, motion)
-    trajectory.name = 'coning'
-    return trajectory
+    a = math.radians(amplitude_deg)
+    return _vibration('coning', location, duration_s, frequency_hz, knots_per_cycle, yaw,
+                      amplitude_deg, lambda s, c, w: (4, a * (c - 1), -a * w * s, -a * w * w * c))
 
 
 def sculling(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0.5,
@@ -227,19 +228,8 @@ def sculling(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0
     the roll, rectifies into a mean specific force along body y.
     """
     location = _location(latitude_deg, longitude_deg, height_m)
-    amplitude, w = math.radians(amplitude_deg), 2 * math.pi * frequency_hz
-
-    def motion(t):
-        values, rates, accelerations = (np.zeros((len(t), 6)) for _ in range(3))
-        s, c = np.sin(w * t), np.cos(w * t)
-        values[:, 3], rates[:, 3], accelerations[:, 3] = _sine(amplitude, w, s, c)
-        values[:, 2], rates[:, 2], accelerations[:, 2] = _sine(displacement_m, w, s, c)
-        values[:, 5] = yaw
-        return values, rates, accelerations
-
-    trajectory = _vibration(location, duration_s, frequency_hz, knots_per_cycle, motion)
-    trajectory.name = 'sculling'
-    return trajectory
+    return _vibration('sculling', location, duration_s, frequency_hz, knots_per_cycle, yaw,
+                      amplitude_deg, lambda s, c, w: (2, *_sine(displacement_m, w, s, c)))
 
 
 def load_csv(path, max_bytes=MAX_CSV_BYTES):
