@@ -220,6 +220,20 @@ def check_seconds(name, value, allow_zero=False):
                          f'number of seconds, got {value!r}')
 
 
+def fit_line(x, values):
+    """
+    Fit ``values`` (n, axes) by least squares on ``[x, 1]``; return slope, residuals, its error.
+
+    The slope's standard error per axis is ``sqrt(sum r^2 / (n - 2) / sum (x - mean x)^2)``
+    (``n - 2`` at least 1).
+    """
+    design = np.column_stack([x, np.ones(len(x))])
+    coef, *_ = np.linalg.lstsq(design, values, rcond=None)
+    residuals = values - design @ coef
+    se = np.sqrt((residuals ** 2).sum(axis=0) / max(1, len(x) - 2) / ((x - x.mean()) ** 2).sum())
+    return coef[0], residuals, se
+
+
 def measure_segment(port, settle_s, average_s):
     """Yield the discard and averaging requests of one segment; return the averaged output."""
     if settle_s > 0:
@@ -271,13 +285,7 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
     yield from measure_segment(port, 0.0, port.settle_time_s)
     delta_n = np.asarray(indices, dtype=float) * settings.step
     means = np.asarray(means)
-    design = np.column_stack([delta_n, np.ones_like(delta_n)])
-    coef, *_ = np.linalg.lstsq(design, means, rcond=None)
-    slope = coef[0]
-    residuals = means - design @ coef
-    dof = max(1, len(delta_n) - 2)
-    slope_se = np.sqrt((residuals ** 2).sum(axis=0) / dof
-                       / ((delta_n - delta_n.mean()) ** 2).sum())
+    slope, residuals, slope_se = fit_line(delta_n, means)
     gains_before = np.array([port.controller_gain(axis) for axis in axes])
     points = {'time_ns': np.asarray(times, dtype=np.int64),
               'index': np.asarray(indices, dtype=float), 'delta_n': delta_n}
@@ -420,15 +428,8 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
         _check_between_segments(port, settings, on, times, means, allan)
     # Least squares of the segment means on [switch state, 1]: the step is the on/off
     # difference, and for the ABBA order the linear drift cancels by symmetry.
-    design = np.column_stack([on.astype(float), np.ones(len(on))])
-    coef, *_ = np.linalg.lstsq(design, means, rcond=None)
-    step = coef[0]
-    residuals = means - design @ coef
-    if len(on) > 2:
-        dof = len(on) - 2
-        step_se = np.sqrt((residuals ** 2).sum(axis=0) / dof
-                          / ((on - on.mean()) ** 2).sum())
-    else:
+    step, residuals, step_se = fit_line(on.astype(float), means)
+    if len(on) <= 2:
         # The sample scatter measures the white noise of each segment mean; the bias
         # instability, correlated over a segment, adds its Allan floor (the datasheet
         # figure of the settings), twice for the difference.

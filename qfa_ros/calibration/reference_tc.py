@@ -15,6 +15,7 @@ import numpy as np
 from qfa_ros.calibration.estimation import (
     check_seconds,
     FeedbackSettings,
+    fit_line,
     measure_segment,
     switched_segments,
 )
@@ -132,8 +133,7 @@ def reference_tc_schedule(sensor, bench, state, settings=ReferenceTcSettings(), 
                 means, _, seg_times, seg_temps, _ = yield from switched_segments(
                     port, settings.switching.sequence(), settings.switching, check_motion=False)
                 on = np.asarray(settings.switching.sequence(), dtype=float)
-                design = np.column_stack([on, np.ones(len(on))])
-                steps.append(np.linalg.lstsq(design, means, rcond=None)[0][0])
+                steps.append(fit_line(on, means)[0])
                 temps.extend(seg_temps.tolist())
                 times.append(int(seg_times[-1]))
             known = np.asarray(bench.known_input(1), float) - np.asarray(bench.known_input(-1),
@@ -194,14 +194,9 @@ def plateau_step(sensor, index=None, chamber_c=None, settings=PLATEAU_SWITCHING)
     sequence = settings.sequence()
     means, _, times, readings, _ = yield from switched_segments(port, sequence, settings,
                                                         check_motion=False)
-    on = np.asarray(sequence, dtype=float)
-    design = np.column_stack([on, np.ones(len(on))])
-    coef, *_ = np.linalg.lstsq(design, means, rcond=None)
-    residuals = means - design @ coef
-    dof = max(1, len(on) - 2)
-    se = np.sqrt((residuals ** 2).sum(axis=0) / dof / ((on - on.mean()) ** 2).sum())
+    step, _, se = fit_line(np.asarray(sequence, dtype=float), means)
     return {'time_ns': int(times[-1]), 'reading_c': float(np.mean(readings)),
-            'step': coef[0], 'std_error': se}
+            'step': step, 'std_error': se}
 
 
 def fit_plateau_steps(steps, state, apply=True, start_ns=0, end_ns=0):
