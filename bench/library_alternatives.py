@@ -22,6 +22,10 @@ is a test dependency).
 * Binning by temperature: :func:`qfa_ros.calibration.tempfit.bin_by_temperature`
   (``numpy.bincount``) against ``scipy.stats.binned_statistic`` on a 2-cycle chamber
   program's 1 s samples, and the import ``scipy.stats`` adds.
+* Quintic Hermite pieces: :func:`qfa_ros.model.trajectory.quintic_coefficients` against
+  ``scipy.interpolate.BPoly.from_derivatives`` (then ``PPoly.from_bernstein_basis``) on the
+  knots of :func:`qfa_ros.model.trajectories.vehicle_drive`: the largest difference of
+  the values and derivatives, and the time to build the drive's pieces.
 Prints Markdown tables.
 """
 
@@ -285,7 +289,34 @@ def binning(rng):
           f'{import_seconds("scipy.stats", "numpy, numba", 5):.3f} s')
 
 
-PARTS = ('rotations', 'margins', 'allan', 'binning')
+def hermite(rng):
+    """Print the quintic Hermite table."""
+    from scipy.interpolate import BPoly, PPoly
+
+    from qfa_ros.model.trajectories import vehicle_drive
+    from qfa_ros.model.trajectory import quintic_coefficients
+
+    drive = vehicle_drive()
+    times = drive.poly.x
+    knots = [drive.poly(times, nu) for nu in (0, 1, 2)]
+    own = PPoly(*quintic_coefficients(times, *knots))
+    library = PPoly.from_bernstein_basis(BPoly.from_derivatives(times, np.stack(knots, axis=1)))
+    t = rng.uniform(times[0], times[-1], 100_000)
+    differences = [float(np.max(np.abs(own.derivative(nu)(t) - library.derivative(nu)(t))))
+                   if nu else float(np.max(np.abs(own(t) - library(t)))) for nu in (0, 1, 2)]
+    own_s = best_seconds(lambda: quintic_coefficients(times, *knots), 3)
+    library_s = best_seconds(lambda: PPoly.from_bernstein_basis(
+        BPoly.from_derivatives(times, np.stack(knots, axis=1))), 3)
+    print(f'\n| {len(times)} knots of the drive, 6 channels | largest difference: value, rate, '
+          'acceleration | time |')
+    print('|---|---|---|')
+    print(f'| quintic_coefficients | | {own_s * 1e3:.1f} ms |')
+    print(f'| BPoly.from_derivatives + PPoly.from_bernstein_basis | '
+          f'{differences[0]:.1e}, {differences[1]:.1e}, {differences[2]:.1e} | '
+          f'{library_s * 1e3:.0f} ms |')
+
+
+PARTS = ('rotations', 'margins', 'allan', 'binning', 'hermite')
 
 
 def main():
@@ -302,6 +333,8 @@ def main():
         allan(np.random.default_rng(1))
     if 'binning' in args.parts:
         binning(np.random.default_rng(2))
+    if 'hermite' in args.parts:
+        hermite(np.random.default_rng(3))
 
 
 if __name__ == '__main__':
