@@ -1,7 +1,8 @@
 """Compare hand-written helpers with the well-kept libraries that could replace them.
 
-Run: ``.venv/bin/python bench/library_alternatives.py [--repeat 200]`` (python-control is
-imported only if installed: ``pip install control==0.10.2``).
+Run: ``.venv/bin/python bench/library_alternatives.py [--repeat 200] [--parts allan ...]``
+(python-control is imported only if installed: ``pip install control==0.10.2``; allantools
+is a test dependency).
 
 * Rotations: :func:`qfa_ros.model.trajectory.euler_to_dcm`, ``dcm_to_quaternion`` and
   ``quaternion_to_dcm`` against ``scipy.spatial.transform.Rotation``: the largest error
@@ -13,6 +14,18 @@ imported only if installed: ``pip install control==0.10.2``).
   against ``control.stability_margins`` on the same discrete loop, and both against an
   analytic case (``L(z) = K / (z (z - 1))``: crossover, phase and gain margin in closed
   form, the bandwidth a root of a closed-form expression).
+* Allan deviation: :func:`qfa_ros.model.allan.allan_deviation` (compiled) against
+  ``allantools.oadev`` on one axis of a 1-hour 1 kHz series (3.6 M samples): the octave
+  taus of ``qfa-sim``'s summary and the 144-tau grid of ``qfa-report imu-yaml``
+  (:func:`qfa_ros.model.imu_noise.tau_grid`, 360 s), the largest relative difference and
+  the time per axis; and the time importing allantools adds.
+* Binning by temperature: :func:`qfa_ros.calibration.tempfit.bin_by_temperature`
+  (``numpy.bincount``) against ``scipy.stats.binned_statistic`` on a 2-cycle chamber
+  program's 1 s samples, and the import ``scipy.stats`` adds.
+* Quintic Hermite pieces: :func:`qfa_ros.model.trajectory.quintic_coefficients` against
+  ``scipy.interpolate.BPoly.from_derivatives`` (then ``PPoly.from_bernstein_basis``) on the
+  knots of :func:`qfa_ros.model.trajectories.vehicle_drive`: the largest difference of
+  the values and derivatives, and the time to build the drive's pieces.
 Prints Markdown tables.
 """
 
@@ -28,7 +41,7 @@ from scipy.spatial.transform import Rotation
 
 from qfa_ros.model.design import COEF_FRAC_BITS, design_controller, LinearLoop
 from qfa_ros.model.trajectory import dcm_to_quaternion, euler_to_dcm, quaternion_to_dcm
-from qfa_ros.model.triad import TriadConfig
+from qfa_ros.model.triad_config import TriadConfig
 
 SPATIAL = 'scipy.spatial.transform'
 NODE_IMPORTS = 'numpy, scipy.linalg, numba, rclpy'
@@ -208,13 +221,120 @@ def margins(repeat):
           f'{import_seconds("control"):.2f} s')
 
 
+def best_seconds(function, repeat):
+    """Return the shortest time of ``function()`` over ``repeat`` calls [s]."""
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def allan(rng):
+    """Print the Allan deviation table."""
+    import allantools
+
+    from qfa_ros.model.allan import allan_deviation
+    from qfa_ros.model.imu_noise import tau_grid
+
+    rate = 1000.0
+    samples = rng.normal(size=3_600_000) + 1e-3 * np.cumsum(rng.normal(size=3_600_000))
+    allan_deviation(samples[:100], 1.0 / rate)  # the compiled function, loaded once
+    print(f'\nallantools {allantools.__version__}; one axis of 3 600 000 samples at 1 kHz '
+          '(white noise and a random walk), best of 3\n')
+    print('| taus | count | largest relative difference | hand-written (numba) | '
+          'allantools.oadev |')
+    print('|---|---|---|---|---|')
+    for name, taus in (('octave (qfa-sim summary)', 'octave'),
+                       ('tau_grid(360 s) (qfa-report imu-yaml)', tau_grid(360.0))):
+        own = allan_deviation(samples, 1.0 / rate, taus)
+        library = allantools.oadev(samples, rate=rate, data_type='freq', taus=taus)
+        assert np.allclose(own[0], library[0]), name
+        difference = float(np.max(np.abs(own[1] / library[1] - 1.0)))
+        own_s = best_seconds(lambda: allan_deviation(samples, 1.0 / rate, taus), 3)
+        library_s = best_seconds(lambda: allantools.oadev(samples, rate=rate, data_type='freq',
+                                                          taus=taus), 3)
+        print(f'| {name} | {len(own[0])} | {difference:.1e} | {own_s:.3f} s | '
+              f'{library_s:.3f} s |')
+    print(f'\nimporting allantools after numpy and numba (median of 5 fresh interpreters): '
+          f'{import_seconds("allantools", "numpy, numba", 5):.3f} s')
+
+
+def binning(rng):
+    """Print the binning table."""
+    from scipy.stats import binned_statistic
+
+    from qfa_ros.calibration.tempfit import bin_by_temperature
+
+    v_temp = 0.75 + 0.4 * np.sin(np.linspace(0.0, 4.0 * math.pi, 14_400)) \
+        + 1e-4 * rng.normal(size=14_400)
+    output = 1e-3 * np.exp(2.0 * v_temp) + 1e-5 * rng.normal(size=v_temp.size)
+    own = bin_by_temperature(v_temp, output, 100)
+    counts = binned_statistic(v_temp, output, 'count', bins=100)[0]
+    means = [binned_statistic(v_temp, values, 'mean', bins=100)[0]
+             for values in (v_temp, output)]
+    keep = counts > 0
+    difference = max(float(np.max(np.abs(own[1] - means[1][keep]))),
+                     float(np.max(np.abs(own[0] - means[0][keep]))))
+    own_us = per_call_us(lambda: bin_by_temperature(v_temp, output, 100), 50)
+    library_us = per_call_us(lambda: [binned_statistic(v_temp, values, 'mean', bins=100)
+                                      for values in (v_temp, output)], 50)
+    print('\n| 14 400 samples in 100 V_temp bins | largest difference of the means | time |')
+    print('|---|---|---|')
+    print(f'| bin_by_temperature (numpy.bincount) | | {own_us:.0f} us |')
+    print(f'| scipy.stats.binned_statistic (V and output means) | {difference:.1e} | '
+          f'{library_us:.0f} us |')
+    print(f'\nimporting scipy.stats after numpy and numba (median of 5 fresh interpreters): '
+          f'{import_seconds("scipy.stats", "numpy, numba", 5):.3f} s')
+
+
+def hermite(rng):
+    """Print the quintic Hermite table."""
+    from scipy.interpolate import BPoly, PPoly
+
+    from qfa_ros.model.trajectories import vehicle_drive
+    from qfa_ros.model.trajectory import quintic_coefficients
+
+    drive = vehicle_drive()
+    times = drive.poly.x
+    knots = [drive.poly(times, nu) for nu in (0, 1, 2)]
+    own = PPoly(*quintic_coefficients(times, *knots))
+    library = PPoly.from_bernstein_basis(BPoly.from_derivatives(times, np.stack(knots, axis=1)))
+    t = rng.uniform(times[0], times[-1], 100_000)
+    differences = [float(np.max(np.abs(own.derivative(nu)(t) - library.derivative(nu)(t))))
+                   if nu else float(np.max(np.abs(own(t) - library(t)))) for nu in (0, 1, 2)]
+    own_s = best_seconds(lambda: quintic_coefficients(times, *knots), 3)
+    library_s = best_seconds(lambda: PPoly.from_bernstein_basis(
+        BPoly.from_derivatives(times, np.stack(knots, axis=1))), 3)
+    print(f'\n| {len(times)} knots of the drive, 6 channels | largest difference: value, rate, '
+          'acceleration | time |')
+    print('|---|---|---|')
+    print(f'| quintic_coefficients | | {own_s * 1e3:.1f} ms |')
+    print(f'| BPoly.from_derivatives + PPoly.from_bernstein_basis | '
+          f'{differences[0]:.1e}, {differences[1]:.1e}, {differences[2]:.1e} | '
+          f'{library_s * 1e3:.0f} ms |')
+
+
+PARTS = ('rotations', 'margins', 'allan', 'binning', 'hermite')
+
+
 def main():
-    """Measure and print both comparisons."""
+    """Measure and print the comparisons."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--repeat', type=int, default=200)
+    parser.add_argument('--parts', nargs='+', choices=PARTS, default=PARTS)
     args = parser.parse_args()
-    rotations(args.repeat, np.random.default_rng(0))
-    margins(args.repeat)
+    if 'rotations' in args.parts:
+        rotations(args.repeat, np.random.default_rng(0))
+    if 'margins' in args.parts:
+        margins(args.repeat)
+    if 'allan' in args.parts:
+        allan(np.random.default_rng(1))
+    if 'binning' in args.parts:
+        binning(np.random.default_rng(2))
+    if 'hermite' in args.parts:
+        hermite(np.random.default_rng(3))
 
 
 if __name__ == '__main__':

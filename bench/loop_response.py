@@ -25,7 +25,8 @@ from qfa_ros.model.loop_response import (  # noqa: E402
     measure_step,
     step_figures,
 )
-from qfa_ros.model.triad import QfaTriad, TriadConfig  # noqa: E402
+from qfa_ros.model.triad import QfaTriad  # noqa: E402
+from qfa_ros.model.triad_config import TriadConfig  # noqa: E402
 
 
 def main():

@@ -21,7 +21,8 @@ from qfa_ros.model.units import STANDARD_GRAVITY
 COMPILE_SNIPPET = """
 import time
 t = time.perf_counter()
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 QfaTriad(TriadConfig(), rng=0).run(1)
 print(time.perf_counter() - t)
 """
@@ -47,7 +48,8 @@ def main():
     from qfa_ros.model import kernel
     from qfa_ros.model.noise import NoiseConfig
     from qfa_ros.model.parallel import available_cores
-    from qfa_ros.model.triad import QfaTriad, TriadConfig
+    from qfa_ros.model.triad import QfaTriad
+    from qfa_ros.model.triad_config import TriadConfig
 
     with tempfile.TemporaryDirectory() as cache:
         cold = compile_time(cache)

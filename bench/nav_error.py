@@ -47,10 +47,10 @@ from qfa_ros.calibration.estimation import capture_reference, self_calibrate  # 
 from qfa_ros.calibration.schedule import run_schedule  # noqa: E402
 from qfa_ros.calibration.state import CalibrationState  # noqa: E402
 from qfa_ros.calibration.temperature import temperature_calibration  # noqa: E402
-from qfa_ros.model import trajectory as tr  # noqa: E402
+from qfa_ros.model import trajectories as tr  # noqa: E402
 from qfa_ros.model.errors import ErrorProfile  # noqa: E402
 from qfa_ros.model.thermal import ThermalConfig  # noqa: E402
-from qfa_ros.model.triad import TriadConfig  # noqa: E402
+from qfa_ros.model.triad_config import TriadConfig  # noqa: E402
 from qfa_ros.model.unit import draw_unit  # noqa: E402
 
 RATE_HZ = 100.0

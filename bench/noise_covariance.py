@@ -20,7 +20,8 @@ from tqdm import tqdm
 
 from qfa_ros.model.design import design_controller, LinearLoop, published_acceleration_variance
 from qfa_ros.model.noise import allan_deviation_model
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import MICRO_G
 
 

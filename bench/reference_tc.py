@@ -43,7 +43,7 @@ from qfa_ros.calibration.temperature import (  # noqa: E402
 )
 from qfa_ros.model.errors import ErrorProfile  # noqa: E402
 from qfa_ros.model.thermal import ThermalConfig  # noqa: E402
-from qfa_ros.model.triad import TriadConfig  # noqa: E402
+from qfa_ros.model.triad_config import TriadConfig  # noqa: E402
 from qfa_ros.model.unit import draw_unit  # noqa: E402
 from qfa_ros.ros.params import make_triad, PARAMETERS, temperature_settings  # noqa: E402
 

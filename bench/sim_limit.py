@@ -82,7 +82,8 @@ def limit_arguments(noise_on):
     """Return the project's parameters for :func:`limit_loop` (axis z, level, 1 g)."""
     from qfa_ros.model import kernel
     from qfa_ros.model.noise import NoiseConfig
-    from qfa_ros.model.triad import QfaTriad, TriadConfig
+    from qfa_ros.model.triad import QfaTriad
+    from qfa_ros.model.triad_config import TriadConfig
 
     config = TriadConfig(noise=NoiseConfig() if noise_on else NoiseConfig.off())
     triad = QfaTriad(config, rng=0)
@@ -116,7 +117,8 @@ def run_limit(n_samples, noise_on):
 def run_kernel(n_samples):
     """Time the project's kernel, noise drawn inside, over ``n_samples`` (one axis)."""
     from qfa_ros.model import kernel
-    from qfa_ros.model.triad import QfaTriad, TriadConfig
+    from qfa_ros.model.triad import QfaTriad
+    from qfa_ros.model.triad_config import TriadConfig
 
     triad = QfaTriad(TriadConfig(), rng=0)
     loop = triad.axes[2]
@@ -199,7 +201,7 @@ def main():
                       args.repeat)
         return
     from qfa_ros.model.parallel import available_cores
-    from qfa_ros.model.triad import TriadConfig
+    from qfa_ros.model.triad_config import TriadConfig
 
     config = TriadConfig()
     n_samples = int(round(args.duration * config.sample_rate_hz))

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 import ins_errors  # noqa: E402
 import strapdown  # noqa: E402
 
-from qfa_ros.model import trajectory as tr  # noqa: E402
+from qfa_ros.model import trajectories as tr  # noqa: E402
 from qfa_ros.model.gyro import GyroConfig, GyroTriad  # noqa: E402
 
 

@@ -35,13 +35,13 @@ from qfa_ros.calibration.temperature import (  # noqa: E402
 )
 from qfa_ros.calibration.tempfit import (  # noqa: E402
     bin_by_temperature,
-    calibrate_zero_bias,
     fit_double_exponential,
     fit_double_exponential_reference,
 )
+from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias  # noqa: E402
 from qfa_ros.calibration.verification import verify_cycle  # noqa: E402
 from qfa_ros.model.thermal import ThermalConfig, ThermalModel  # noqa: E402
-from qfa_ros.model.triad import TriadConfig  # noqa: E402
+from qfa_ros.model.triad_config import TriadConfig  # noqa: E402
 from qfa_ros.model.unit import draw_unit  # noqa: E402
 from qfa_ros.model.units import MICRO_G  # noqa: E402
 

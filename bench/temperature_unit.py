@@ -2,7 +2,8 @@
 Re-run one unit of a temperature study, optionally with schedule overrides (failure analysis).
 
 Prints the unit's row (worst zero drift and scale factor per axis, the probe lag) and per
-axis the bias fit's cancellation bits (:class:`qfa_ros.calibration.tempfit.ZeroBiasCalibration`:
+axis the bias fit's cancellation bits
+(:class:`qfa_ros.calibration.thermal_compensation.TemperatureCalibration`:
 how many bits the fixed-point compensator loses to cancelling terms)::
 
     nice -n 10 python bench/temperature_unit.py bench/studies/temperature_reduced_200.yaml 42

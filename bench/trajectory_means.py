@@ -48,17 +48,17 @@ def main():
     parser.add_argument('--repeats', type=int, default=5, help='runs a case (median)')
     parser.add_argument('--old', default='c4d7d2e', help='git revision of the old code')
     args = parser.parse_args()
-    from qfa_ros.model import trajectory
+    from qfa_ros.model import trajectories
     from qfa_ros.model.trajectory_means import PiecewiseMeans
     old = load_old(args.old)
 
     def integrated(name):
-        motion = getattr(trajectory, name)()
+        motion = getattr(trajectories, name)()
         motion._means = PiecewiseMeans(motion._c, motion._x, fast=False)
         return motion
 
     ways = {'old': lambda name: getattr(old, name)(), 'integrated': integrated,
-            'fast': lambda name: getattr(trajectory, name)()}
+            'fast': lambda name: getattr(trajectories, name)()}
     names = ('vehicle_drive', 'coning', 'sculling', 'rate_table_turn', 'six_position_tumble')
     for make in ways.values():  # compile outside the timing
         for name in names:
@@ -74,7 +74,7 @@ def main():
             for way, make in ways.items():
                 runs[way].append(cost(make(name), args.seconds))
         ms = {way: statistics.median(values) for way, values in runs.items()}
-        motion = getattr(trajectory, name)()
+        motion = getattr(trajectories, name)()
         pieces = (len(motion.poly.x) - 1) / motion.duration
         print(f'| {name}() | {pieces:.3g} | {ms["old"]:.3f} | {ms["integrated"]:.3f} '
               f'| {ms["fast"]:.3f} | {ms["old"] / ms["fast"]:.2f} '

@@ -14,31 +14,28 @@ from numpy.testing import assert_allclose
 import pytest
 
 from qfa_ros.calibration.chamber import ChamberBench, idle
-from qfa_ros.calibration.estimation import (
-    capture_reference,
-    feedback_schedule,
-    FeedbackSettings,
-    reference_tc_schedule,
-)
+from qfa_ros.calibration.estimation import capture_reference, feedback_schedule, FeedbackSettings
 from qfa_ros.calibration.experiments import (
     ErrorProfile,
     measure_scale,
     paper_experiment,
 )
+from qfa_ros.calibration.reference_tc import reference_tc_schedule
 from qfa_ros.calibration.schedule import run_schedule, SensorPort, SensorSamples
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_calibration, TemperatureSettings
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_unit
 
 ROOT = Path(__file__).resolve().parents[1]
-# estimation.py holds every estimator that reads the sensor: the gain schedules, the
-# I_ref coefficient against gravity and the I_ref steps at the temperature plateaus;
+# Every estimator that reads the sensor: estimation.py the gain schedules, reference_tc.py
+# the I_ref coefficient against gravity and the I_ref steps at the temperature plateaus,
 # gyro_bias.py the gyro bias at rest.
-ESTIMATORS = (ROOT / 'qfa_ros' / 'calibration' / 'estimation.py',
-              ROOT / 'qfa_ros' / 'calibration' / 'gyro_bias.py')
+ESTIMATORS = tuple(ROOT / 'qfa_ros' / 'calibration' / name
+                   for name in ('estimation.py', 'reference_tc.py', 'gyro_bias.py'))
 # Names through which a model truth could be read: the true input and body temperature,
 # the drift and thermal state, the noise configuration, the error profile, the model.
 FORBIDDEN = {'truth', 'temperature', 'drift', 'thermal', 'noise', 'config', 'gains',
@@ -47,7 +44,8 @@ FORBIDDEN_NAMES = {'_triad', 'ErrorProfile', 'NoiseConfig', 'ThermalConfig', 'Qf
                    'triad'}
 # qfa_ros.model.units holds constants only (PPM, MICRO_G, ...; test_units keeps it so).
 ALLOWED_IMPORTS = {'dataclasses', 'math', 'numpy', 'qfa_ros.calibration.schedule',
-                   'qfa_ros.model.triad', 'qfa_ros.model.earth', 'qfa_ros.model.units'}
+                   'qfa_ros.calibration.estimation', 'qfa_ros.model.triad',
+                   'qfa_ros.model.earth', 'qfa_ros.model.units'}
 
 
 def truth_reads(path):
@@ -76,16 +74,17 @@ def test_estimation_sees_no_truth(path):
     assert truth_reads(path) == []
 
 
-@pytest.mark.parametrize('honest, violation', [
+@pytest.mark.parametrize('path, honest, violation', [
     # The deliberate violation of the issue: the old co-regression read the true body
     # temperature and the profile's coefficient.
-    ('reading = float(np.mean(readings))', 'reading = port._triad.temperature  # violation'),
+    (ESTIMATORS[0], 'reading = float(np.mean(readings))',
+     'reading = port._triad.temperature  # violation'),
     # The I_ref steps at the temperature plateaus, likewise.
-    ("'reading_c': float(np.mean(readings))",
+    (ESTIMATORS[1], "'reading_c': float(np.mean(readings))",
      "'reading_c': port._triad.temperature,  # violation"),
 ], ids=['feedback', 'plateau_step'])
-def test_audit_catches_an_estimator_reading_the_truth(tmp_path, honest, violation):
-    source = ESTIMATORS[0].read_text().replace(honest, violation, 1)
+def test_audit_catches_an_estimator_reading_the_truth(tmp_path, path, honest, violation):
+    source = path.read_text().replace(honest, violation, 1)
     assert 'violation' in source
     scratch = tmp_path / 'estimation.py'
     scratch.write_text(source)

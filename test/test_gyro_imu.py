@@ -17,9 +17,11 @@ from qfa_ros.calibration.schedule import EstimationError, run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.cli import sim
 from qfa_ros.model import earth
-from qfa_ros.model import trajectory as tr
+from qfa_ros.model import trajectories as tr
 from qfa_ros.model.gyro import GyroConfig, GyroTriad
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.trajectory import dcm_to_quaternion
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import DEG_PER_HOUR, PPM
 from qfa_ros.ros.ground_truth import GroundTruthInput
 from qfa_ros.ros.params import PARAMETERS
@@ -196,7 +198,7 @@ def test_qfa_sim_trajectory_writes_imu_and_truth(tmp_path, capsys):
     last = odometry[-1]
     assert last.header.frame_id == 'enu_origin' and last.child_frame_id == 'imu_link'
     q = last.pose.pose.orientation
-    assert_allclose([q.x, q.y, q.z, q.w], tr.dcm_to_quaternion(
+    assert_allclose([q.x, q.y, q.z, q.w], dcm_to_quaternion(
         truth.kinematics(np.array([3.0]))['dcm'][0]), atol=1e-9)
 
 

@@ -10,7 +10,7 @@ import pytest
 from statistics_helpers import allan_edf_flicker, allan_edf_white, assert_variance_ratios
 
 from qfa_ros.model import earth
-from qfa_ros.model import trajectory as tr
+from qfa_ros.model import trajectories as tr
 from qfa_ros.model.allan import allan_deviation
 from qfa_ros.model.gyro import GyroConfig, GyroTriad
 from qfa_ros.model.noise import (
@@ -18,7 +18,8 @@ from qfa_ros.model.noise import (
     gauss_markov_allan_variance,
     NoiseConfig,
 )
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 
 sys.path.insert(0, os.path.dirname(__file__))
 import ins_errors  # noqa: E402

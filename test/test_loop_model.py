@@ -15,8 +15,7 @@ from statistics_helpers import allan_edf_flicker, allan_edf_white, assert_varian
 from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.cli.sim import static_sensor
 from qfa_ros.model import axis as axis_module
-from qfa_ros.model import kernel
-from qfa_ros.model import trajectory as trajectories
+from qfa_ros.model import kernel, trajectories
 from qfa_ros.model.allan import allan_deviation, allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop, matrix_exponential, pendulum_matrices
 from qfa_ros.model.drift import SECONDS_PER_YEAR
@@ -32,14 +31,9 @@ from qfa_ros.model.noise import allan_deviation_model, NoiseConfig
 from qfa_ros.model.parallel import run_chains
 from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig, ThermalModel
-from qfa_ros.model.triad import (
-    concatenate,
-    FLAG_DA2_CLIPPED,
-    FLAG_OVER_RANGE,
-    QfaTriad,
-    TriadConfig,
-    TriadOutput,
-)
+from qfa_ros.model.triad import FLAG_DA2_CLIPPED, FLAG_OVER_RANGE, QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
+from qfa_ros.model.triad_output import concatenate, TriadOutput
 from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 
 ROOT = Path(__file__).resolve().parents[1]

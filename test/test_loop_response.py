@@ -15,7 +15,8 @@ import pytest
 
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.loop_response import design_step, measure_loop, measure_step, step_figures
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 # Measured figures docs/model.md and the README's table quote (bench/loop_response.py).

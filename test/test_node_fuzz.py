@@ -43,7 +43,7 @@ from rclpy.qos import (
 from sensor_msgs.msg import Imu
 from std_srvs.srv import SetBool, Trigger
 
-from qfa_ros.model.trajectory import SCRIPTS
+from qfa_ros.model.trajectories import SCRIPTS
 from qfa_ros.ros.params import PARAMETERS, SPECS
 
 CASES = int(os.environ.get('QFA_FUZZ_CASES', '2000'))

@@ -15,7 +15,7 @@ from sensor_msgs.msg import Imu, NavSatFix
 from std_srvs.srv import SetBool, Trigger
 
 from qfa_ros.bag.qos import QOS_TRUTH
-from qfa_ros.model import trajectory as tr
+from qfa_ros.model import trajectories, trajectory
 from qfa_ros.model.units import MICRO_G
 
 NODE = '/qfa_node'
@@ -81,7 +81,7 @@ def test_static_truth_pose_and_origin(setup):
     assert odometry.header.frame_id == 'enu_origin' and odometry.child_frame_id == 'imu_link'
     p, q = odometry.pose.pose.position, odometry.pose.pose.orientation
     assert max(abs(p.x), abs(p.y), abs(p.z)) < 1e-9
-    expected = tr.dcm_to_quaternion(tr.euler_to_dcm(ROLL, PITCH, YAW))
+    expected = trajectory.dcm_to_quaternion(trajectory.euler_to_dcm(ROLL, PITCH, YAW))
     assert np.allclose([q.x, q.y, q.z, q.w], expected, atol=1e-9)
     # The truth is stamped as a sample of the stream: on the 1 kHz grid of imu/data_raw.
     imu_stamp = setup['imu'].samples[-1][0]
@@ -133,7 +133,7 @@ def test_error_truth_predicts_the_published_output(setup):
     # One truth per batch of samples (stream.batch_s 0.1 s: 20 in the 2 s) at most, never
     # one sample's twice; fewer when the machine starves the sensor thread.
     assert len(window) >= 5
-    static = tr.static(45.0, roll=ROLL, pitch=PITCH, yaw=YAW)
+    static = trajectories.static(45.0, roll=ROLL, pitch=PITCH, yaw=YAW)
     force = static.kinematics(np.zeros(1))['specific_force'][0]
     predicted = []
     for message in window:

@@ -18,7 +18,8 @@ from statistics_helpers import allan_edf_white, mean_sd, t_bound, variance_ratio
 
 from qfa_ros.model.design import design_controller, LinearLoop, published_acceleration_variance
 from qfa_ros.model.noise import allan_deviation_model, NoiseConfig
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import MICRO_G
 
 SECONDS = 60.0

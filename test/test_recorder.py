@@ -39,12 +39,14 @@ from qfa_ros.calibration.estimation import (
     ForwardSettings,
     self_calibrate,
 )
+from qfa_ros.calibration.fixed_point_compensator import DoubleExpCompensator
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
-from qfa_ros.calibration.tempfit import DoubleExpCompensator, DoubleExpFit
+from qfa_ros.calibration.tempfit import DoubleExpFit
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.model.triad import AXES, QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import STANDARD_GRAVITY
 from qfa_ros.ros.distro import ros_distribution
 

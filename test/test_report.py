@@ -25,7 +25,8 @@ from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
 from qfa_ros.cli.report import main
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.model.triad import AXES, QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import MICRO_G
 from qfa_ros.report.figures import build_figures, load_bag, report
 

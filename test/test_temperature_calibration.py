@@ -16,14 +16,15 @@ from qfa_ros.calibration.temperature import (
     temperature_schedule,
     TemperatureSettings,
 )
-from qfa_ros.calibration.tempfit import ThermalCompensation
+from qfa_ros.calibration.thermal_compensation import ThermalCompensation
 from qfa_ros.calibration.verification import verify_attitudes, verify_cycle
 from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.model.errors import ErrorProfile
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_unit
 from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 

@@ -11,15 +11,14 @@ import numpy.testing as npt
 import pytest
 from statistics_helpers import normal_bound, variance_ratio_bounds
 
+from qfa_ros.calibration.fixed_point_compensator import DoubleExpCompensator
 from qfa_ros.calibration.tempfit import (
-    calibrate_zero_bias,
-    DoubleExpCompensator,
     DoubleExpFit,
     fit_double_exponential,
     fit_double_exponential_reference,
     fit_polynomial,
-    TemperatureCalibration,
 )
+from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias, TemperatureCalibration
 
 # (alpha1, beta1, alpha2, beta2): TMP36-range voltages, m/s^2 and V-scale outputs
 COEFFICIENT_SETS = [
@@ -338,7 +337,8 @@ def test_a_cancelling_fit_gets_the_fraction_bits_it_loses():
     # family) lost those bits in the 16-bit compensator: the population study's failures
     # (tens to thousands of ug). The compensator now widens its words by the cancellation
     # beyond the guard bits.
-    from qfa_ros.calibration.tempfit import calibrate_zero_bias, DoubleExpCompensator
+    from qfa_ros.calibration.fixed_point_compensator import DoubleExpCompensator
+    from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias
     v = np.linspace(0.35, 1.2, 2000)
     y = 1e-3 * ((v - 0.75) / 0.45) ** 3
     calibration = calibrate_zero_bias(v, y, m_bits=16, n_bins=60, baseline=True)
@@ -359,7 +359,7 @@ def test_a_cancelling_fit_gets_the_fraction_bits_it_loses():
 ONE_EXPONENTIAL_FIT = """
 import json
 import numpy as np
-from qfa_ros.calibration.tempfit import calibrate_zero_bias
+from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias
 v = np.linspace(0.35, 1.2, 2000)
 calibration = calibrate_zero_bias(v, 1e-3 * np.exp(2.0 * v), m_bits=16, n_bins=60)
 fit = calibration.fit
@@ -391,7 +391,8 @@ def test_a_fit_cancelling_beyond_any_word_is_refitted_within_the_words():
     # Population unit 63 y: a bias fit whose terms cancelled by 29.7 bits, beyond the
     # widest words (27 fraction bits), compensated garbage (2321 ug). The calibration now
     # refits such an axis with the cancellation bounded by what the words absorb.
-    from qfa_ros.calibration.tempfit import cancellation_bits, max_m_bits
+    from qfa_ros.calibration.fixed_point_compensator import max_m_bits
+    from qfa_ros.calibration.tempfit import cancellation_bits
     v = np.linspace(0.35, 1.2, 2000)
     y = 1e-3 * ((v - 0.75) / 0.45) ** 3
     v_bins = np.linspace(0.36, 1.19, 50)

@@ -273,7 +273,7 @@ def test_drawn_units_stay_within_the_datasheet_spreads():
 
 
 def test_a_units_config_reproduces_its_curves_and_ages():
-    from qfa_ros.model.triad import TriadConfig
+    from qfa_ros.model.triad_config import TriadConfig
     from qfa_ros.model.unit import draw_unit
     unit = draw_unit(3)
     base = TriadConfig(thermal=ThermalConfig(ambient_profile='constant', ambient_c=10.0))
@@ -296,7 +296,8 @@ def test_units_draw_their_own_component_coefficients_from_their_own_stream():
     # Issue 28: the I_ref and forward-chain temperature coefficients are per unit (the
     # estimators measure unknowns), drawn from their own stream: no other draw moved.
     from qfa_ros.model.errors import ErrorProfile
-    from qfa_ros.model.triad import QfaTriad, TriadConfig
+    from qfa_ros.model.triad import QfaTriad
+    from qfa_ros.model.triad_config import TriadConfig
     from qfa_ros.model.unit import draw_unit, FORWARD_TC_COMPONENTS, UnitSpread
     units = [draw_unit(seed) for seed in range(200)]
     i_ref = np.array([unit.i_ref_tc_ppm_per_c for unit in units])

@@ -16,8 +16,7 @@ from qfa_ros.calibration.estimation import capture_reference
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_calibration
-from qfa_ros.model import files
-from qfa_ros.model import trajectory as trajectories
+from qfa_ros.model import files, trajectories
 from qfa_ros.model.files import read_regular_file, UntrustedFileError, write_atomically
 from qfa_ros.model.hardware import AxisHardware, nominal_gains
 from qfa_ros.model.triad import NS_PER_S

@@ -37,7 +37,7 @@ class ScenarioBag:
     ``/qfa/scenario/phase`` (std_msgs/String naming the phase that starts at its log
     time) and estimation traces under ``/qfa/trace/<run>/...`` (see
     :mod:`qfa_ros.bag.traces`). A context manager with an idempotent ``finish()``.
-    ``config`` (:class:`qfa_ros.model.triad.TriadConfig`) sets the published
+    ``config`` (:class:`qfa_ros.model.triad_config.TriadConfig`) sets the published
     ``linear_acceleration_covariance``
     (:func:`qfa_ros.model.design.published_acceleration_variance`).
     """

@@ -40,7 +40,7 @@ against ``math.exp`` over the whole input range in the tests.  With the default 
 guard bits the error is below 0.02 % at ``M = 16`` for ``N <= 8`` (2.3e-5 at
 ``N = 6``) and below 2e-6 at ``M = 24`` for every ``N`` the 64-bit multiplier allows;
 at ``M = 16``, ``N = 16`` it is 1.7 %.  Choose ``N`` no larger than the inputs need
-(:class:`qfa_ros.calibration.tempfit.DoubleExpCompensator` picks the smallest).
+(:class:`qfa_ros.calibration.fixed_point_compensator.DoubleExpCompensator` picks the smallest).
 
 Output formats
 --------------

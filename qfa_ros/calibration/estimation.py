@@ -4,13 +4,9 @@ Forward- and feedback-gain self-estimation and in-place compensation (seed 1 §I
 Every schedule here sees the sensor through a :class:`SensorPort` only (its words,
 output, flags and on-board temperature reading); every coefficient it uses was measured
 by a schedule and lives in the :class:`CalibrationState`. The I_ref temperature
-coefficient comes from the temperature calibration (:func:`plateau_step` at every chamber
-plateau, :func:`fit_plateau_steps`) or, offline, from :func:`reference_tc_schedule` (I_ref
-steps against gravity at several chamber plateaus).
-
-One module over ~500 lines because it is one cohesive thing: the three schedules that
-switch the loop words (forward sweep, I_ref switching, I_ref against gravity) share the
-segment, switching and motion primitives and the result type.
+coefficient the feedback schedule's temperature correction needs comes from
+:mod:`qfa_ros.calibration.reference_tc`, which switches I_ref with the primitives here
+(:func:`measure_segment`, :func:`switched_segments`).
 """
 
 from dataclasses import asdict, dataclass
@@ -18,7 +14,12 @@ import math
 
 import numpy as np
 
-from qfa_ros.calibration.schedule import EstimationError, SensorPort
+from qfa_ros.calibration.schedule import (
+    EstimationError,
+    EstimationResult,
+    require_closed,
+    SensorPort,
+)
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED
 from qfa_ros.model.units import MICRO_G, PPM
 
@@ -54,8 +55,8 @@ class ForwardSettings:
     def __post_init__(self):
         _check_int('points', self.points, 2, 1000)
         _check_int('step', self.step, 1, 2 ** 14)
-        _check_time('settle_s', self.settle_s, allow_zero=True)
-        _check_time('average_s', self.average_s)
+        check_seconds('settle_s', self.settle_s, allow_zero=True)
+        check_seconds('average_s', self.average_s)
         if self.order not in FORWARD_ORDERS:
             raise ValueError(f'order must be one of {FORWARD_ORDERS}, got {self.order!r}')
 
@@ -94,9 +95,8 @@ class FeedbackSettings:
     temperature_correction : bool
         Move the reference step to the present on-board temperature reading,
         ``step0 (1 + c (T - T0))``, with the coefficient ``c`` per axis in
-        ``state.reference_tc_ppm`` (the temperature calibration's
-        :func:`fit_plateau_steps`, or :func:`reference_tc_schedule`); refused without
-        one. False = the paper's schedule.
+        ``state.reference_tc_ppm`` (measured by :mod:`~qfa_ros.calibration.reference_tc`);
+        refused without one. False = the paper's schedule.
     bias_instability : float
         Datasheet bias instability (Allan floor) [m/s^2]; adds to the standard error of
         the two-segment (paper) schedule, whose segments the white scatter alone does
@@ -113,8 +113,8 @@ class FeedbackSettings:
 
     def __post_init__(self):
         _check_int('cycles', self.cycles, 1, 10000)
-        _check_time('settle_s', self.settle_s, allow_zero=True)
-        _check_time('average_s', self.average_s)
+        check_seconds('settle_s', self.settle_s, allow_zero=True)
+        check_seconds('average_s', self.average_s)
         if self.order not in FEEDBACK_ORDERS:
             raise ValueError(f'order must be one of {FEEDBACK_ORDERS}, got {self.order!r}')
         if not math.isfinite(self.bias_instability) or self.bias_instability < 0:
@@ -207,118 +207,38 @@ def _same(a, b):
     return math.isclose(float(a), float(b), rel_tol=1e-9, abs_tol=1e-12)
 
 
-@dataclass
-class EstimationResult:
-    """
-    Everything one schedule measured, estimated and applied.
-
-    Attributes
-    ----------
-    kind : str
-        ``forward``, ``feedback`` or ``reference``.
-    settings : dict
-        The schedule settings.
-    estimate_ppm, std_error_ppm : float64[3]
-        Estimated relative drift of the channel per axis and its standard error [ppm].
-    points : dict of numpy arrays
-        Raw points, each with its end time ``time_ns`` [ns]: forward ``index, delta_n,
-        mean_x, std_x, ...``; feedback ``segment, reference_on, mean_x, std_x, ...``
-        [count].
-    residuals : float64[n, 3]
-        Fit residuals (forward: regression; feedback: segment means minus the
-        on/off model) [count].
-    measured : float64[3]
-        Forward slope dN_out/dN_FPGA or feedback step N_on - N_off [count].
-    reference : float64[3]
-        The reference it was compared with (NaN while capturing).
-    words_before, words_after : float64[3]
-        k(D(z)) (forward) or N_VREF (feedback) before and after compensation.
-    applied : bool
-        Whether the correction was written.
-    captured : bool
-        Whether this run captured the reference instead of estimating.
-    start_ns, end_ns : int
-        Sensor time span of the schedule [ns].
-    """
-
-    kind: str
-    settings: dict
-    estimate_ppm: np.ndarray
-    std_error_ppm: np.ndarray
-    points: dict
-    residuals: np.ndarray
-    measured: np.ndarray
-    reference: np.ndarray
-    words_before: np.ndarray
-    words_after: np.ndarray
-    applied: bool
-    captured: bool
-    start_ns: int
-    end_ns: int
-
-    @property
-    def duration_s(self):
-        """Sensor time the schedule took [s]."""
-        return (self.end_ns - self.start_ns) * 1e-9
-
-    def to_mapping(self):
-        """Return the scalar and per-axis fields as a mapping (trace result)."""
-        per_axis = {}
-        for name in ('estimate_ppm', 'std_error_ppm', 'measured', 'reference', 'words_before',
-                     'words_after'):
-            values = np.asarray(getattr(self, name), dtype=float)
-            per_axis[name] = {axis: float(v) for axis, v in zip(AXES, values)}
-        return {**per_axis, 'applied': bool(self.applied), 'captured': bool(self.captured),
-                'duration_s': self.duration_s, 'start_ns': int(self.start_ns),
-                'end_ns': int(self.end_ns), 'summary': self.summary()}
-
-    def summary(self):
-        """Return a one-line human summary."""
-        if self.kind == 'reference_tc':
-            axes = ', '.join(f'{a} {e:+.2f}±{s:.2f}' for a, e, s in
-                             zip(AXES, self.estimate_ppm, self.std_error_ppm))
-            action = 'stored' if self.applied else 'not stored'
-            return (f'I_ref step temperature coefficient [ppm/degC] {axes}; {action}; '
-                    f'{self.duration_s:.2f} s')
-        if self.captured:
-            what = 'k_pre-eq0 (dN_out/dN_FPGA)' if self.kind == 'forward' \
-                else 'N_on - N_off [count]'
-            values = ', '.join(f'{a} {m:.6g}' for a, m in zip(AXES, self.measured))
-            return f'{self.kind} reference captured: {what} {values}; {self.duration_s:.2f} s'
-        axes = ', '.join(f'{a} {e:+.2f}±{s:.2f}' for a, e, s in
-                         zip(AXES, self.estimate_ppm, self.std_error_ppm))
-        word = 'k(D(z))' if self.kind == 'forward' else 'N_VREF'
-        if self.applied:
-            change = ', '.join(f'{b:.6g}->{a:.6g}' for b, a in
-                               zip(self.words_before, self.words_after))
-            action = f'applied {word} {change}'
-        else:
-            action = 'no correction applied'
-        return f'{self.kind} gain drift [ppm] {axes}; {action}; {self.duration_s:.2f} s'
-
-
 def _check_int(name, value, low, high):
     if isinstance(value, bool) or int(value) != value or not low <= value <= high:
         raise ValueError(f'{name} must be an integer in [{low}, {high}], got {value!r}')
 
 
-def _check_time(name, value, allow_zero=False):
+def check_seconds(name, value, allow_zero=False):
+    """Raise ValueError naming ``name`` unless ``value`` is a time [s] > 0 (>= 0 if allowed)."""
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0 \
             or (value == 0 and not allow_zero):
         raise ValueError(f'{name} must be a {"non-negative" if allow_zero else "positive"} '
                          f'number of seconds, got {value!r}')
 
 
-def _segment(port, settle_s, average_s):
+def fit_line(x, values):
+    """
+    Fit ``values`` (n, axes) by least squares on ``[x, 1]``; return slope, residuals, its error.
+
+    The slope's standard error per axis is ``sqrt(sum r^2 / (n - 2) / sum (x - mean x)^2)``
+    (``n - 2`` at least 1).
+    """
+    design = np.column_stack([x, np.ones(len(x))])
+    coef, *_ = np.linalg.lstsq(design, values, rcond=None)
+    residuals = values - design @ coef
+    se = np.sqrt((residuals ** 2).sum(axis=0) / max(1, len(x) - 2) / ((x - x.mean()) ** 2).sum())
+    return coef[0], residuals, se
+
+
+def measure_segment(port, settle_s, average_s):
     """Yield the discard and averaging requests of one segment; return the averaged output."""
     if settle_s > 0:
         yield port.samples_for(settle_s)
     return port.view((yield port.samples_for(average_s)))
-
-
-def _require_closed(port):
-    if not port.loops_closed():
-        raise EstimationError('a loop is open: another schedule is running')
 
 
 def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capture=False,
@@ -339,7 +259,7 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
     port = SensorPort.of(sensor)
     if not capture:
         _check_ready('forward', settings, port, state, check_settings)
-    _require_closed(port)
+    require_closed(port)
     start_ns = port.sensor_time_ns()
     axes = range(port.n_axes)
     base = [port.n_fpga(axis) for axis in axes]
@@ -351,7 +271,7 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
         for i in indices:
             for axis in axes:
                 port.set_n_fpga(axis, base[axis] + i * settings.step)
-            out = yield from _segment(port, settings.settle_s, settings.average_s)
+            out = yield from measure_segment(port, settings.settle_s, settings.average_s)
             if np.any(out.flags & FLAG_ADC_CLIPPED):
                 raise EstimationError('ADC clipped during the forward sweep: reduce step')
             means.append(out.counts.mean(axis=0))
@@ -362,16 +282,10 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
             port.set_n_fpga(axis, base[axis])
             port.set_open_loop(axis, False)
     # Wait for the loops to settle so that the schedule ends with valid output.
-    yield from _segment(port, 0.0, port.settle_time_s)
+    yield from measure_segment(port, 0.0, port.settle_time_s)
     delta_n = np.asarray(indices, dtype=float) * settings.step
     means = np.asarray(means)
-    design = np.column_stack([delta_n, np.ones_like(delta_n)])
-    coef, *_ = np.linalg.lstsq(design, means, rcond=None)
-    slope = coef[0]
-    residuals = means - design @ coef
-    dof = max(1, len(delta_n) - 2)
-    slope_se = np.sqrt((residuals ** 2).sum(axis=0) / dof
-                       / ((delta_n - delta_n.mean()) ** 2).sum())
+    slope, residuals, slope_se = fit_line(delta_n, means)
     gains_before = np.array([port.controller_gain(axis) for axis in axes])
     points = {'time_ns': np.asarray(times, dtype=np.int64),
               'index': np.asarray(indices, dtype=float), 'delta_n': delta_n}
@@ -404,7 +318,7 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
                             start_ns, port.sensor_time_ns())
 
 
-def _switching(port, sequence, settings, check_motion=True):
+def switched_segments(port, sequence, settings, check_motion=True):
     """
     Switch I_ref in ``sequence`` order; return segment means, stds, times, readings.
 
@@ -419,7 +333,7 @@ def _switching(port, sequence, settings, check_motion=True):
         for on in sequence:
             for axis in axes:
                 port.set_reference_current(axis, on)
-            out = yield from _segment(port, settings.settle_s, settings.average_s)
+            out = yield from measure_segment(port, settings.settle_s, settings.average_s)
             if np.any(out.saturated):
                 # Any flag: DA2 or ADC clipped, or beyond the rated range.
                 raise EstimationError('output saturated: the input must be in range')
@@ -434,7 +348,7 @@ def _switching(port, sequence, settings, check_motion=True):
         for axis in axes:
             port.set_reference_current(axis, False)
     # Let the loops settle from the last switching so that the schedule ends valid.
-    yield from _segment(port, 0.0, settings.settle_s + port.settle_time_s)
+    yield from measure_segment(port, 0.0, settings.settle_s + port.settle_time_s)
     return (np.asarray(means), np.asarray(stds), np.asarray(times), np.asarray(readings),
             np.asarray(allan))
 
@@ -486,10 +400,11 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
     ``N_VREF <- N_VREF / (1 + dk_fb)`` (eq. 29-30). With ``capture`` the step
     becomes the reference instead, stored with the on-board temperature reading.
     With ``settings.temperature_correction`` the reference step is first moved to the
-    present reading with the coefficient of :func:`reference_tc_schedule`. The input
-    must be static and in range. With ``check_settings`` (the default) an estimate whose
-    :data:`FEEDBACK_MATCHED` settings or rates differ from the reference's is refused
-    before anything moves (the captured settings are stored with the reference).
+    present reading with the I_ref temperature coefficient
+    (:mod:`~qfa_ros.calibration.reference_tc`). The input must be static and in range.
+    With ``check_settings`` (the default) an estimate whose :data:`FEEDBACK_MATCHED`
+    settings or rates differ from the reference's is refused before anything moves (the
+    captured settings are stored with the reference).
     """
     port = SensorPort.of(sensor)
     if not capture:
@@ -504,24 +419,17 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
                 or not port.has_temperature_sensor:
             raise EstimationError('temperature correction needs the on-board temperature '
                                   'reading at the reference and now')
-    _require_closed(port)
+    require_closed(port)
     start_ns = port.sensor_time_ns()
     sequence = settings.sequence()
-    means, stds, times, readings, allan = yield from _switching(port, sequence, settings)
+    means, stds, times, readings, allan = yield from switched_segments(port, sequence, settings)
     on = np.asarray(sequence)
     if len(on) >= 4:
         _check_between_segments(port, settings, on, times, means, allan)
     # Least squares of the segment means on [switch state, 1]: the step is the on/off
     # difference, and for the ABBA order the linear drift cancels by symmetry.
-    design = np.column_stack([on.astype(float), np.ones(len(on))])
-    coef, *_ = np.linalg.lstsq(design, means, rcond=None)
-    step = coef[0]
-    residuals = means - design @ coef
-    if len(on) > 2:
-        dof = len(on) - 2
-        step_se = np.sqrt((residuals ** 2).sum(axis=0) / dof
-                          / ((on - on.mean()) ** 2).sum())
-    else:
+    step, residuals, step_se = fit_line(on.astype(float), means)
+    if len(on) <= 2:
         # The sample scatter measures the white noise of each segment mean; the bias
         # instability, correlated over a segment, adds its Allan floor (the datasheet
         # figure of the settings), twice for the difference.
@@ -611,226 +519,3 @@ def _check_between_segments(port, settings, on, times_ns, means, allan):
             f'input is moving between segments: a segment mean departs '
             f'{float(np.max(worst)) / MICRO_G:.0f} ug from the on/off model (limit '
             f'{limit / MICRO_G:.0f} ug); hold the sensor still')
-
-
-@dataclass(frozen=True)
-class ReferenceTcSettings:
-    """
-    I_ref temperature-coefficient schedule (chamber plateaus, two-position fixture).
-
-    Attributes
-    ----------
-    plateaus_c : tuple of float
-        Chamber plateaus [degC], at least two.
-    soak_s : float
-        Soak at each plateau before measuring [s] (several body time constants).
-    position_s : float
-        Averaged time per fixture position [s].
-    switching : FeedbackSettings
-        I_ref switching at each position.
-    """
-
-    plateaus_c: tuple = (15.0, 25.0, 35.0)
-    soak_s: float = 2400.0
-    position_s: float = 2.0
-    switching: FeedbackSettings = FeedbackSettings(cycles=4, settle_s=0.02, average_s=0.28,
-                                                   order='chopped')
-
-    def __post_init__(self):
-        temps = np.asarray(self.plateaus_c, dtype=float)
-        if temps.ndim != 1 or len(temps) < 2 or not np.all(np.isfinite(temps)) \
-                or np.ptp(temps) < 1.0:
-            raise ValueError('plateaus_c must be at least two finite temperatures spanning '
-                             f'1 degC or more, got {self.plateaus_c!r}')
-        _check_time('soak_s', self.soak_s, allow_zero=True)
-        _check_time('position_s', self.position_s)
-        if not isinstance(self.switching, FeedbackSettings):
-            raise ValueError('switching must be FeedbackSettings')
-
-
-def fit_reference_tc(readings_c, ratios):
-    """
-    Fit the relative temperature coefficient of the I_ref step against gravity.
-
-    Parameters
-    ----------
-    readings_c : float64[m]
-        On-board temperature reading per plateau [degC].
-    ratios : float64[m, 3]
-        I_ref step divided by the output change of a known input per plateau and axis
-        (the step in units of true specific force).
-
-    Returns
-    -------
-    tc_ppm, std_error_ppm : float64[3]
-        ``d ln(ratio) / dT`` [ppm/degC] and its standard error (NaN with two plateaus).
-    """
-    t = np.asarray(readings_c, dtype=float)
-    y = np.log(np.abs(np.asarray(ratios, dtype=float)))
-    design = np.column_stack([t - t.mean(), np.ones_like(t)])
-    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
-    dof = len(t) - 2
-    if dof > 0:
-        residuals = y - design @ coef
-        se = np.sqrt((residuals ** 2).sum(axis=0) / dof / ((t - t.mean()) ** 2).sum())
-    else:
-        se = np.full(y.shape[1], np.nan)
-    return coef[0] / PPM, se / PPM
-
-
-def reference_tc_schedule(sensor, bench, state, settings=ReferenceTcSettings(), apply=True):
-    r"""
-    Estimate the temperature coefficient of the I_ref step against gravity (generator).
-
-    At each chamber plateau (``bench.set_chamber_c``, ``bench.soak``) and in the two
-    fixture positions ``+u`` and ``-u`` (``bench.set_position(+1 / -1)``, known
-    specific force ``bench.known_input(sign)``, every axis carrying a share of g):
-    the static output ``N_+`` and ``N_-`` and the I_ref step ``S`` (chopped).
-    ``ratio = S (f_+ - f_-) / (N_+ - N_-)`` is the step expressed in true specific
-    force, ``-k_t I_ref (1 + e(T)) / K0``-like: it moves with the I_ref, torquer and
-    lumped scale-factor temperature coefficients but not with ``k_VI k_DA`` (which
-    cancels) nor the zero bias (the two positions cancel it). Its relative slope
-    against the on-board temperature reading, ``c = a_Iref + a_kt - e``, is the
-    coefficient the feedback schedule needs: with ``step0 (1 + c dT)`` as reference
-    it restores the output scale at the reference temperature to first order.
-    With ``apply`` the coefficient goes into ``state.reference_tc_ppm``. The bench is
-    the calibration set-up (chamber and fixture), not the sensor; the estimator reads
-    the sensor through a :class:`SensorPort` only. Returns an :class:`EstimationResult`
-    of kind ``reference_tc`` (``estimate_ppm`` in ppm/degC).
-    """
-    port = SensorPort.of(sensor)
-    _require_closed(port)
-    start_ns = port.sensor_time_ns()
-    readings, ratios, times = [], [], []
-    try:
-        for plateau in settings.plateaus_c:
-            bench.set_chamber_c(plateau)
-            bench.soak(settings.soak_s)
-            levels, steps, temps = {}, [], []
-            for sign in (1, -1):
-                bench.set_position(sign)
-                out = yield from _segment(port, 0.1, settings.position_s)
-                if np.any(out.saturated):
-                    raise EstimationError('output saturated in the fixture position')
-                levels[sign] = out.counts.mean(axis=0)
-                temps.append(float(np.mean(port.temperature_c(out.v_temp))))
-                means, _, seg_times, seg_temps, _ = yield from _switching(
-                    port, settings.switching.sequence(), settings.switching, check_motion=False)
-                on = np.asarray(settings.switching.sequence(), dtype=float)
-                design = np.column_stack([on, np.ones(len(on))])
-                steps.append(np.linalg.lstsq(design, means, rcond=None)[0][0])
-                temps.extend(seg_temps.tolist())
-                times.append(int(seg_times[-1]))
-            known = np.asarray(bench.known_input(1), float) - np.asarray(bench.known_input(-1),
-                                                                          float)
-            if np.any(np.abs(known) < 1.0):
-                raise EstimationError('every axis needs a known input of at least 1 m/s^2 '
-                                      'between the two fixture positions')
-            ratios.append(np.mean(steps, axis=0) * known / (levels[1] - levels[-1]))
-            readings.append(float(np.mean(temps)))
-    finally:
-        bench.restore()
-    readings = np.asarray(readings)
-    if not np.all(np.isfinite(readings)):
-        raise EstimationError('the sensor has no on-board temperature reading')
-    if np.ptp(readings) < 1.0:
-        raise EstimationError('the plateaus differ by less than 1 degC on the on-board sensor')
-    ratios = np.asarray(ratios)
-    tc, se = fit_reference_tc(readings, ratios)
-    if apply:
-        state.reference_tc_ppm = [float(v) for v in tc]
-        state.updated_at_ns = port.sensor_time_ns()
-    points = {'time_ns': np.asarray(times[1::2], dtype=np.int64), 'temperature_c': readings}
-    for axis, name in enumerate(AXES):
-        points[f'ratio_{name}'] = ratios[:, axis]
-    empty = np.full(len(AXES), np.nan)
-    return EstimationResult('reference_tc', asdict(settings), tc, se, points,
-                            ratios / ratios.mean(axis=0) - 1.0, tc, empty, empty, empty,
-                            apply, False, start_ns, port.sensor_time_ns())
-
-
-PLATEAU_SWITCHING = FeedbackSettings(cycles=2, settle_s=0.25, average_s=0.25, order='chopped')
-"""I_ref switching of :func:`plateau_step`: two off-on-on-off quadruples, 4 s of segments (each
-0.25 s discarded after a switch, as after a tumble rotation: the loop's transient)."""
-
-
-def plateau_step_time_s(settle_time_s, settings=PLATEAU_SWITCHING):
-    """Return the sensor time of one :func:`plateau_step` [s] (segments, settling)."""
-    return (len(settings.sequence()) * (settings.settle_s + settings.average_s)
-            + settings.settle_s + settle_time_s)
-
-
-def plateau_step(sensor, index=None, chamber_c=None, settings=PLATEAU_SWITCHING):
-    """
-    Measure the I_ref step and the on-board temperature reading at a plateau (generator).
-
-    The ``at_plateau`` hook of
-    :func:`qfa_ros.calibration.temperature.temperature_schedule` (``index`` and
-    ``chamber_c`` are the hook's arguments, unused: the chamber setting is not what the
-    sensor is at). With the loops closed and the input static, switches I_ref in the
-    chopped order of ``settings`` and fits ``N_on - N_off`` per axis from the segment
-    means [count] (a linear drift of the output, e.g. the body still warming, cancels
-    in each off-on-on-off quadruple). Returns ``{'time_ns', 'reading_c', 'step',
-    'std_error'}``: the end of the last segment [ns], the mean on-board reading over the
-    segments [degC], the step and its standard error per axis [count].
-    """
-    port = SensorPort.of(sensor)
-    _require_closed(port)
-    sequence = settings.sequence()
-    means, _, times, readings, _ = yield from _switching(port, sequence, settings,
-                                                        check_motion=False)
-    on = np.asarray(sequence, dtype=float)
-    design = np.column_stack([on, np.ones(len(on))])
-    coef, *_ = np.linalg.lstsq(design, means, rcond=None)
-    residuals = means - design @ coef
-    dof = max(1, len(on) - 2)
-    se = np.sqrt((residuals ** 2).sum(axis=0) / dof / ((on - on.mean()) ** 2).sum())
-    return {'time_ns': int(times[-1]), 'reading_c': float(np.mean(readings)),
-            'step': coef[0], 'std_error': se}
-
-
-def fit_plateau_steps(steps, state, apply=True, start_ns=0, end_ns=0):
-    """
-    Fit the I_ref step's temperature coefficient from :func:`plateau_step` results.
-
-    ``d ln|N_on - N_off| / dT`` against the on-board reading, per axis, by
-    :func:`fit_reference_tc` [ppm/degC]. The step in counts is ``-I_ref / (k_VI k_DA)``:
-    it moves with the I_ref source and the V/I and DA2 chain, not with k_t nor the
-    scale-factor curve. That is the coefficient the feedback schedule's temperature
-    correction needs once the temperature compensation (the ROM of the same
-    calibration) keeps the output scale flat over temperature: with it, a feedback
-    estimate away from the reference temperature sees only the chain's own drift.
-    With ``apply`` it goes into ``state.reference_tc_ppm``. Returns an
-    :class:`EstimationResult` of kind ``reference_tc`` (``estimate_ppm`` in ppm/degC,
-    ``points``: per plateau the reading and the step per axis; ``residuals``: relative
-    departure of each step from the fitted line).
-
-    :raises EstimationError: Fewer than three plateaus, or their readings span less
-        than 1 degC.
-    """
-    if len(steps) < 3:
-        raise EstimationError(f'I_ref steps at {len(steps)} plateaus: at least three are '
-                              'needed for a coefficient with a standard error')
-    readings = np.array([s['reading_c'] for s in steps], dtype=float)
-    if not np.all(np.isfinite(readings)):
-        raise EstimationError('the sensor has no on-board temperature reading')
-    if np.ptp(readings) < 1.0:
-        raise EstimationError('the plateaus differ by less than 1 degC on the on-board sensor')
-    values = np.array([s['step'] for s in steps], dtype=float)
-    tc, se = fit_reference_tc(readings, values)
-    slope = tc * PPM
-    line = np.log(np.abs(values)).mean(axis=0) + np.outer(readings - readings.mean(), slope)
-    residuals = np.log(np.abs(values)) - line
-    if apply:
-        state.reference_tc_ppm = [float(v) for v in tc]
-        state.updated_at_ns = int(end_ns)
-    points = {'time_ns': np.array([s['time_ns'] for s in steps], dtype=np.int64),
-              'temperature_c': readings}
-    for axis, name in enumerate(AXES):
-        points[f'step_{name}'] = values[:, axis]
-        points[f'step_std_error_{name}'] = np.array([s['std_error'][axis] for s in steps])
-    empty = np.full(len(AXES), np.nan)
-    settings = {'source': 'temperature calibration plateaus',
-                **{f'switching.{k}': v for k, v in asdict(PLATEAU_SWITCHING).items()}}
-    return EstimationResult('reference_tc', settings, tc, se, points, residuals, tc, empty,
-                            empty, empty, apply, False, int(start_ns), int(end_ns))

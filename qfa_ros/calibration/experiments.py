@@ -23,7 +23,8 @@ from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model import streams
 from qfa_ros.model.errors import ErrorProfile, PaperRoom
-from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.model.triad import AXES, QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 
 OBSERVABLE_FORWARD = ('v_da1_ref', 'k_tz', 'k_amp', 'v_ad_ref')

@@ -1,5 +1,5 @@
 """
-What every schedule shares: its error, the sensor port, the sensor time, the driver.
+What every schedule shares: its error and result, the sensor port, the sensor time, the driver.
 
 A schedule is a generator that drives the loop words of a sensor, yields how many
 samples it needs next, and receives them as one block; it returns its result.
@@ -17,11 +17,102 @@ import math
 
 import numpy as np
 
-from qfa_ros.model.triad import AXES, concatenate
+from qfa_ros.model.triad import AXES
+from qfa_ros.model.triad_output import concatenate
 
 
 class EstimationError(ValueError):
     """A schedule cannot run or its data cannot give an estimate; nothing was applied."""
+
+
+@dataclass
+class EstimationResult:
+    """
+    Everything one schedule measured, estimated and applied.
+
+    Attributes
+    ----------
+    kind : str
+        ``forward``, ``feedback`` or ``reference``.
+    settings : dict
+        The schedule settings.
+    estimate_ppm, std_error_ppm : float64[3]
+        Estimated relative drift of the channel per axis and its standard error [ppm].
+    points : dict of numpy arrays
+        Raw points, each with its end time ``time_ns`` [ns]: forward ``index, delta_n,
+        mean_x, std_x, ...``; feedback ``segment, reference_on, mean_x, std_x, ...``
+        [count].
+    residuals : float64[n, 3]
+        Fit residuals (forward: regression; feedback: segment means minus the
+        on/off model) [count].
+    measured : float64[3]
+        Forward slope dN_out/dN_FPGA or feedback step N_on - N_off [count].
+    reference : float64[3]
+        The reference it was compared with (NaN while capturing).
+    words_before, words_after : float64[3]
+        k(D(z)) (forward) or N_VREF (feedback) before and after compensation.
+    applied : bool
+        Whether the correction was written.
+    captured : bool
+        Whether this run captured the reference instead of estimating.
+    start_ns, end_ns : int
+        Sensor time span of the schedule [ns].
+    """
+
+    kind: str
+    settings: dict
+    estimate_ppm: np.ndarray
+    std_error_ppm: np.ndarray
+    points: dict
+    residuals: np.ndarray
+    measured: np.ndarray
+    reference: np.ndarray
+    words_before: np.ndarray
+    words_after: np.ndarray
+    applied: bool
+    captured: bool
+    start_ns: int
+    end_ns: int
+
+    @property
+    def duration_s(self):
+        """Sensor time the schedule took [s]."""
+        return (self.end_ns - self.start_ns) * 1e-9
+
+    def to_mapping(self):
+        """Return the scalar and per-axis fields as a mapping (trace result)."""
+        per_axis = {}
+        for name in ('estimate_ppm', 'std_error_ppm', 'measured', 'reference', 'words_before',
+                     'words_after'):
+            values = np.asarray(getattr(self, name), dtype=float)
+            per_axis[name] = {axis: float(v) for axis, v in zip(AXES, values)}
+        return {**per_axis, 'applied': bool(self.applied), 'captured': bool(self.captured),
+                'duration_s': self.duration_s, 'start_ns': int(self.start_ns),
+                'end_ns': int(self.end_ns), 'summary': self.summary()}
+
+    def summary(self):
+        """Return a one-line human summary."""
+        if self.kind == 'reference_tc':
+            axes = ', '.join(f'{a} {e:+.2f}±{s:.2f}' for a, e, s in
+                             zip(AXES, self.estimate_ppm, self.std_error_ppm))
+            action = 'stored' if self.applied else 'not stored'
+            return (f'I_ref step temperature coefficient [ppm/degC] {axes}; {action}; '
+                    f'{self.duration_s:.2f} s')
+        if self.captured:
+            what = 'k_pre-eq0 (dN_out/dN_FPGA)' if self.kind == 'forward' \
+                else 'N_on - N_off [count]'
+            values = ', '.join(f'{a} {m:.6g}' for a, m in zip(AXES, self.measured))
+            return f'{self.kind} reference captured: {what} {values}; {self.duration_s:.2f} s'
+        axes = ', '.join(f'{a} {e:+.2f}±{s:.2f}' for a, e, s in
+                         zip(AXES, self.estimate_ppm, self.std_error_ppm))
+        word = 'k(D(z))' if self.kind == 'forward' else 'N_VREF'
+        if self.applied:
+            change = ', '.join(f'{b:.6g}->{a:.6g}' for b, a in
+                               zip(self.words_before, self.words_after))
+            action = f'applied {word} {change}'
+        else:
+            action = 'no correction applied'
+        return f'{self.kind} gain drift [ppm] {axes}; {action}; {self.duration_s:.2f} s'
 
 
 @dataclass(frozen=True)

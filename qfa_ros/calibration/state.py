@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from qfa_ros.calibration.tempfit import ThermalCompensation
+from qfa_ros.calibration.thermal_compensation import ThermalCompensation
 from qfa_ros.model.triad import AXES
 
 
@@ -57,9 +57,9 @@ class CalibrationState:
         output scale in service; empty until measured. The feedback schedule's
         temperature correction uses it. The temperature calibration (the node's
         ``calibrate_temperature``) measures the step in counts at every chamber plateau
-        (:func:`qfa_ros.calibration.estimation.fit_plateau_steps`): right while its
+        (:func:`qfa_ros.calibration.reference_tc.fit_plateau_steps`): right while its
         temperature compensation keeps the output scale flat. Without that compensation
-        (offline studies) :func:`qfa_ros.calibration.estimation.reference_tc_schedule`
+        (offline studies) :func:`qfa_ros.calibration.reference_tc.reference_tc_schedule`
         measures the step against gravity, which also carries the scale's own curve.
     gyro_bias : list of float
         Gyro bias correction per axis [rad/s]

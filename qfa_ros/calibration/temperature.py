@@ -29,20 +29,17 @@ import math
 
 import numpy as np
 
-from qfa_ros.calibration.estimation import (
-    fit_plateau_steps,
-    plateau_step,
-    plateau_step_time_s,
-)
+from qfa_ros.calibration.reference_tc import fit_plateau_steps, plateau_step, plateau_step_time_s
 from qfa_ros.calibration.schedule import (
     EstimationError,
     require_closed,
     samples_for,
     sensor_time_ns,
 )
-from qfa_ros.calibration.tempfit import calibrate_zero_bias, ThermalCompensation
+from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias, ThermalCompensation
 from qfa_ros.model.profiles import StaticProfile
-from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED, TriadConfig
+from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 
 AMBIENT_FIELDS = ('ambient_profile', 'ambient_c', 'cycle_low_c', 'cycle_high_c',
@@ -306,7 +303,7 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
     """
     Run the chamber program with a tumbling head, fit bias and scale factor (generator).
 
-    Same protocol as :func:`qfa_ros.calibration.estimation.run_schedule`.
+    Same protocol as :func:`qfa_ros.calibration.schedule.run_schedule`.
 
     Parameters
     ----------
@@ -400,11 +397,11 @@ def temperature_calibration(triad, state, settings=TemperatureSettings()):
     """
     Run :func:`temperature_schedule`, with the I_ref steps at every plateau (generator).
 
-    Same protocol as :func:`qfa_ros.calibration.estimation.run_schedule`. With
+    Same protocol as :func:`qfa_ros.calibration.schedule.run_schedule`. With
     ``settings.reference_steps`` the hook is
-    :func:`qfa_ros.calibration.estimation.plateau_step` (it sees the sensor through a
+    :func:`qfa_ros.calibration.reference_tc.plateau_step` (it sees the sensor through a
     :class:`~qfa_ros.calibration.schedule.SensorPort` only) and, after the chamber
-    program, :func:`~qfa_ros.calibration.estimation.fit_plateau_steps` fits the
+    program, :func:`~qfa_ros.calibration.reference_tc.fit_plateau_steps` fits the
     coefficient and, with ``settings.apply``, stores it in ``state.reference_tc_ppm``.
     Returns ``(TemperatureResult,)`` or ``(TemperatureResult, EstimationResult)`` (kind
     ``reference_tc``).

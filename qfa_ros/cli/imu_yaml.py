@@ -60,9 +60,6 @@ def config_figures(path):
         source = f'noise.imu_yaml {values["noise.imu_yaml"]}'
         for key in KEYS:
             comments[key] = f'emulated: {source}'
-        if gyro is None:
-            comments['gyroscope_noise_density'] = comments['gyroscope_random_walk'] = \
-                'no gyros (gyro.enabled false)'
     else:
         white = 'white noise of the published stream (sigma(tau) sqrt(tau) of its Allan ' \
             'deviation at short tau)'
@@ -72,14 +69,14 @@ def config_figures(path):
                else '') if figures['accelerometer_noise_density'] else 'no white noise')
         comments['accelerometer_random_walk'] = _walk_comment(
             noise.random_walk, noise.bias_instability, noise.correlation_times, 'bias')
-        if gyro is None:
-            comments['gyroscope_noise_density'] = comments['gyroscope_random_walk'] = \
-                'no gyros (gyro.enabled false)'
-        else:
+        if gyro is not None:
             comments['gyroscope_noise_density'] = 'angle random walk (white rate noise)' \
                 if gyro.arw else 'no white noise'
             comments['gyroscope_random_walk'] = _walk_comment(
                 gyro.rate_random_walk, gyro.bias_instability, gyro.correlation_times, 'rate')
+    if gyro is None:
+        comments['gyroscope_noise_density'] = comments['gyroscope_random_walk'] = \
+            'no gyros (gyro.enabled false)'
     figures['update_rate'] = float(config.sample_rate_hz)
     figures['rostopic'] = TOPIC
     header = [f'from the noise model of {path} (sensor.error_profile '

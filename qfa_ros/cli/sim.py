@@ -25,7 +25,7 @@ from tqdm import tqdm
 
 from qfa_ros.calibration.schedule import sensor_time_ns
 from qfa_ros.cli.interrupt import stops_quietly
-from qfa_ros.model import trajectory as trajectories
+from qfa_ros.model import trajectories
 from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.error_truth import error_truth
@@ -33,7 +33,8 @@ from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom, sensor_config
 from qfa_ros.model.imu_noise import emulated_config
 from qfa_ros.model.parallel import run_chains
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.model.triad import AXES, QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_unit
 from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G
 

@@ -95,6 +95,12 @@ def _number(where, value, low, high, integer=False, allow_low=True):
     return int(value) if integer else float(value)
 
 
+def _choice(where, value, allowed):
+    if value not in allowed:
+        raise StudyError(f'{where} must be one of {", ".join(allowed)}, got {value!r}')
+    return value
+
+
 def _mapping(where, value, known):
     if value is None:
         return {}
@@ -225,27 +231,18 @@ class Study:
                 overrides[key] = dict(_mapping(f'schedule.{key}', schedule.get(key),
                                                {f.name for f in fields(settings)}))
             schedule = schedule.get('name', 'improved')
-        if schedule not in SCHEDULES:
-            raise StudyError(f'schedule.name must be one of {", ".join(SCHEDULES)}, '
-                             f'got {schedule!r}')
+        _choice('schedule.name', schedule, SCHEDULES)
         aging = _mapping('aging', data.get('aging'), {f.name for f in fields(Aging)})
         environment = _mapping('environment', data.get('environment'),
                                {f.name for f in fields(Environment)})
         name = data.get('name', 'study')
         if not isinstance(name, str) or not name:
             raise StudyError(f'name must be a non-empty string, got {name!r}')
-        distribution = aging.get('distribution', 'normal')
-        if distribution not in AGING_DISTRIBUTIONS:
-            raise StudyError(f'aging.distribution must be one of '
-                             f'{", ".join(AGING_DISTRIBUTIONS)}, got {distribution!r}')
-        component_tcs = environment.get('component_tcs', 'type')
-        if component_tcs not in COMPONENT_TCS:
-            raise StudyError(f'environment.component_tcs must be one of '
-                             f'{", ".join(COMPONENT_TCS)}, got {component_tcs!r}')
-        profile = environment.get('error_profile', 'paper')
-        if profile not in ERROR_PROFILES:
-            raise StudyError(f'environment.error_profile must be one of '
-                             f'{", ".join(ERROR_PROFILES)}, got {profile!r}')
+        _choice('aging.distribution', aging.get('distribution', 'normal'), AGING_DISTRIBUTIONS)
+        _choice('environment.component_tcs', environment.get('component_tcs', 'type'),
+                COMPONENT_TCS)
+        _choice('environment.error_profile', environment.get('error_profile', 'paper'),
+                ERROR_PROFILES)
         study = cls(
             units=_number('units', data['units'], 1, MAX_UNITS, integer=True),
             name=name,
@@ -268,9 +265,7 @@ class Study:
                     else _number(f'environment.{k}', v,
                                  -1e3 if k in ('room_c', 'magnet_tc_ppm') else 0.0, 1e3))
                 for k, v in environment.items()}))
-        kind = data.get('kind', 'self_calibration')
-        if kind not in KINDS:
-            raise StudyError(f'kind must be one of {", ".join(KINDS)}, got {kind!r}')
+        kind = _choice('kind', data.get('kind', 'self_calibration'), KINDS)
         temperature = dict(_mapping('temperature', data.get('temperature'),
                                     {f.name for f in fields(TemperatureSettings)}))
         sensor = {k: _number(f'sensor.{k}', v, *SENSOR_KEYS[k], allow_low=True)

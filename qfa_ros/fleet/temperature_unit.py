@@ -24,7 +24,8 @@ from qfa_ros.calibration.verification import ATTITUDES, verify_attitudes
 from qfa_ros.model import streams
 from qfa_ros.model.errors import error_profile
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import AXES, TriadConfig
+from qfa_ros.model.triad import AXES
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_unit
 from qfa_ros.model.units import MICRO_G, PPM
 

@@ -25,20 +25,22 @@ import math
 import numpy as np
 
 from qfa_ros.calibration.chamber import ChamberBench, idle
-from qfa_ros.calibration.estimation import capture_reference, reference_tc_schedule, self_calibrate
+from qfa_ros.calibration.estimation import capture_reference, self_calibrate
 from qfa_ros.calibration.experiments import (
     measure_scale,
     OBSERVABLE_FEEDBACK,
     OBSERVABLE_FORWARD,
     split_drift,
 )
+from qfa_ros.calibration.reference_tc import reference_tc_schedule
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.fleet.temperature_unit import simulate_temperature_unit
 from qfa_ros.model import streams
 from qfa_ros.model.errors import error_profile, PaperRoom
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import AXES, QfaTriad, TriadConfig
+from qfa_ros.model.triad import AXES, QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_component_tcs, install_component_tcs
 from qfa_ros.model.units import MICRO_G, PPM
 

@@ -269,7 +269,7 @@ def published_acceleration_variance(config):
 
     Parameters
     ----------
-    config : qfa_ros.model.triad.TriadConfig
+    config : qfa_ros.model.triad_config.TriadConfig
         Hardware, loop and sample rate, controller targets and noise.
     """
     white_share, adc_gain = designed_loop(config).noise_shares(config.decimation)

@@ -3,14 +3,33 @@ Place a position in the ENU tangent plane of an origin on the WGS-84 Earth.
 
 The truth odometry of the bags and of the node (``truth/odometry``) is in the ENU tangent
 plane at the trajectory's first point, the origin ``truth/origin`` gives: ``p = C_e^n0
-(r_e(p) - r_e(origin))``. :func:`enu_to_geodetic` inverts it: ``r_e = r_e(origin) +
-C_e^n0^T p``, then ECEF to geodetic (:func:`ecef_to_geodetic`).
+(r_e(p) - r_e(origin))`` (:func:`ecef_to_enu_matrix`, :func:`geodetic_to_ecef`).
+:func:`enu_to_geodetic` inverts it: ``r_e = r_e(origin) + C_e^n0^T p``, then ECEF to
+geodetic (:func:`ecef_to_geodetic`).
 """
 
 import numpy as np
 
 from qfa_ros.model import earth
-from qfa_ros.model.trajectory import ecef_to_enu_matrix, geodetic_to_ecef
+
+
+def ecef_to_enu_matrix(latitude, longitude):
+    """Return C_e^n, the rotation from ECEF to the local ENU frame, shape (..., 3, 3)."""
+    sl, cl = np.sin(latitude), np.cos(latitude)
+    so, co = np.sin(longitude), np.cos(longitude)
+    zero = np.zeros_like(sl)
+    return np.stack([np.stack([-so, co, zero], -1),
+                     np.stack([-sl * co, -sl * so, cl], -1),
+                     np.stack([cl * co, cl * so, sl], -1)], -2)
+
+
+def geodetic_to_ecef(latitude, longitude, height):
+    """Return ECEF positions [m], shape (..., 3)."""
+    _, r_e = earth.radii_of_curvature(latitude)
+    e2 = earth.ECCENTRICITY_SQUARED
+    return np.stack([(r_e + height) * np.cos(latitude) * np.cos(longitude),
+                     (r_e + height) * np.cos(latitude) * np.sin(longitude),
+                     (r_e * (1 - e2) + height) * np.sin(latitude)], axis=-1)
 
 
 def ecef_to_geodetic(position):

@@ -234,7 +234,7 @@ def measure_loop(config, rng=0, controller=None, amplitude=0.2 * STANDARD_GRAVIT
 
     Parameters
     ----------
-    config : qfa_ros.model.triad.TriadConfig
+    config : qfa_ros.model.triad_config.TriadConfig
         Loop rate, hardware, controller targets and noise (noise on: it averages out).
     rng : int or numpy.random.Generator
         Seed of the loop's noise.

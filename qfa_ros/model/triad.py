@@ -1,119 +1,32 @@
 """Digital closed-loop QFA triad: three simulated loops, decimated output (pure model).
 
 With the gyro triad and the motion input beside the loops it is the whole sensor
-assembly: one cohesive thing, because every run advances all of it together (hence its
-length).
+assembly: one cohesive thing, because every run advances all of it together. Its
+configuration is :class:`~qfa_ros.model.triad_config.TriadConfig`, its output
+:class:`~qfa_ros.model.triad_output.TriadOutput`.
 """
 
-from dataclasses import dataclass, field
 from fractions import Fraction
 import math
-import numbers
 
 import numpy as np
 
 from qfa_ros.model import kernel, streams
 from qfa_ros.model.axis import AxisLoop, start_axes
 from qfa_ros.model.drift import DriftModel
-from qfa_ros.model.gyro import GyroConfig, GyroTriad
-from qfa_ros.model.hardware import AxisHardware, counts_to_accel
-from qfa_ros.model.noise import NoiseConfig, NoiseSource
+from qfa_ros.model.gyro import GyroTriad
+from qfa_ros.model.hardware import counts_to_accel
+from qfa_ros.model.noise import NoiseSource
 from qfa_ros.model.parallel import available_cores
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalModel
-from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
+from qfa_ros.model.triad_config import TriadConfig
+from qfa_ros.model.triad_output import concatenate, TriadOutput
 
 AXES = ('x', 'y', 'z')
 NS_PER_S = 1_000_000_000
 FLAG_DA2_CLIPPED, FLAG_ADC_CLIPPED, FLAG_OVER_RANGE = 1, 2, 4
 MAX_CONTROLLER_GAIN = 4.0
-
-
-@dataclass(frozen=True)
-class TriadConfig:
-    """
-    Configuration of the triad (SI units unless named otherwise).
-
-    Attributes
-    ----------
-    hardware : AxisHardware
-        Nominal hardware, the same design for the three axes.
-    loop_rate_hz : float
-        Digital loop rate (ADC, controller, DAC) [Hz].
-    sample_rate_hz : float
-        Published sample rate [Hz]; ``loop_rate_hz`` must be an integer multiple.
-    noise : NoiseConfig
-        Noise of each axis.
-    misalignment : tuple
-        3x3 small-angle misalignment / cross-coupling matrix ``M``: each loop senses
-        ``((I + M) f)_i``.
-    bias : tuple
-        IEEE 1293 bias term per axis [m/s^2].
-    k2 : tuple
-        IEEE 1293 second-order coefficient per axis [1/(m/s^2)]: the loop senses
-        ``bias + a + k2 a^2``.
-    crossover_hz, integrator_ratio, lead_pole_ratio : float
-        Controller design targets (see :func:`qfa_ros.model.design.design_controller`).
-    open_loop_cref_sensitivity : float
-        Share of the reference-capacitor drift seen by the open-loop bridge.
-    settle_time : float
-        Time after re-closing a loop during which its output is flagged invalid [s].
-    thermal : ThermalConfig or None
-        Thermal model (ambient, body lag, temperature sensor, zero bias and
-        scale-factor error versus temperature, seed 2); None keeps the sensor at the
-        drift model's reference temperature with no thermal errors.
-    gyro : GyroConfig or None
-        Error model of the gyro triad beside the accelerometers
-        (:mod:`qfa_ros.model.gyro`); None: no gyros (``TriadOutput.gyro`` is NaN).
-    """
-
-    hardware: AxisHardware = field(default_factory=AxisHardware)
-    loop_rate_hz: float = 10000.0
-    sample_rate_hz: float = 1000.0
-    noise: NoiseConfig = field(default_factory=NoiseConfig)
-    misalignment: tuple = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    bias: tuple = (0.0, 0.0, 0.0)
-    k2: tuple = (0.0, 0.0, 0.0)
-    crossover_hz: float = 300.0
-    integrator_ratio: float = 0.1
-    lead_pole_ratio: float = 6.0
-    open_loop_cref_sensitivity: float = 1.0
-    settle_time: float = 0.05
-    thermal: object = None
-    gyro: object = field(default_factory=GyroConfig)
-
-    def __post_init__(self):
-        for name in ('loop_rate_hz', 'sample_rate_hz', 'settle_time', 'crossover_hz'):
-            value = getattr(self, name)
-            if not _is_real(value) or not math.isfinite(value) or value <= 0:
-                if name == 'settle_time' and value == 0:
-                    continue
-                raise ValueError(f'{name} must be a positive finite number, got {value!r}')
-        ratio = self.loop_rate_hz / self.sample_rate_hz
-        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ValueError('loop_rate_hz must be an integer multiple of sample_rate_hz, got '
-                             f'{self.loop_rate_hz!r} / {self.sample_rate_hz!r}')
-        if not math.isfinite(self.open_loop_cref_sensitivity):
-            raise ValueError('open_loop_cref_sensitivity must be finite')
-        matrix = np.asarray(self.misalignment, dtype=float)
-        if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
-            raise ValueError('misalignment must be a finite 3x3 matrix')
-        for name in ('bias', 'k2'):
-            vector = np.asarray(getattr(self, name), dtype=float)
-            if vector.shape != (3,) or not np.all(np.isfinite(vector)):
-                raise ValueError(f'{name} must be 3 finite numbers')
-
-    @property
-    def decimation(self):
-        """Loop steps per published sample."""
-        return int(round(self.loop_rate_hz / self.sample_rate_hz))
-
-    @classmethod
-    def from_datasheet(cls, bias_ug=(0.0, 0.0, 0.0), k2_ug_per_g2=(0.0, 0.0, 0.0), **kwargs):
-        """Build a config with bias in micro-g and K2 in micro-g/g^2 (datasheet units)."""
-        bias = tuple(b * MICRO_G for b in bias_ug)
-        k2 = tuple(k * MICRO_G / STANDARD_GRAVITY ** 2 for k in k2_ug_per_g2)
-        return cls(bias=bias, k2=k2, **kwargs)
 
 
 class SampleGrid:
@@ -150,56 +63,6 @@ class SampleGrid:
     def due(self, now_ns):
         """Return how many samples have their instant at or before ``now_ns``."""
         return max(0, (int(now_ns) - self.start_ns) * self._numerator // self._scale)
-
-
-@dataclass
-class TriadOutput:
-    """
-    Decimated output of a run.
-
-    Attributes
-    ----------
-    stamps_ns : int64[n]
-        Sample instants, sensor time [ns] (end of each averaging block).
-    accel : float64[n, 3]
-        Specific force through the nominal scale factor [m/s^2].
-    counts : float64[n, 3]
-        Mean raw output word per sample [count].
-    flags : int8[n, 3]
-        Saturation bits (``FLAG_*``).
-    valid : bool[n, 3]
-        False while the axis is open loop or settling after re-closing.
-    truth : float64[n, 3]
-        True specific force averaged over each sample [m/s^2].
-    temperature : float64[n]
-        Sensor body temperature [degC].
-    v_temp : float64[n]
-        On-board temperature-sensor reading [V] (NaN without a thermal model).
-    gyro : float64[n, 3]
-        Gyro triad output [rad/s] (NaN without gyros).
-    rate_truth : float64[n, 3]
-        True angular rate w.r.t. inertial space, body axes, averaged over each
-        sample [rad/s].
-    """
-
-    stamps_ns: np.ndarray
-    accel: np.ndarray
-    counts: np.ndarray
-    flags: np.ndarray
-    valid: np.ndarray
-    truth: np.ndarray
-    temperature: np.ndarray
-    v_temp: np.ndarray
-    gyro: np.ndarray
-    rate_truth: np.ndarray
-
-    FIELDS = ('stamps_ns', 'accel', 'counts', 'flags', 'valid', 'truth', 'temperature',
-              'v_temp', 'gyro', 'rate_truth')
-
-    @property
-    def saturated(self):
-        """Return bool[n, 3]: any saturation bit set."""
-        return self.flags != 0
 
 
 class QfaTriad:
@@ -271,7 +134,7 @@ class QfaTriad:
         # Gyro bias correction [rad/s] the firmware subtracts from the published rate
         # (a gyro bias schedule estimates it); zero until one ran.
         self.gyro_bias_correction = np.zeros(3)
-        # Temperature compensation: an object with apply(accel, v_temp) -> accel (tempfit).
+        # Temperature compensation: apply(accel, v_temp) -> accel (a ThermalCompensation).
         self.temperature_compensator = None
         self.temperature_compensation = False
         # Calibration fixture (dividing head): a profile replacing every input while set.
@@ -630,19 +493,3 @@ def _sample_count(name, value):
     if isinstance(value, bool) or int(value) != value or value < 0:
         raise ValueError(f'{name} must be a non-negative integer, got {value!r}')
     return int(value)
-
-
-def _is_real(value):
-    """Return True for a real number (Python or numpy), not a bool."""
-    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
-
-
-def concatenate(outputs):
-    """Concatenate :class:`TriadOutput` chunks in time order."""
-    if not outputs:
-        empty = np.empty((0, 3))
-        return TriadOutput(np.empty(0, np.int64), empty, empty.copy(),
-                           np.empty((0, 3), np.int8), np.empty((0, 3), bool), empty.copy(),
-                           np.empty(0), np.empty(0), empty.copy(), empty.copy())
-    return TriadOutput(*(np.concatenate([getattr(o, f) for o in outputs])
-                         for f in TriadOutput.FIELDS))

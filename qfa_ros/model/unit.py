@@ -5,7 +5,7 @@ Real triads of one type differ: turn-on bias, the shape of the thermal bias and
 scale-factor curves, aging, misalignment, K2. :func:`draw_unit` draws them from a seed
 (``numpy.random.default_rng([UNIT_STREAM, seed])``: independent of the noise streams
 that the same seed drives) within :class:`UnitSpread`; :meth:`Unit.configure` writes
-them into a :class:`~qfa_ros.model.triad.TriadConfig`. The same seed gives the same
+them into a :class:`~qfa_ros.model.triad_config.TriadConfig`. The same seed gives the same
 unit; two seeds, two units.
 
 Spreads (``DESIGN.md`` table, QA-2000-class datasheets, seed 1) and, where no public

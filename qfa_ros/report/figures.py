@@ -277,6 +277,23 @@ def _run_color(index, is_reference, reference):
     return RUN_COLORS[(index - (reference is not None)) % len(RUN_COLORS)]
 
 
+def _label(plot, title=None, xlabel=None, ylabel=None, **legend):
+    """Title, label, legend (``legend`` its keywords) and grid one panel."""
+    for setter, text in ((plot.set_title, title), (plot.set_xlabel, xlabel),
+                         (plot.set_ylabel, ylabel)):
+        if text is not None:
+            setter(text)
+    plot.legend(**{'fontsize': 8, **legend})
+    plot.grid(alpha=0.3)
+
+
+def _finish(name, figure, data, title):
+    """Title and lay out ``figure``; return it as the :class:`ReportFigure` ``name``."""
+    figure.suptitle(title)
+    figure.tight_layout()
+    return ReportFigure(name, figure, data)
+
+
 def forward_figure(runs):
     """Plot the forward sweeps (seed 1 Fig. 11); return a ReportFigure or None."""
     reference, estimates = _pick_runs(runs, ('delta_n', 'mean_x'))
@@ -318,20 +335,12 @@ def forward_figure(runs):
                             label=f'{label}: slope {entry["slope_change_ppm"]:+.1f} ppm '
                                   'vs reference')
             data.setdefault(label, {})[axis] = entry
-        top.set_title(f'{axis} axis')
-        top.set_ylabel('N_out [count]')
-        top.legend(fontsize=8, loc='upper left')
-        top.grid(alpha=0.3)
-        bottom.set_xlabel('dN_FPGA [count]')
-        bottom.set_ylabel('N_out - reference line [count]')
-        bottom.legend(fontsize=8)
-        bottom.grid(alpha=0.3)
+        _label(top, f'{axis} axis', None, 'N_out [count]', loc='upper left')
+        _label(bottom, None, 'dN_FPGA [count]', 'N_out - reference line [count]')
         if reference_fit is None:
             bottom.set_visible(False)
-    figure.suptitle('Forward gain: open-loop sweep N_out vs dN_FPGA, reference vs drifted '
-                    '(seed 1 Fig. 11)')
-    figure.tight_layout()
-    return ReportFigure('forward_gain', figure, data)
+    return _finish('forward_gain', figure, data, 'Forward gain: open-loop sweep N_out vs '
+                   'dN_FPGA, reference vs drifted (seed 1 Fig. 11)')
 
 
 def feedback_figure(runs):
@@ -386,18 +395,13 @@ def feedback_figure(runs):
             bottom.margins(y=0.35)
         else:
             bottom.set_visible(False)
-        top.set_title(f'{axis} axis')
-        top.set_xlabel('segment')
-        top.set_ylabel('segment mean N_out - I_ref-off mean [count]')
         top.xaxis.get_major_locator().set_params(integer=True)
-        top.legend(fontsize=7, loc='center left')
-        top.grid(alpha=0.3)
+        _label(top, f'{axis} axis', 'segment', 'segment mean N_out - I_ref-off mean [count]',
+               fontsize=7, loc='center left')
         bottom.set_ylabel('step N_on - N_off vs reference [ppm]')
         bottom.grid(alpha=0.3, axis='y')
-    figure.suptitle('Feedback gain: output with the reference current I_ref off/on, '
-                    'reference vs drifted (seed 1 Fig. 12)')
-    figure.tight_layout()
-    return ReportFigure('feedback_gain', figure, data)
+    return _finish('feedback_gain', figure, data, 'Feedback gain: output with the reference '
+                   'current I_ref off/on, reference vs drifted (seed 1 Fig. 12)')
 
 
 def static_output_figure(contents, axis='z'):
@@ -436,12 +440,9 @@ def static_output_figure(contents, axis='z'):
                           f'({values[inside].mean():.7f} m/s²)')
         data['phases'][name] = {'mean_m_s2': float(values[inside].mean()),
                                 'error_ug': mean_ug, 'samples': int(inside.sum())}
-    plot.set_xlabel('time [s]')
-    plot.set_ylabel(f'{axis} output - {baseline_name or "first phase"} mean [µg]')
-    plot.set_title(f'Static output, {axis} axis: '
-                   f'{" / ".join(name for name, *_ in segments)} (seed 1 Fig. 13)')
-    plot.legend(fontsize=8, loc='best')
-    plot.grid(alpha=0.3)
+    _label(plot, f'Static output, {axis} axis: '
+           f'{" / ".join(name for name, *_ in segments)} (seed 1 Fig. 13)', 'time [s]',
+           f'{axis} output - {baseline_name or "first phase"} mean [µg]', loc='best')
     figure.tight_layout()
     return ReportFigure('static_output', figure, data)
 
@@ -458,27 +459,36 @@ def _double_exponential(run, axis):
     return None
 
 
-def _temperature_runs(runs):
-    # The binned curve, not the raw 1 s blocks of the cycle (no bias_ columns).
+def _temperature_panels(runs, *stems):
+    """
+    Return the last temperature calibration's panels: ``(run, table, order, figure, panels)``.
+
+    ``table`` is the binned curve (not the raw 1 s blocks of the cycle: no ``bias_``
+    columns), ``order`` sorts it by V_temp, ``panels`` pairs a plot with each axis that
+    has every ``STEM_axis`` column; None without such a run or axis.
+    """
     found = [(run, run.table_with('v_temp', 'bias_x')) for run in runs]
-    return [(run, table) for run, table in found if table is not None]
-
-
-def temperature_fit_figure(runs):
-    """Plot zero bias vs V_temp with the double-exponential fit (seed 2 Fig. 3)."""
-    found = _temperature_runs(runs)
+    found = [(run, table) for run, table in found if table is not None]
     if not found:
         return None
     run, table = found[-1]
-    order = np.argsort(table['v_temp'])
-    v_temp = table['v_temp'][order]
-    present = [axis for axis in AXES if f'bias_{axis}' in table]
+    present = [axis for axis in AXES if all(f'{stem}_{axis}' in table for stem in stems)]
     if not present:
         return None
     figure, axes = plt.subplots(1, len(present), figsize=(5 * len(present), 4.5),
                                 squeeze=False)
+    return run, table, np.argsort(table['v_temp']), figure, zip(axes[0], present)
+
+
+def temperature_fit_figure(runs):
+    """Plot zero bias vs V_temp with the double-exponential fit (seed 2 Fig. 3)."""
+    panels = _temperature_panels(runs, 'bias')
+    if panels is None:
+        return None
+    run, table, order, figure, panels = panels
+    v_temp = table['v_temp'][order]
     data = {}
-    for plot, axis in zip(axes[0], present):
+    for plot, axis in panels:
         bias_ug = table[f'bias_{axis}'][order] / MICRO_G
         plot.plot(v_temp, bias_ug, '.', color='tab:blue', label='binned zero bias')
         entry = {'v_temp': v_temp, 'bias_ug': bias_ug}
@@ -495,34 +505,21 @@ def temperature_fit_figure(runs):
             plot.plot(grid, model / MICRO_G, '-', color='tab:red',
                       label='α1·exp(β1·V) + α2·exp(β2·V)' + detail)
             entry.update(fit=fit, fit_v=grid, fit_ug=model / MICRO_G)
-        plot.set_title(f'{axis} axis')
-        plot.set_xlabel('V_temp [V]')
-        plot.set_ylabel('zero bias [µg]')
-        plot.legend(fontsize=8)
-        plot.grid(alpha=0.3)
+        _label(plot, f'{axis} axis', 'V_temp [V]', 'zero bias [µg]')
         data[axis] = entry
-    figure.suptitle(f'Zero bias vs temperature-sensor voltage and double-exponential fit '
-                    f'({run.name}, seed 2 Fig. 3)')
-    figure.tight_layout()
-    return ReportFigure('temperature_fit', figure, data)
+    return _finish('temperature_fit', figure, data, 'Zero bias vs temperature-sensor voltage '
+                   f'and double-exponential fit ({run.name}, seed 2 Fig. 3)')
 
 
 def temperature_compensation_figure(runs):
     """Plot the zero bias before and after compensation (seed 2 Fig. 4)."""
-    found = _temperature_runs(runs)
-    if not found:
+    panels = _temperature_panels(runs, 'bias', 'compensated')
+    if panels is None:
         return None
-    run, table = found[-1]
-    order = np.argsort(table['v_temp'])
+    run, table, order, figure, panels = panels
     v_temp = table['v_temp'][order]
-    present = [axis for axis in AXES if f'bias_{axis}' in table
-               and f'compensated_{axis}' in table]
-    if not present:
-        return None
-    figure, axes = plt.subplots(1, len(present), figsize=(5 * len(present), 4.5),
-                                squeeze=False)
     data = {}
-    for plot, axis in zip(axes[0], present):
+    for plot, axis in panels:
         before = table[f'bias_{axis}'][order] / MICRO_G
         after = table[f'compensated_{axis}'][order] / MICRO_G
         p2p_before = run.value(f'p2p_before_ug.{axis}', float(np.ptp(before)))
@@ -531,17 +528,12 @@ def temperature_compensation_figure(runs):
                   label=f'before (p2p {p2p_before:.1f} µg)')
         plot.plot(v_temp, after - after.mean(), '.-', color='tab:green', markersize=3,
                   label=f'after (p2p {p2p_after:.1f} µg)')
-        plot.set_title(f'{axis} axis')
-        plot.set_xlabel('V_temp [V]')
-        plot.set_ylabel('zero output - its mean [µg]')
-        plot.legend(fontsize=8)
-        plot.grid(alpha=0.3)
+        _label(plot, f'{axis} axis', 'V_temp [V]', 'zero output - its mean [µg]')
         data[axis] = {'v_temp': v_temp, 'before_ug': before, 'after_ug': after,
                       'p2p_before_ug': p2p_before, 'p2p_after_ug': p2p_after}
-    figure.suptitle('Zero drift over the temperature cycle before and after the fixed-point '
-                    f'double-exponential compensation ({run.name}, seed 2 Fig. 4)')
-    figure.tight_layout()
-    return ReportFigure('temperature_compensation', figure, data)
+    return _finish('temperature_compensation', figure, data, 'Zero drift over the temperature '
+                   'cycle before and after the fixed-point double-exponential compensation '
+                   f'({run.name}, seed 2 Fig. 4)')
 
 
 def build_figures(paths):

@@ -27,14 +27,15 @@ from qfa_ros.calibration.estimation import (
 )
 from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
-from qfa_ros.model import trajectory as trajectories
+from qfa_ros.model import trajectories
 from qfa_ros.model.errors import error_profile, ERROR_PROFILES, PaperRoom, sensor_config
 from qfa_ros.model.gyro import GyroConfig
 from qfa_ros.model.imu_noise import emulated_config
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.profiles import SineProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.triad import QfaTriad, TriadConfig
+from qfa_ros.model.triad import QfaTriad
+from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_unit
 from qfa_ros.model.units import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G, STANDARD_GRAVITY
 from qfa_ros.ros.bounds import (
@@ -770,7 +771,7 @@ def load_trajectory_file(values):
     Return the :class:`~qfa_ros.model.trajectory.Trajectory` of ``input.trajectory_file``.
 
     None when the parameter is empty. Read once, at start, with the bounds of
-    :func:`~qfa_ros.model.trajectory.load_csv`.
+    :func:`~qfa_ros.model.trajectories.load_csv`.
 
     :raises ValueError: The file cannot be used; the message names the parameter and
         never quotes the file.

@@ -18,7 +18,8 @@ from rclpy.task import Future
 
 from qfa_ros.calibration.schedule import EstimationError
 from qfa_ros.model.files import system_reason
-from qfa_ros.model.triad import AXES, concatenate
+from qfa_ros.model.triad import AXES
+from qfa_ros.model.triad_output import concatenate
 from qfa_ros.model.units import DEG_PER_HOUR
 from qfa_ros.ros.bounds import confined_directory
 from qfa_ros.ros.params import feedback_settings, forward_settings
