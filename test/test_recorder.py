@@ -25,7 +25,7 @@ import yaml
 
 from qfa_ros.bag.files import iter_part_messages, RecorderError
 from qfa_ros.bag.flight_recorder import FlightRecorder
-from qfa_ros.bag.msgdefs import MESSAGE_DEFINITIONS, TYPE_HASHES
+from qfa_ros.bag.msgdefs import definition, RECORDED_TYPES, type_hash
 from qfa_ros.bag.qos import offered_qos_yaml, QOS_LATCHED, QOS_SENSOR_DATA, QosProfile
 from qfa_ros.bag.trace import key_values_to_dict, TraceWriter
 from qfa_ros.bag.traces import trace_path, write_estimation_trace
@@ -187,7 +187,7 @@ def test_round_trip_every_type_through_rosbags(tmp_path, compression, seed):
     assert {s.name for s in summary.schemas.values()} == set(REQUIRED_TYPES)
     assert {s.encoding for s in summary.schemas.values()} == {'ros2msg'}
     for schema in summary.schemas.values():
-        assert schema.data.decode() == MESSAGE_DEFINITIONS[schema.name]
+        assert schema.data.decode() == definition(schema.name)
     assert {c.message_encoding for c in summary.channels.values()} == {'cdr'}
     assert summary.statistics.message_count == len(written)
     assert len(summary.chunk_indexes) > 1
@@ -195,7 +195,7 @@ def test_round_trip_every_type_through_rosbags(tmp_path, compression, seed):
     assert {index.compression for index in summary.chunk_indexes} == {compression or ''}
     for channel in summary.channels.values():
         schema_name = summary.schemas[channel.schema_id].name
-        assert channel.metadata['topic_type_hash'] == TYPE_HASHES[schema_name]
+        assert channel.metadata['topic_type_hash'] == type_hash(schema_name)
         qos_list = yaml.safe_load(channel.metadata['offered_qos_profiles'])
         assert set(qos_list[0]) == {
             'history', 'depth', 'reliability', 'durability', 'deadline', 'lifespan',
@@ -303,29 +303,30 @@ def test_embedded_definitions_are_the_installed_distributions_fields():
             return text
         return expand(root)
 
-    assert set(REQUIRED_TYPES) <= set(MESSAGE_DEFINITIONS)
+    assert set(REQUIRED_TYPES) <= set(RECORDED_TYPES)
     exact = ros_distribution() == 'kilted'
-    for msgtype, definition in MESSAGE_DEFINITIONS.items():
+    for msgtype in RECORDED_TYPES:
         installed = full_text(msgtype)
-        assert without_comments(definition) == without_comments(installed), msgtype
-        assert definition == installed or not exact, msgtype
+        embedded = definition(msgtype)
+        assert without_comments(embedded) == without_comments(installed), msgtype
+        assert embedded == installed or not exact, msgtype
         package, _, type_name = msgtype.split('/')
         hashes = json.loads((share / package / 'msg' / f'{type_name}.json').read_text())
         assert {h['type_name']: h['hash_string'] for h in hashes['type_hashes']}[msgtype] \
-            == TYPE_HASHES[msgtype]
+            == type_hash(msgtype)
 
 
 @pytest.mark.parametrize('store', [Stores.ROS2_JAZZY, Stores.ROS2_KILTED])
 def test_readers_of_either_distribution_take_the_embedded_definitions(store):
     """The rosbags type stores of Jazzy and Kilted: same fields, same RIHS01 hash as embedded."""
     distribution = get_typestore(store)
-    for msgtype, definition in MESSAGE_DEFINITIONS.items():
+    for msgtype in RECORDED_TYPES:
         embedded = get_typestore(Stores.EMPTY)
-        embedded.register(get_types_from_msg(definition, msgtype))
+        embedded.register(get_types_from_msg(definition(msgtype), msgtype))
         for name in embedded.fielddefs:
             assert embedded.fielddefs[name] == distribution.fielddefs[name], (store, name)
         assert embedded.hash_rihs01(msgtype) == distribution.hash_rihs01(msgtype) \
-            == TYPE_HASHES[msgtype], (store, msgtype)
+            == type_hash(msgtype), (store, msgtype)
 
 
 # --- durability ----------------------------------------------------------------------------
