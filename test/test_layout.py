@@ -189,8 +189,6 @@ def test_no_private_attribute_of_a_dependency_is_used():
 
 LONG_MODULES = {
     'bag/writer.py': (650, 'one writer class: its records, durability and size accounting'),
-    'bag/part_repair.py': (650, 'one cut MCAP file read and completed: the scan finds what '
-                           'the summary it writes lists'),
     'calibration/estimation.py': (850, 'the three schedules share the sensor port and checks'),
     'calibration/temperature.py': (600, 'the chamber program, its tumble records and their '
                                    'fit (with the lag estimate) share one block format'),
