@@ -667,22 +667,22 @@ def test_bad_input_is_refused(tmp_path, call, error, match):
 
 # --- flight recorder -----------------------------------------------------------------------
 
-@pytest.mark.parametrize('seed, limits', [
-    # 6000 bytes: ~90 files, some split where a topic's registration fills the file.
-    (3, {'max_bytes': 6000}),
-    (3, {'max_duration_ns': 250_000_000}),
-    (4, {'max_duration_ns': 250_000_000}),
-    (3, {'max_bytes': 20000, 'max_duration_ns': 400_000_000}),
-    (4, {'max_bytes': 20000, 'max_duration_ns': 400_000_000}),
+@pytest.mark.parametrize('seed, limits, count', [
+    # 6000 bytes: 46 files, two split where a topic's registration fills the file.
+    (4, {'max_bytes': 6000}, 200),
+    (3, {'max_duration_ns': 250_000_000}, 400),
+    (4, {'max_duration_ns': 250_000_000}, 400),
+    (3, {'max_bytes': 20000, 'max_duration_ns': 400_000_000}, 400),
+    (4, {'max_bytes': 20000, 'max_duration_ns': 400_000_000}, 400),
 ])
-def test_flight_recorder_splits_without_losing_messages(tmp_path, limits, seed):
+def test_flight_recorder_splits_without_losing_messages(tmp_path, limits, seed, count):
     rng = np.random.default_rng(seed)
     written = []
     session = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z
     with FlightRecorder(tmp_path, 'flight', compression='lz4', session_time_ns=session,
                         qos={'/a': QOS_SENSOR_DATA}, **limits) as flight:
         time_ns = T0
-        for _ in range(400):
+        for _ in range(count):
             time_ns += int(rng.integers(1, 6_000_000))
             topic = '/a' if rng.random() < 0.7 else '/b'
             data = _string_cdr('z' * int(rng.integers(0, 120)))
@@ -919,7 +919,7 @@ def schedule_runs():
     hot = QfaTriad(TriadConfig(thermal=ThermalConfig(ambient_profile='constant',
                                                      sensor_tau_s=30.0)), rng=3)
     runs['temperature'] = [run_schedule(hot, temperature_schedule(
-        hot, CalibrationState(), TemperatureSettings(period_s=240.0, bins=40)))]
+        hot, CalibrationState(), TemperatureSettings(period_s=120.0, bins=20)))]
     return runs
 
 

@@ -98,7 +98,7 @@ def temperature(tmp_path_factory):
     # a 30 s body time constant keeps the chamber program's soaks short
     config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant', sensor_tau_s=30.0))
     triad = QfaTriad(config, rng=3)
-    settings = TemperatureSettings(period_s=240.0, bins=40)
+    settings = TemperatureSettings(period_s=120.0, bins=20)
     with ScenarioBag(path, config) as bag:
         result = run_schedule(triad, temperature_schedule(triad, CalibrationState(), settings))
         bag.write_phase('cycle', result.start_ns)
