@@ -262,7 +262,7 @@ def replay_timed(context, env, bag, subscriptions, topic, rate=1.0, **options):
 def test_replay_reproduces_content_and_timing(ros_domain, tmp_path):
     context, env = ros_domain
     bag = tmp_path / 'project.mcap'
-    topics = write_project_bag(bag, f'/replay_{os.getpid()}_content')
+    topics = write_project_bag(bag, f'/replay_{os.getpid()}_content', seconds=1.0)
     imu_class = import_message_type('sensor_msgs/msg/Imu')
     diagnostics_class = import_message_type('diagnostic_msgs/msg/DiagnosticArray')
     listener, completed, errors = replay_timed(context, env, bag, [
