@@ -20,6 +20,7 @@ import time
 from crash_helpers import (
     IMU_TOPIC,
     killed_recording,
+    part_messages,
     read_bag,
     read_mcap,
     ROOT,
@@ -29,7 +30,6 @@ from crash_helpers import (
 import numpy as np
 import pytest
 
-from qfa_ros.bag.files import iter_part_messages
 from qfa_ros.bag.flight_recorder import FlightRecorder
 from qfa_ros.bag.part_repair import recover_part
 from qfa_ros.bag.recovery import (
@@ -58,7 +58,7 @@ def _digests(directory):
 def _part_stamps(part):
     """Return the stamps a plain streaming read of a .part finds (CRC-checked chunks)."""
     return [sum(x * m for x, m in zip(STAMP.unpack_from(message.data, 4), (10**9, 1)))
-            for channel, message in iter_part_messages(part) if channel.topic == IMU_TOPIC]
+            for channel, message in part_messages(part) if channel.topic == IMU_TOPIC]
 
 
 def _chunk_ends(part):
