@@ -185,10 +185,15 @@ def replay(context, env, bag, subscriptions, extra_args=(), subscribers=None):
     try:
         while process.poll() is None and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
-        # Drain what is still in flight after the publisher exits.
-        drain_until = time.monotonic() + 0.2
-        while time.monotonic() < drain_until:
+        # Drain what is still in flight after the publisher exits: until nothing came for
+        # 0.2 s (a busy machine delivers the last messages late), 5 s at most.
+        drain_until = time.monotonic() + 5.0
+        quiet_until, seen = time.monotonic() + 0.2, -1
+        while time.monotonic() < min(quiet_until, drain_until):
             executor.spin_once(timeout_sec=0.01)
+            count = sum(len(messages) for messages in listener.received.values())
+            if count != seen:
+                quiet_until, seen = time.monotonic() + 0.2, count
     finally:
         if process.poll() is None:
             process.kill()
