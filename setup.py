@@ -13,6 +13,8 @@ setup(
     name=package_name,
     version=version,
     packages=find_packages(exclude=['test']),
+    # Kilted's .msg texts the recorder embeds in every bag (qfa_ros/bag/msgdefs.py).
+    package_data={'qfa_ros.bag': ['definitions/*/msg/*.msg']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

@@ -23,6 +23,8 @@ import textwrap
 import time
 
 from mcap.reader import make_reader
+from mcap.records import Channel, Message
+from mcap.stream_reader import StreamReader
 import numpy as np
 from rosbags.highlevel import AnyReader
 import yaml
@@ -55,6 +57,29 @@ KILLED_RECORDER = textwrap.dedent("""
     print(recorder.bag_directory, flush=True)
     os._exit(9)  # no close(): the .part stays as a kill leaves it
 """)
+
+
+def part_messages(path):
+    """
+    Return ``[(channel, message)]`` of the complete chunks of an unfinished MCAP file.
+
+    mcap's plain streaming reader, chunk CRCs checked, stopped at the first record it
+    cannot read (a cut fails in the parser, zstd, lz4 or the CRC check depending on where
+    it is): what any reader salvages from a ``.part`` without recovering it.
+    """
+    channels, messages = {}, []
+    with open(path, 'rb') as stream:
+        try:
+            for record in StreamReader(stream, validate_crcs=True).records:
+                if isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Message):
+                    messages.append((channels[record.channel_id], record))
+        except OSError:
+            raise
+        except Exception:  # the end of the complete chunks
+            pass
+    return messages
 
 
 def killed_recording(directory, messages, *, prefix='qfa_node', rate=1000.0, split_s=600.0,

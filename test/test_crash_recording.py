@@ -8,15 +8,17 @@ every sample it misses is one the bound is not checked for); spun until the kill
 a sample's receive time is close to when it was published. A sample it received one
 second or more before the kill had been published by then, and must be in the recovered
 bag (``crash_helpers.loss``). The random instants come from a seeded generator, printed
-on failure. ``bench/crash_recording.py`` does the same twenty times and more.
+on failure.
 
 A witness that falls behind (this process starved by a busy machine) still holds samples
 of a killed node when the next one starts: DDS delivers what it had received, the node
 dead or not. Each node is judged by the samples stamped after it was started
-(:meth:`Witness.expect`), never by a previous node's; the first test makes its witness
+(:meth:`Witness.expect`), never by a previous node's; the test makes its witness
 fall behind before the first kill (:data:`WITNESS_BEHIND_S`) so that this is exercised.
 A recording node is killed at an instant it writes a ``.part``
-(``crash_helpers.stop_mid_file``), not between two files.
+(``crash_helpers.stop_mid_file``), not between two files; the second node is killed while
+it writes an estimation trace. ``bench/crash_recording.py`` kills twenty recordings and five
+traces (``bench/results/crash_recording.md``).
 """
 
 import os
@@ -37,7 +39,6 @@ from crash_helpers import (
 )
 from node_helpers import Client, domain_id, NodeProcess
 import numpy as np
-import pytest
 from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
 
@@ -107,13 +108,45 @@ def _qfa_report_recover(path):
     return result.stdout
 
 
-def test_a_killed_recording_is_recovered_by_the_next_start_and_by_qfa_report(tmp_path):
+def _stop_during_a_trace(node, traces, recordings, rng):
+    """
+    Stop ``node`` (SIGSTOP) at a random instant of writing its trace, a recording ``.part`` open.
+
+    Stopped the moment the trace's ``.part`` appears, then let run in 2 ms slices until the
+    part holds a random number of bytes (its six tables end near 6 kB; the summary written
+    at the finish, to ~18 kB, comes in one go: a larger target would mostly find the trace
+    finished) and a recording file is being written (not the instant between two files):
+    a kill at a random point of the trace's writing, whatever the machine's load.
+
+    :returns: When it was last stopped (system clock) [ns].
+    """
+    stopped_ns = stop_when(node.process, lambda: unfinished_traces(traces), 120)
+    assert stopped_ns, node.log()
+    trace_reached = part_reached(traces, int(rng.uniform(0, 5_000)))
+
+    def recording_part():
+        return any(not part.with_suffix('').exists()
+                   for part in recordings.glob('*/*.mcap.part'))
+
+    return run_stopped(node.process, stopped_ns, lambda: trace_reached() and recording_part())
+
+
+def test_killed_recordings_and_a_killed_trace_are_recovered_by_the_next_start_and_qfa_report(
+        tmp_path):
+    """
+    Two nodes record in turn, each killed; the second also writes a trace when it is killed.
+
+    The first is killed mid-file after a split (finished files and a ``.part``); the second
+    node's start recovers that and says so. The second runs a reference capture and is
+    killed while writing its trace (:func:`_stop_during_a_trace`); ``qfa-report recover``
+    then finishes its recording and the trace. Every recording is held against the witness.
+    """
     rng = np.random.default_rng(35)
     domain = domain_id('crash_recording')
     output = tmp_path / 'output'
+    recordings, traces = output / 'recordings', output / 'traces'
     parameters = {'output_dir': str(output), 'state_file': str(output / 'state.json'),
-                  'recorder.enabled': True, 'recorder.max_duration_s': 1.0}
-    recordings = output / 'recordings'
+                  'recorder.enabled': True, 'recorder.max_duration_s': 1.0, **SHORT_SCHEDULE}
     client = Client(domain)
     witness = Witness(client)
     kills = {}
@@ -137,7 +170,10 @@ def test_a_killed_recording_is_recovered_by_the_next_start_and_by_qfa_report(tmp
                     # The witness behind, as on a busy machine: what the node publishes now
                     # is still queued for it when the second node starts.
                     time.sleep(WITNESS_BEHIND_S)
-                kill_ns = stop_mid_file(node.process, recordings)
+                    kill_ns = stop_mid_file(node.process, recordings)
+                else:
+                    client.call_async(Trigger, '/qfa_node/capture_reference', Trigger.Request())
+                    kill_ns = _stop_during_a_trace(node, traces, recordings, rng)
                 _kill(node)
                 if run == 'second':
                     assert witness.previous, "none of the first node's samples came late"
@@ -153,52 +189,17 @@ def test_a_killed_recording_is_recovered_by_the_next_start_and_by_qfa_report(tmp
     assert contents.files >= 2, 'a split before the kill: finished files and the part'
 
     bag, received, kill_ns = kills['second']
+    parts = unfinished_traces(traces)
+    assert parts, 'the kill came after the trace was finished'
     report = _qfa_report_recover(output)
     assert report.startswith(f'{bag}: recovered '), report
-    _assert_within_bound(bag, received, kill_ns, 'recovered by qfa-report recover')
-    assert not unfinished_recordings(recordings, 'qfa_node')
-
-
-@pytest.mark.parametrize('seed', [5, 6])
-def test_a_node_killed_while_writing_a_trace_leaves_it_recoverable(tmp_path, seed):
-    rng = np.random.default_rng(seed)
-    domain = domain_id('crash_trace')
-    output = tmp_path / 'output'
-    traces = output / 'traces'
-    node = NodeProcess(domain, tmp_path, {
-        'output_dir': str(output), 'state_file': str(output / 'state.json'),
-        'recorder.enabled': True, **SHORT_SCHEDULE})
-    client = Client(domain)
-    try:
-        witness = Witness(client)
-        client.spin_until(lambda: witness.received, 120, 'samples')
-        client.spin_for(1.5)
-        client.call_async(Trigger, '/qfa_node/capture_reference', Trigger.Request())
-        # Stopped the moment the trace's .part appears, let run in 2 ms slices until the
-        # part holds a random number of bytes (its six tables end near 6 kB; the summary
-        # written at the finish, to ~18 kB, comes in one go: a larger target would mostly
-        # find the trace finished), then killed
-        # (a stopped process writes nothing; SIGKILL ends it as it stands): a kill at a
-        # random point of the trace's writing, whatever the machine's load.
-        stopped_ns = stop_when(node.process, lambda: unfinished_traces(traces), 120)
-        assert stopped_ns, node.log()
-        stopped_ns = run_stopped(node.process, stopped_ns,
-                                 part_reached(traces, int(rng.uniform(0, 5_000))))
-        _kill(node)
-    finally:
-        node.stop(signal.SIGKILL)
-        client.close()
-    parts = unfinished_traces(traces)
-    report = _qfa_report_recover(output)
-    assert not unfinished_traces(traces) and not unfinished_recordings(
-        output / 'recordings', 'qfa_node')
+    _assert_within_bound(bag, received, kill_ns, 'killed during a trace, recovered by '
+                         'qfa-report recover')
+    assert not unfinished_recordings(recordings, 'qfa_node') and not unfinished_traces(traces)
     trace, = traces.glob('qfa_reference_*.mcap')
+    assert f'{trace}: recovered ' in report, report
     topics = set(read_bag(trace).counts)
     # What the kill left of the trace: the topics it writes first (a chunk each).
     order = ['/qfa/trace/settings', '/qfa/trace/forward/points', '/qfa/trace/forward/residuals',
              '/qfa/trace/feedback/points', '/qfa/trace/feedback/residuals', '/qfa/trace/result']
     assert topics == set(order[:len(topics)]), (topics, report)
-    assert parts, 'the kill came after the trace was finished'
-    assert f'{trace}: recovered ' in report, report
-    bag, = (output / 'recordings').iterdir()
-    _assert_within_bound(bag, witness.take(), stopped_ns, 'killed during a trace')

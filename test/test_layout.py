@@ -188,9 +188,6 @@ def test_no_private_attribute_of_a_dependency_is_used():
 
 
 LONG_MODULES = {
-    # Issue 44 splits both (the bag and parameter engineers): each entry goes with its split.
-    'bag/part_repair.py': (650, 'one cut MCAP file read and completed: the scan finds what '
-                           'the summary it writes lists'),
     'ros/params.py': (960, 'the parameter table and what is derived from it (the sizes, '
                       'read-only rules and imu.yaml of issues 36 and 38 in the same table)'),
 }

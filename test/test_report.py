@@ -28,7 +28,7 @@ from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import MICRO_G
-from qfa_ros.report.figures import build_figures, load_bag, report
+from qfa_ros.report.figures import build_figures, DPI, load_bag
 
 FORWARD = ForwardSettings(points=5, average_s=0.1)
 FEEDBACK = FeedbackSettings(average_s=0.5)
@@ -99,7 +99,7 @@ def temperature(tmp_path_factory):
     # a 30 s body time constant keeps the chamber program's soaks short
     config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant', sensor_tau_s=30.0))
     triad = QfaTriad(config, rng=3)
-    settings = TemperatureSettings(period_s=240.0, bins=40)
+    settings = TemperatureSettings(period_s=120.0, bins=20)
     with ScenarioBag(path, config) as bag:
         result = run_schedule(triad, temperature_schedule(triad, CalibrationState(), settings))
         bag.write_phase('cycle', result.start_ns)
@@ -129,15 +129,14 @@ def assert_valid_png(path, min_width=800, min_height=400):
 
 # --- trace files ---------------------------------------------------------------------------
 
-def test_trace_files_give_forward_and_feedback_pngs(traces, tmp_path):
-    written = report(traces['paths'], tmp_path / 'out')
-    assert [path.name for path in written] == ['forward_gain.png', 'feedback_gain.png']
-    for path in written:
-        assert_valid_png(path)
+@pytest.fixture(scope='module')
+def trace_figures(traces):
+    """Return the figures of the two trace files, built once: ``{name: ReportFigure}``."""
+    return _figures(traces['paths'])
 
 
-def test_forward_figure_plots_the_written_sweep(traces):
-    data = _figures(traces['paths'])['forward_gain'].data
+def test_forward_figure_plots_the_written_sweep(traces, trace_figures):
+    data = trace_figures['forward_gain'].data
     reference, calibration = traces['reference'][0], traces['calibration'][0]
     assert set(data) == {'reference', 'self_calibrate'}
     for axis_index, axis in enumerate(AXES):
@@ -154,8 +153,8 @@ def test_forward_figure_plots_the_written_sweep(traces):
         assert drifted['slope_change_ppm'] == pytest.approx(-DRIFT_PPM, abs=5.0)
 
 
-def test_feedback_figure_plots_the_written_segments(traces):
-    data = _figures(traces['paths'])['feedback_gain'].data
+def test_feedback_figure_plots_the_written_segments(traces, trace_figures):
+    data = trace_figures['feedback_gain'].data
     reference, calibration = traces['reference'][1], traces['calibration'][1]
     for axis_index, axis in enumerate(AXES):
         plotted = data['reference'][axis]
@@ -198,12 +197,18 @@ def test_scenario_bag_loads_runs_imu_and_phases(scenario):
 
 
 def test_scenario_bag_gives_static_output_figure(scenario, tmp_path):
-    written = report(scenario['path'], tmp_path)
-    assert [path.name for path in written] == ['forward_gain.png', 'feedback_gain.png',
-                                               'static_output.png']
-    for path in written:
-        assert_valid_png(path)
-    data = _figures([scenario['path']])['static_output'].data
+    figures = build_figures([scenario['path']])
+    try:
+        assert [item.name for item in figures] == ['forward_gain', 'feedback_gain',
+                                                   'static_output']
+        static = figures[-1]
+        # The PNG of the figure only this bag draws (the others: the command-line test).
+        static.figure.savefig(tmp_path / 'static_output.png', dpi=DPI)
+    finally:
+        for item in figures:
+            plt.close(item.figure)
+    assert_valid_png(tmp_path / 'static_output.png')
+    data = static.data
     phases = data['phases']
     assert set(phases) == {'reference', 'drifted', 'compensated'}
     baseline = scenario['static']['reference'][:, 2].mean()
@@ -218,13 +223,9 @@ def test_scenario_bag_gives_static_output_figure(scenario, tmp_path):
     assert abs(phases['compensated']['error_ug']) < 0.25 * abs(phases['drifted']['error_ug'])
 
 
-def test_temperature_bag_gives_fit_and_compensation_figures(temperature, tmp_path):
-    written = report([temperature['path']], tmp_path)
-    assert [path.name for path in written] == ['temperature_fit.png',
-                                               'temperature_compensation.png']
-    for path in written:
-        assert_valid_png(path)
+def test_temperature_bag_gives_fit_and_compensation_figures(temperature):
     figures = _figures([temperature['path']])
+    assert list(figures) == ['temperature_fit', 'temperature_compensation']
     result = temperature['result']
     order = np.argsort(result.points['v_temp'])
     for axis_index, axis in enumerate(AXES):
@@ -245,13 +246,6 @@ def test_temperature_bag_gives_fit_and_compensation_figures(temperature, tmp_pat
 
 # --- command line --------------------------------------------------------------------------
 
-def test_command_line_writes_the_pngs(traces, tmp_path, capsys):
-    out = tmp_path / 'cli'
-    assert main([str(path) for path in traces['paths']] + ['--out', str(out)]) == 0
-    printed = capsys.readouterr().out.split()
-    assert printed == [str(out / 'forward_gain.png'), str(out / 'feedback_gain.png')]
-
-
 def test_command_line_reports_missing_and_empty_inputs(tmp_path, capsys):
     assert main([str(tmp_path / 'missing.mcap')]) == 1
     assert 'no such file' in capsys.readouterr().err
@@ -261,17 +255,22 @@ def test_command_line_reports_missing_and_empty_inputs(tmp_path, capsys):
     assert 'nothing to plot' in capsys.readouterr().err
 
 
-def test_command_line_is_headless_on_the_example_bag(tmp_path):
-    """``qfa-report`` draws without a display: no DISPLAY, no backend configured."""
+def test_command_line_writes_the_pngs_headless(traces, tmp_path):
+    """
+    ``qfa-report`` on trace files and the example temperature bag: every PNG, named in order.
+
+    It draws without a display: no DISPLAY, no backend configured.
+    """
     env = {key: value for key, value in os.environ.items()
            if key not in ('DISPLAY', 'WAYLAND_DISPLAY', 'MPLBACKEND')}
     out = tmp_path / 'figures'
+    inputs = [*traces['paths'], REPO / 'bags' / 'temperature_cycle.mcap']
     result = subprocess.run(
-        [sys.executable, '-m', 'qfa_ros.cli.report', str(REPO / 'bags' / 'temperature_cycle.mcap'),
-         '--out', str(out)], env=env, cwd=tmp_path, capture_output=True, text=True,
-        timeout=120)
+        [sys.executable, '-m', 'qfa_ros.cli.report', *map(str, inputs), '--out', str(out)],
+        env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
-    names = ['temperature_fit.png', 'temperature_compensation.png']
+    names = ['forward_gain.png', 'feedback_gain.png', 'temperature_fit.png',
+             'temperature_compensation.png']
     assert result.stdout.split() == [str(out / name) for name in names]
     for name in names:
         assert_valid_png(out / name)

@@ -6,8 +6,8 @@ operating system holds every complete chunk, and holds an exclusive ``flock`` on
 it is written, so that no recovery (:mod:`qfa_ros.bag.recovery`) touches a file someone
 is still writing; :func:`make_durable` fsyncs what was written so far without any lock of
 the writer's; :func:`publish_part` gives a finished file its final name without replacing
-anything; :func:`fsync_directory` makes that rename durable; :func:`iter_part_messages`
-salvages what a crash left in a ``.part`` file.
+anything; :func:`fsync_directory` makes that rename durable. What a crash leaves in a
+``.part`` is finished by :mod:`qfa_ros.bag.recovery`.
 """
 
 import errno
@@ -138,47 +138,6 @@ def publish_part(part_path, final_path, overwrite):
         os.replace(part_path, final_path)  # filesystem without hard links
         return
     os.unlink(part_path)
-
-
-def iter_part_messages(path):
-    """Yield ``(channel, message)`` from the complete chunks of an unfinished MCAP file.
-
-    Reads sequentially, checking chunk CRCs, and stops quietly at the first
-    record it cannot read, so it recovers what a crashed recording left in its
-    ``.part`` file. Use it for salvage only: it cannot tell truncation from
-    corruption.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        An MCAP file, finished or not.
-
-    Yields
-    ------
-    tuple
-        ``(mcap.records.Channel, mcap.records.Message)``.
-    """
-    from mcap.records import Channel, Message
-    from mcap.stream_reader import StreamReader
-
-    channels = {}
-    with open(path, 'rb') as stream:
-        records = StreamReader(stream, validate_crcs=True).records
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:
-                return
-            except OSError:
-                raise
-            except Exception:
-                # A truncated record fails in the MCAP parser, struct, zstd, lz4 or the
-                # CRC check depending on where the cut is; each marks the end of the data.
-                return
-            if isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, Message):
-                yield channels[record.channel_id], record
 
 
 def write_text_atomically(path, text):

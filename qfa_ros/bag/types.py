@@ -1,7 +1,7 @@
 """
 Message types the bag writer knows: definitions, type hashes, encoders, times.
 
-Every standard type this project records is registered from :mod:`qfa_ros.bag.msgdefs`;
+Every standard type this project records comes from :mod:`qfa_ros.bag.msgdefs`;
 :func:`register_message_definition` adds more. Messages given as mappings are checked
 against their definition and encoded to CDR with the public type store of rosbags.
 """
@@ -16,7 +16,7 @@ import numpy as np
 from rosbags.interfaces import Nodetype
 from rosbags.typesys import get_types_from_msg, get_typestore, Stores
 
-from qfa_ros.bag.msgdefs import MESSAGE_DEFINITIONS, TYPE_HASHES
+from qfa_ros.bag import msgdefs
 
 
 def stamp(time_ns):
@@ -59,19 +59,19 @@ def canonical_type(msgtype):
     return '/'.join(parts)
 
 
-_DEFINITIONS = dict(MESSAGE_DEFINITIONS)
-_HASHES = dict(TYPE_HASHES)
+_DEFINITIONS = {}  # registered by register_message_definition
+_HASHES = {}
 _ENCODERS = {}
 _CACHE_LOCK = threading.Lock()  # protects _DEFINITIONS, _HASHES and _ENCODERS
 
 
 def supported_types():
     """Return the message types this module can write, sorted."""
-    return sorted(_DEFINITIONS)
+    return sorted(set(msgdefs.RECORDED_TYPES) | set(_DEFINITIONS))
 
 
 def register_message_definition(msgtype, definition, type_hash=''):
-    """Add a message type the embedded definitions do not cover.
+    """Add a message type the shipped definitions do not cover (or replace one).
 
     Parameters
     ----------
@@ -91,14 +91,16 @@ def register_message_definition(msgtype, definition, type_hash=''):
 
 
 def definition_of(msgtype):
-    """Return the full ``ros2msg`` definition of a registered type."""
-    try:
-        return _DEFINITIONS[msgtype]
-    except KeyError:
-        raise ValueError(
-            f'no message definition for {msgtype!r}; supported: {", ".join(supported_types())}'
-            ' (add one with register_message_definition)'
-        ) from None
+    """Return the full ``ros2msg`` definition of a supported type."""
+    registered = _DEFINITIONS.get(msgtype)
+    if registered is not None:
+        return registered
+    if msgtype in msgdefs.RECORDED_TYPES:
+        return msgdefs.definition(msgtype)
+    raise ValueError(
+        f'no message definition for {msgtype!r}; supported: {", ".join(supported_types())}'
+        ' (add one with register_message_definition)'
+    )
 
 
 def _encoder(msgtype):
@@ -287,8 +289,11 @@ def check_cdr(data, topic):
 
 
 def type_hash_of(msgtype):
-    """Return the RIHS01 type hash of a registered type, or '' when unknown."""
-    return _HASHES.get(msgtype, '')
+    """Return the RIHS01 type hash of a supported type, or '' when unknown."""
+    if msgtype in _HASHES:
+        return _HASHES[msgtype]
+    return msgdefs.type_hash(msgtype) if msgtype in msgdefs.RECORDED_TYPES else ''
+
 
 
 def encode_message(message, msgtype):
