@@ -42,6 +42,7 @@ from qfa_ros.bag.imu_cdr import decode_imu, ImuEncoder  # noqa: E402
 from qfa_ros.bag.msgdefs import definition, type_hash  # noqa: E402
 from qfa_ros.bag.part_repair import recover_part  # noqa: E402
 from qfa_ros.bag.writer import McapBagWriter  # noqa: E402
+from qfa_ros.model.units import STANDARD_GRAVITY  # noqa: E402
 
 TOPIC = '/imu/data_raw'
 IMU = 'sensor_msgs/msg/Imu'
@@ -58,7 +59,7 @@ def stream(count, seed=0):
     """Return stamps [ns], specific force and rate of a noisy static 1 kHz stream."""
     rng = np.random.default_rng(seed)
     stamps = START_NS + PERIOD_NS * np.arange(count, dtype=np.int64)
-    accel = np.array([0.0, 0.0, 9.80665]) + rng.normal(0.0, 5e-4, size=(count, 3))
+    accel = np.array([0.0, 0.0, STANDARD_GRAVITY]) + rng.normal(0.0, 5e-4, size=(count, 3))
     rate = rng.normal(0.0, 1e-4, size=(count, 3))
     return stamps, accel, rate
 
