@@ -35,13 +35,13 @@ DEFECTS = {
         '        if abs(time_ns - now_ns) > window_ns:\n',
         '        if False:  # planted: no stamp window\n'),
     'array size check removed': (
-        'qfa_ros/ros/params.py',
+        'qfa_ros/ros/parameter_checks.py',
         "    if spec.max_length is not None and len(value) > spec.max_length:\n"
         "        return f'{name} must have at most {spec.max_length} elements, "
         "got {len(value)}'\n",
         ''),
     'a choices refusal quoting the whole value, before the length check': (
-        'qfa_ros/ros/params.py',
+        'qfa_ros/ros/parameter_checks.py',
         "    limit = MAX_FRAME_ID_LENGTH if name == 'frame_id' else MAX_STRING_LENGTH\n",
         "    if spec.choices is not None and value not in spec.choices:\n"
         "        return f'{name} must be one of {\", \".join(spec.choices)}, got {value!r}'\n"

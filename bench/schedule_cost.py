@@ -3,7 +3,7 @@ CPU cost of the longest schedule call the parameter ranges allow (docs/security.
 
 Runs the default sensor's temperature schedule and a fast self-calibration offline (the
 generators the node drives), measures CPU time per second of sensor time and per model
-loop step, and scales it to the worst cases of ``qfa_ros.ros.params``::
+loop step, and scales it to the worst cases of ``qfa_ros.ros.parameter_table``::
 
     python bench/schedule_cost.py            # about 15 s of CPU
     python bench/schedule_cost.py --short    # about 3 s: proves the script works
@@ -18,14 +18,14 @@ from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_schedule
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.ros.bounds import CHAMBER_WORST_S, MAX_SCHEDULE_LOOP_STEPS, SCHEDULE_WORST_S
-from qfa_ros.ros.params import (
+from qfa_ros.ros.model_settings import (
     feedback_settings,
     forward_settings,
     input_profile,
-    PARAMETERS,
     temperature_settings,
     triad_config,
 )
+from qfa_ros.ros.parameter_table import PARAMETERS
 
 
 def measure(make, values):

@@ -22,7 +22,7 @@ from qfa_ros.model.units import MICRO_G
 from qfa_ros.ros.bounds import LARGEST_CHAMBER, LARGEST_FEEDBACK, LARGEST_FORWARD
 from qfa_ros.ros.distro import ros_distribution, SUPPORTED_DISTRIBUTIONS
 from qfa_ros.ros.fastdds import use_shipped_fastdds_profile
-from qfa_ros.ros.params import PARAMETERS
+from qfa_ros.ros.parameter_table import PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES_FILE = ROOT / 'config' / 'fastdds_discovery.xml'

@@ -200,8 +200,6 @@ LONG_MODULES = {
     'model/trajectory_means.py': (650, 'the fits, their integrals and the mean polynomials'),
     'model/triad.py': (750, 'the assembly every run advances together'),
     'report/figures.py': (700, 'every figure reads the same loaded bag contents'),
-    'ros/params.py': (960, 'the parameter table and what is derived from it (the sizes, '
-                      'read-only rules and imu.yaml of issues 36 and 38 in the same table)'),
     'ros/stream.py': (560, 'the tick of the sensor thread, its pause and resume on the grid '
                       '(issue 39) and the status that counts what it did not publish'),
 }

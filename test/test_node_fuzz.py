@@ -44,7 +44,7 @@ from sensor_msgs.msg import Imu
 from std_srvs.srv import SetBool, Trigger
 
 from qfa_ros.model.trajectory import SCRIPTS
-from qfa_ros.ros.params import PARAMETERS, SPECS
+from qfa_ros.ros.parameter_table import PARAMETERS, SPECS
 
 CASES = int(os.environ.get('QFA_FUZZ_CASES', '2000'))
 SECRET = 'SECRET_TOKEN=fuzz-must-not-echo'

@@ -30,7 +30,8 @@ from qfa_ros.ros.bounds import (
     MAX_SCHEDULE_LOOP_STEPS,
     SCHEDULE_WORST_S,
 )
-from qfa_ros.ros.params import check_all, PARAMETERS
+from qfa_ros.ros.parameter_checks import check_all
+from qfa_ros.ros.parameter_table import PARAMETERS
 from qfa_ros.ros.recording import FreeSpaceGuard, GUARD_BAND_BYTES, StreamRecording
 
 NODE = '/qfa_node'

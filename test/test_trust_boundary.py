@@ -34,16 +34,14 @@ from qfa_ros.ros.bounds import (
 )
 from qfa_ros.ros.calibration import CalibrationKeeper
 from qfa_ros.ros.ground_truth import GroundTruthInput
-from qfa_ros.ros.params import (
-    check_all,
-    check_value,
+from qfa_ros.ros.model_settings import (
     input_profile,
     load_trajectory_file,
     make_triad,
-    PARAMETERS,
-    SPECS,
     temperature_settings,
 )
+from qfa_ros.ros.parameter_checks import check_all, check_value
+from qfa_ros.ros.parameter_table import PARAMETERS, SPECS
 from qfa_ros.ros.state_store import StateFileError, StateStore
 
 SECRET = 'SECRET_TOKEN=hunter2-do-not-echo'

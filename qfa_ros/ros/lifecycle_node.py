@@ -35,7 +35,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, TransitionCallbackReturn
 
 from qfa_ros.ros.node import QfaUnit
-from qfa_ros.ros.params import check_value, PARAMETERS, SPECS
+from qfa_ros.ros.parameter_checks import check_value
+from qfa_ros.ros.parameter_table import PARAMETERS, SPECS
 from qfa_ros.ros.runtime_parameters import declare_parameters
 
 TRANSITION_CLOSE_TIMEOUT_S = 2.0

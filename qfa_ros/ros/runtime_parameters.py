@@ -1,10 +1,10 @@
 """
 The node's parameters at run time: declared from the table, checked and applied on change.
 
-Every parameter of :data:`~qfa_ros.ros.params.PARAMETERS` is declared with its
+Every parameter of :data:`~qfa_ros.ros.parameter_table.PARAMETERS` is declared with its
 ``ParameterDescriptor``; a change is accepted only if the whole set stays consistent and
 its effect on the running sensor (one step per runtime effect,
-:data:`~qfa_ros.ros.params.RUNTIME_EFFECTS`) has run.
+:data:`~qfa_ros.ros.parameter_table.RUNTIME_EFFECTS`) has run.
 """
 
 import collections
@@ -14,15 +14,12 @@ from rclpy.exceptions import InvalidParameterTypeException, ParameterException
 
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.units import PPM
-from qfa_ros.ros.params import (
-    ambient_settings,
-    as_declared_type,
-    check_all,
-    descriptor,
+from qfa_ros.ros.model_settings import ambient_settings, input_profile
+from qfa_ros.ros.parameter_checks import as_declared_type, check_all, descriptor
+from qfa_ros.ros.parameter_table import (
     EFFECT_OF,
     FEEDBACK_COMPONENT,
     FORWARD_COMPONENT,
-    input_profile,
     PARAMETERS,
     RUNTIME_EFFECTS,
     THERMAL_RUNTIME_PARAMETERS,
