@@ -108,8 +108,9 @@ def test_every_transition_through_the_lifecycle_services(tmp_path):
         'recorder.enabled': True, 'estimation.realtime': True,
         # Half a second computed ahead: a quick reactivation finds samples not yet due.
         'stream.lead_s': 0.5,
-        # Inconsistent: the loop rate is no integer multiple of it.
-        'sample_rate_hz': 3000.0}, managed=True)
+        # Inconsistent: three step levels for two step times.
+        'input.mode': 'profile', 'input.profile': 'steps',
+        'input.steps.levels': [0.0, 0.0, 9.8]}, managed=True)
     client = Client(domain)
     lifecycle = Lifecycle(client)
     imu = ImuCollector(client)
@@ -120,13 +121,20 @@ def test_every_transition_through_the_lifecycle_services(tmp_path):
         # have let the error end its executor).
         assert lifecycle.change(Transition.TRANSITION_ACTIVATE) == (False, 'unconfigured')
         assert lifecycle.change('configure') == (False, 'unconfigured')
-        assert 'configure refused: sample_rate_hz / loop_rate_hz' in node.log()
-        # Unconfigured, a read-only parameter may be set; configure then succeeds.
-        assert client.set_parameters({'sample_rate_hz': 1000.0})[0].successful
+        assert 'configure refused: input.steps: levels needs 3 values per time' in node.log()
+        # Unconfigured: the operator's parameters stay read-only, the sensor's own may be
+        # set (each value judged alone); configure then checks the whole set.
+        for name, value in (('sample_rate_hz', 1000.0), ('state_file', str(tmp_path / 'x'))):
+            refused = client.set_parameters({name: value})[0]
+            assert not refused.successful and 'read-only parameter: ' + name in \
+                refused.reason, refused.reason
+        assert client.set_parameters({'seed': 2})[0].successful
+        assert client.set_parameters({'input.mode': 'static'})[0].successful
         assert lifecycle.change('configure') == (True, 'inactive')
-        refused = client.set_parameters({'sample_rate_hz': 2000.0})[0]
-        assert not refused.successful and 'read-only while the node is configured' in \
-            refused.reason
+        assert 'unit drawn, seed 2' in node.log()
+        refused = client.set_parameters({'seed': 3})[0]
+        assert not refused.successful and 'seed is read-only while the node is configured' \
+            in refused.reason, refused.reason
         answer = trigger(client, 'capture_reference')
         assert not answer.success and answer.message.startswith('inactive:')
         assert lifecycle.available() == {'activate', 'cleanup', 'shutdown'}

@@ -35,8 +35,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, TransitionCallbackReturn
 
 from qfa_ros.ros.node import QfaUnit
-from qfa_ros.ros.parameter_checks import check_value
-from qfa_ros.ros.parameter_table import PARAMETERS, SPECS
+from qfa_ros.ros.parameter_checks import check_alone
+from qfa_ros.ros.parameter_table import OPERATOR, PARAMETERS, SPECS
 from qfa_ros.ros.runtime_parameters import declare_parameters
 
 TRANSITION_CLOSE_TIMEOUT_S = 2.0
@@ -93,10 +93,15 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
     """
     The emulated IMU as a managed node: the unit wired at ``configure``, published while active.
 
-    Its parameters are declared at construction, every one writable while unconfigured
-    (``configure`` checks the whole set); from ``configure`` to ``cleanup`` the read-only
-    ones are refused, as by the plain node. A start value rclpy refuses (type, range) does
-    not stop the process: ``configure`` answers FAILURE naming it until it is set.
+    Its parameters are declared at construction; who may set each, and when, is the table's
+    (:data:`~qfa_ros.ros.parameter_table.PARAMETERS`, ``access``): the operator's alone
+    (files, directories, rates, resources) are read-only in every state, as in the plain
+    node; the sensor's own settings are writable while unconfigured, each change judged on
+    its own (range, size, a directory confined to ``output_dir``) and ``configure`` checking
+    the whole set; from ``configure`` to ``cleanup`` the plain node's read-only ones are
+    refused. A start value rclpy refuses (type, range) does not stop the process:
+    ``configure`` answers FAILURE naming it until it is set (an operator's one: until the
+    node is started again with a valid one).
 
     :param node_name: Node name.
     :param process_tuning: The process's interpreter settings (see
@@ -114,7 +119,7 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         self._process_tuning = process_tuning
         # Start values rclpy refused at declaration (name: reason); set, they are forgotten.
         self._refused = {}
-        declare_parameters(self, read_only=False, refused=self._refused)
+        declare_parameters(self, managed=True, refused=self._refused)
         self.add_on_set_parameters_callback(self._check_by_state)
         self.add_post_set_parameters_callback(self._forget_refused)
         # The unit's entities by kind (what wire_unit created), or None while unconfigured;
@@ -136,17 +141,32 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
 
     # Parameters -------------------------------------------------------------------------
     def _check_by_state(self, parameters):
-        """Refuse a read-only parameter unless unconfigured; check each value while it is."""
+        """
+        Refuse what the state does not allow; judge each value on its own while unconfigured.
+
+        The operator's parameters are read-only (rclpy refuses them before this callback);
+        the others of the plain node's read-only ones are refused from ``configure`` to
+        ``cleanup``. While unconfigured a change is judged alone (``check_alone``: the
+        directories confined to ``output_dir`` as in the plain node); ``configure`` checks
+        the whole set.
+        """
         configured = self._unit_entities is not None
         for parameter in parameters:
-            spec = SPECS.get(parameter.name)
+            name = parameter.name
+            spec = SPECS.get(name)
             if spec is None:
                 continue  # rclpy's own (use_sim_time, qos_overrides...)
-            if configured and spec.read_only:
-                return SetParametersResult(successful=False, reason=(
-                    f'{parameter.name} is read-only while the node is configured: set it '
-                    'while unconfigured (ros2 lifecycle set <node> cleanup first)'))
-            reason = None if configured else check_value(parameter.name, parameter.value)
+            if spec.access == OPERATOR:
+                reason = (f'{name} is set by the operator only, at start (command line, '
+                          'parameters file, launch file)')
+            elif not spec.writable(configured):
+                reason = (f'{name} is read-only while the node is configured: set it while '
+                          'unconfigured (ros2 lifecycle set <node> cleanup first)')
+            elif configured:
+                reason = None  # the unit's own callback checks the whole set
+            else:
+                reason = check_alone(name, parameter.value,
+                                     self.get_parameter('output_dir').value)
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
@@ -158,8 +178,11 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
     # Transitions (executor thread; each logs what it did) -------------------------------
     def on_configure(self, state):
         """Check the parameters, read the files, build the model, start the sensor unpublished."""
-        refused = '; '.join(f'start value of {name} refused: {reason}'
-                            for name, reason in self._refused.items())
+        refused = '; '.join(
+            f'start value of {name} refused: {reason}' + (
+                f' ({name} is set by the operator only: start the node again with a valid '
+                'one)' if SPECS[name].access == OPERATOR else '')
+            for name, reason in self._refused.items())
         if refused:
             return self._refuse('configure', refused)
         values = {spec.name: self.get_parameter(spec.name).value for spec in PARAMETERS}

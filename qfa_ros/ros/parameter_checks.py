@@ -19,6 +19,7 @@ from qfa_ros.ros.model_settings import (
     triad_config,
 )
 from qfa_ros.ros.parameter_table import (
+    CONFINED,
     MAX_FRAME_ID_LENGTH,
     MAX_SHOWN,
     MAX_STRING_LENGTH,
@@ -114,6 +115,25 @@ def check_value(name, value):
     return None
 
 
+def check_alone(name, value, output_dir):
+    """
+    Return why ``value`` is not acceptable for ``name`` on its own, or None.
+
+    What can be judged without the rest of the set: :func:`check_value`, and a directory
+    confined to ``output_dir`` (:data:`~qfa_ros.ros.parameter_table.CONFINED`). A managed
+    node judges each change so while unconfigured; ``configure`` checks the whole set.
+    """
+    reason = check_value(name, value)
+    if reason or name not in CONFINED:
+        return reason
+    try:
+        confined_directory({'output_dir': output_dir, name: value}, name)
+    except (ValueError, OSError) as error:
+        # OSError: a symlink loop or an unreadable component while resolving a directory.
+        return str(error)
+    return None
+
+
 def _check_string(spec, value):
     """Return why ``value`` is not acceptable for the string parameter ``spec``, or None."""
     name = spec.name
@@ -178,7 +198,7 @@ def check_all(values, trajectory_file=None, imu_noise=None):
         input_profile(values, trajectory_file=trajectory_file)
         if not values['output_dir']:
             return 'output_dir must not be empty'
-        for name in ('trace_dir', 'recorder.directory'):
+        for name in CONFINED:
             confined_directory(values, name)
     except (ValueError, OSError) as error:
         # OSError: a symlink loop or an unreadable component while resolving a directory.

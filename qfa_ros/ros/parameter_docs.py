@@ -2,14 +2,19 @@
 ``config/qfa.yaml`` and the docs table, generated from the parameter table.
 
 ``python -m qfa_ros.ros.parameter_docs yaml`` prints ``config/qfa.yaml``, ``... markdown``
-the table of ``docs/node.md``; ``test_node_params.py`` checks that both are up to date.
+the table of ``docs/node.md``, ``... access`` who may set what and why (``docs/security.md``);
+``test_node_params.py`` checks that all three are up to date.
 """
 
 import sys
 import textwrap
 
 from qfa_ros.ros.parameter_checks import descriptor
-from qfa_ros.ros.parameter_table import PARAMETERS
+from qfa_ros.ros.parameter_table import ACCESS, CONFIGURE, OPERATOR, PARAMETERS, RUNTIME
+
+ACCESS_NOTES = {OPERATOR: ' (operator only, at start)',
+                CONFIGURE: ' (read-only; anyone while a managed node is unconfigured)'}
+"""What ``config/qfa.yaml`` adds to the description of a parameter that is not writable."""
 
 
 def _yaml_value(value):
@@ -37,7 +42,7 @@ def config_yaml(node_name='/**'):
              '# and the same for /imu/temperature (docs/node.md).',
              f'{_yaml_value(node_name)}:', '  ros__parameters:']
     for spec in PARAMETERS:
-        text = descriptor(spec).description + (' (read-only)' if spec.read_only else '')
+        text = descriptor(spec).description + ACCESS_NOTES.get(spec.access, '')
         lines += textwrap.wrap(text, 95, initial_indent='    # ', subsequent_indent='    # ')
         lines.append(f'    {spec.name}: {_yaml_value(spec.default)}')
     return '\n'.join(lines) + '\n'
@@ -45,7 +50,7 @@ def config_yaml(node_name='/**'):
 
 def markdown_table():
     """Return the Markdown table of every parameter (docs/node.md)."""
-    rows = ['| parameter | type | default | range / choices | runtime | meaning |',
+    rows = ['| parameter | type | default | range / choices | who sets it | meaning |',
             '|---|---|---|---|---|---|']
     for spec in PARAMETERS:
         default = spec.default
@@ -58,19 +63,43 @@ def markdown_table():
                 else f'{spec.low:g} … {spec.high:g}'
         elif spec.choices:
             limits = ' \\| '.join(spec.choices)
-        runtime = 'read-only' if spec.read_only else 'yes'
         rows.append(f'| `{spec.name}` | {kind} | `{_yaml_value(default)}` | {limits} | '
-                    f'{runtime} | {spec.description} |')
+                    f'{ACCESS[spec.access]} | {spec.description} |')
+    return '\n'.join(rows) + '\n'
+
+
+def access_table():
+    """
+    Return the Markdown table of who may set which parameters, and why (docs/security.md).
+
+    One row per rule and reason: the operator's parameters, those a participant may set
+    while the managed node is unconfigured, and the runtime ones (named by count: the
+    parameter table in docs/node.md lists them).
+    """
+    rows = ['| who sets it | parameters | why |', '|---|---|---|']
+    for access in (OPERATOR, CONFIGURE):
+        reasons = {}
+        for spec in PARAMETERS:
+            if spec.access == access:
+                reasons.setdefault(spec.why, []).append(f'`{spec.name}`')
+        rows += [f'| {ACCESS[access]} | {", ".join(names)} | {why} |'
+                 for why, names in reasons.items()]
+    runtime = [spec for spec in PARAMETERS if not spec.read_only]
+    rows.append(f'| {ACCESS[RUNTIME]} | the other {len(runtime)} (docs/node.md) | within '
+                'their checks: range, size, the whole set, a directory confined to '
+                '`output_dir`; each bounded by the lines of the table below |')
     return '\n'.join(rows) + '\n'
 
 
 def main(argv=None):
-    """Print ``config/qfa.yaml`` (``yaml``) or the docs parameter table (``markdown``)."""
+    """Print ``config/qfa.yaml``, the docs parameter table or who may set what (``access``)."""
     args = sys.argv[1:] if argv is None else argv
-    if args not in (['yaml'], ['markdown']):
-        print('usage: python -m qfa_ros.ros.parameter_docs {yaml|markdown}', file=sys.stderr)
+    outputs = {'yaml': config_yaml, 'markdown': markdown_table, 'access': access_table}
+    if len(args) != 1 or args[0] not in outputs:
+        print('usage: python -m qfa_ros.ros.parameter_docs {yaml|markdown|access}',
+              file=sys.stderr)
         return 2
-    print(config_yaml() if args == ['yaml'] else markdown_table(), end='')
+    print(outputs[args[0]](), end='')
     return 0
 
 

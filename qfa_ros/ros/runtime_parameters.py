@@ -26,12 +26,14 @@ from qfa_ros.ros.parameter_table import (
 )
 
 
-def declare_parameters(node, read_only=True, refused=None):
+def declare_parameters(node, managed=False, refused=None):
     """
     Declare every parameter of the table on ``node``; return their start values by name.
 
-    :param read_only: False declares every parameter writable (the managed node refuses a
-        change of a read-only one itself, except in its unconfigured state).
+    :param managed: Declare for the managed node: read-only only the operator's parameters
+        (``access`` :data:`~qfa_ros.ros.parameter_table.OPERATOR`); it refuses the others of
+        the plain node's read-only ones itself from ``configure`` to ``cleanup``. Otherwise
+        every parameter that is not writable at run time is read-only.
     :param refused: None, or a dict: a start value rclpy refuses (type, range) is then
         recorded there (name: reason) and the parameter declared with its default, instead
         of raising.
@@ -43,7 +45,7 @@ def declare_parameters(node, read_only=True, refused=None):
         lambda parameters: [as_declared_type(p) for p in parameters])
     for spec in PARAMETERS:
         declared = descriptor(spec)
-        declared.read_only = declared.read_only and read_only
+        declared.read_only = not spec.writable(configured=not managed)
         try:
             try:
                 node.declare_parameter(spec.name, spec.default, declared)
