@@ -123,8 +123,10 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         self.add_on_set_parameters_callback(self._check_by_state)
         self.add_post_set_parameters_callback(self._forget_refused)
         # The unit's entities by kind (what wire_unit created), or None while unconfigured;
-        # its parameter checks. Executor thread only, as is _active.
+        # the node attributes wire_unit set; its parameter checks. Executor thread only, as
+        # is _active.
         self._unit_entities = None
+        self._unit_attributes = ()
         self._parameter_changes = None
         self._active = False
         # A fault the unit cannot ride out (any thread sets it), handled on the executor.
@@ -186,7 +188,7 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         if refused:
             return self._refuse('configure', refused)
         values = {spec.name: self.get_parameter(spec.name).value for spec in PARAMETERS}
-        before = [set(entities) for entities, _ in _destroyers(self)]
+        before = [set(entities) for entities, _ in _destroyers(self)], set(vars(self))
         try:
             self.wire_unit(values, self._process_tuning)
         except ValueError as error:
@@ -330,8 +332,11 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         return ERROR
 
     def _keep_unit_entities(self, before):
-        self._unit_entities = [set(entities) - known
-                               for (entities, _), known in zip(_destroyers(self), before)]
+        """Note what ``wire_unit`` made: its entities by kind and the attributes it set."""
+        entities, attributes = before
+        self._unit_entities = [set(now) - known
+                               for (now, _), known in zip(_destroyers(self), entities)]
+        self._unit_attributes = set(vars(self)) - attributes
 
     def _stop_publishing(self, transition, state):
         """Publish nothing more; cancel a running schedule; record and finish the file."""
@@ -367,8 +372,18 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         for (_, destroy), entities in zip(_destroyers(self), self._unit_entities):
             for entity in entities:
                 destroy(entity)
-        self._unit_entities = self._parameter_changes = self._stream = None
+        # Nothing of the unit stays reachable from the node: its collaborators, which
+        # reference each other, are garbage now (collected below in a process of its own,
+        # else in the collector's time), not held until the next configure replaces them.
+        for name in self._unit_attributes:
+            delattr(self, name)
+        self._unit_attributes = ()
+        self._unit_entities = self._parameter_changes = None
         self._active = False
         if self._process_tuning is not None:
             self._process_tuning.released()
+        # rclpy's callback group keeps a weak reference to every entity ever made in it
+        # (rclpy 7 and 9): forget those of the units gone, or each cycle adds some.
+        group = self.default_callback_group
+        group.entities.difference_update([ref for ref in list(group.entities) if ref() is None])
         return problem
