@@ -14,7 +14,7 @@ settings every parameter range allows (``bounds.LARGEST_*``, the values of
 ``test_trust_boundary.py::test_the_largest_schedules_the_ranges_allow_run``) on the default
 sensor, and checks that each ends within its documented bound (``SCHEDULE_WORST_S``,
 ``CHAMBER_WORST_S``) and the loop-step budget; the suite runs the estimation call, this the
-chamber program too (1.44e8 loop steps, ~10 CPU-s). Its result:
+chamber program too (6.2e7 loop steps at the default limits, ~30 CPU-s). Its result:
 ``bench/results/schedule_cost.md``.
 """
 

@@ -427,7 +427,7 @@ def test_the_largest_schedules_the_ranges_allow_run():
     assert forward.captured and feedback.captured
     assert triad.time - started == pytest.approx(FORWARD_WORST_S + FEEDBACK_WORST_S, abs=0.01)
     np.testing.assert_allclose(feedback.measured, -71739.0, rtol=1e-3)
-    # The largest chamber program (1.44e8 loop steps, ~10 CPU-s) runs within its bound in
+    # The largest chamber program (6.2e7 loop steps, ~30 CPU-s) runs within its bound in
     # `python bench/schedule_cost.py --largest` (bench/results/schedule_cost.md).
     assert CHAMBER_WORST_S * values['loop_rate_hz'] <= MAX_SCHEDULE_LOOP_STEPS
 
