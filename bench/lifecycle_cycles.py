@@ -168,6 +168,10 @@ def main(argv=None):
         loaded, _ = stored.load()
         state_intact = (out / 'state.json').read_bytes() == state and loaded.has_reference
         errors = [line for line in log.splitlines() if '[ERROR]' in line or 'Traceback' in line]
+        # A gap in a period is a stall the node says it had: samples it skipped (held up
+        # past the catch-up bound) or messages its publishing thread dropped over 1 s late.
+        stalls = [line for line in log.splitlines() if 'skipped: the node was held up' in line
+                  or 'messages dropped unpublished' in line]
     rss = [row[1] for row in rows]
     threads = [row[2] for row in rows]
     fds = [row[3] for row in rows]
@@ -203,7 +207,8 @@ def main(argv=None):
              f'0, {rss[start]:.1f} after cycle {start}.', '',
              f'Bag directories: {bags} for {args.cycles + 1} configurations, readable by rosbags '
              f'{readable}; {samples} `imu/data_raw` samples; directories with a sample missing '
-             f'or off the 1 kHz grid within their period: {broken}. State file as after the '
+             f'or off the 1 kHz grid within their period: {broken} (stalls the node logged, '
+             f'samples skipped or dropped late: {len(stalls)}). State file as after the '
              f'capture, loaded with its references: {state_intact}. Node exit status '
              f'{status}; ERROR or traceback lines in its log: {len(errors)}.', '',
              'RSS [MiB] after every 100th cycle: '

@@ -127,6 +127,11 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         # is _active.
         self._unit_entities = None
         self._unit_attributes = ()
+        # Whether a configure's StartupRecovery looked everywhere: what an earlier run of
+        # the node left unfinished is recovered once per process, not at every configure
+        # (each look stats every bag directory: O(recordings) per cycle, and what it
+        # allocated kept the process growing over a thousand cycles).
+        self._recovered = False
         self._parameter_changes = None
         self._active = False
         # A fault the unit cannot ride out (any thread sets it), handled on the executor.
@@ -217,7 +222,8 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         self._stream.start()
         for line in self._start_lines:
             self.get_logger().info(line)
-        self._startup_recovery.start()
+        if not self._recovered:
+            self._startup_recovery.start()
         self.get_logger().info('configure: done (inactive: the sensor runs, nothing is '
                                'published until activate)')
         return SUCCESS
@@ -372,6 +378,8 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         for (_, destroy), entities in zip(_destroyers(self), self._unit_entities):
             for entity in entities:
                 destroy(entity)
+        recovery = getattr(self, '_startup_recovery', None)
+        self._recovered = self._recovered or (recovery is not None and recovery.completed)
         # Nothing of the unit stays reachable from the node: its collaborators, which
         # reference each other, are garbage now (collected below in a process of its own,
         # else in the collector's time), not held until the next configure replaces them.
