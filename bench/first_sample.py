@@ -29,6 +29,9 @@ cache written after a source change, the sources' bytecode, the page cache;
 (``while True: pass``) for the whole run. ``--phases`` instead times when each phase of the
 node's start ends (imports, model, warm-up, first publication), by wall time since
 Popen and by the CPU time (all threads) the process had used by then, tree after tree.
+``--cold-cache`` instead checks ``make setup``'s warm-up: into an empty ``NUMBA_CACHE_DIR``,
+``python -m qfa_ros.cli.warm_cache``, then ``qfa-sim static --duration 1`` and the node to
+its first sample, each with ``NUMBA_DEBUG_CACHE=1``: neither may compile (save) a kernel.
 """
 
 import argparse
@@ -301,6 +304,37 @@ def time_start(subscriber, argv, cwd, env, timeout_s):
     return (None, None) if arrival is None else (arrival - started, cpu)
 
 
+def cold_cache(subscriber, env, timeout_s):
+    """Return the Markdown lines of what each step compiled after warming an empty cache."""
+    with tempfile.TemporaryDirectory() as scratch:
+        env = {**env, 'NUMBA_CACHE_DIR': f'{scratch}/numba', 'NUMBA_DEBUG_CACHE': '1',
+               'PYTHONPATH': str(ROOT)}
+        steps = []
+        for label, argv in (
+                ('python -m qfa_ros.cli.warm_cache (make setup)',
+                 [sys.executable, '-m', 'qfa_ros.cli.warm_cache']),
+                ('qfa-sim static --duration 1 (make sim)',
+                 [sys.executable, '-m', 'qfa_ros.cli.sim', 'static', '--duration', '1'])):
+            done = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True,
+                                  timeout=900)
+            steps.append((label, done.returncode, done.stdout))
+        log = Path(scratch) / 'node.log'
+        argv, cwd, _ = node_command(ROOT, Path(scratch) / 'node')
+        subscriber.arm()
+        with open(log, 'w') as stream:
+            process = subprocess.Popen(argv, cwd=cwd, env=env, stdout=stream,
+                                       stderr=subprocess.STDOUT)
+            arrival = subscriber.wait(timeout_s)
+            stop(process)
+        steps.append(('the node to its first sample (make run)',
+                      0 if arrival is not None else 'no sample', log.read_text()))
+    lines = ['| step | status | kernels loaded from the cache | kernels compiled (saved) |',
+             '|---|---|---:|---:|']
+    lines += [f'| {label} | {status} | {output.count("data loaded")} | '
+              f'{output.count("data saved")} |' for label, status, output in steps]
+    return lines
+
+
 def summary(values):
     good = [v for v in values if v is not None]
     missing = len(values) - len(good)
@@ -322,6 +356,8 @@ def main():
     parser.add_argument('--out', default=str(RESULTS), help='Markdown file to append to')
     parser.add_argument('--phases', action='store_true',
                         help="time the node's start-up phases instead (no subscriber)")
+    parser.add_argument('--cold-cache', action='store_true',
+                        help="check make setup's warm-up of an empty numba cache instead")
     args = parser.parse_args()
 
     env = environment(args.domain)
@@ -348,6 +384,20 @@ def main():
             f'{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC', '',
             f'`{command}` ({os.cpu_count()} cores; load average before the run '
             f'{load:.2f}; starts per tree: {counts})', '', *table]) + '\n'
+        print(text)
+        with open(args.out, 'a') as stream:
+            stream.write('\n' + text)
+        return
+    if args.cold_cache:
+        subscriber = FirstSample()
+        try:
+            table = cold_cache(subscriber, env, args.timeout)
+        finally:
+            subscriber.close()
+        text = '\n'.join([
+            f'### After the warm-up of an empty cache, '
+            f'{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC', '',
+            f'`{command}` (load average before the run {load:.2f})', '', *table]) + '\n'
         print(text)
         with open(args.out, 'a') as stream:
             stream.write('\n' + text)

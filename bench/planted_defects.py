@@ -1,11 +1,12 @@
 """
-Plant issue 36's defects, one at a time, and show that the fuzz test fails on each.
+Plant the boundary's defects (issues 36 and 43), one at a time; the fuzz test fails on each.
 
 Run: ``QFA_TEST_DOMAINS=<low>-<high> .venv/bin/python bench/planted_defects.py [--cases N]
-[--only NAME ...] [--no-control] [--out bench/results/boundary_36.md]``. Copies the working
+[--only NAME ...] [--no-control] [--out bench/results/boundary_36.md]`` (without ``--cases``:
+the suite's number, the one every defect must fail). Copies the working
 tree (without its venvs and git directory) to a scratch directory once; for each defect,
 puts the pristine file back, applies the defect there (never in the product) and runs
-``test/test_node_fuzz.py`` on the copy (``-n 0``, ``QFA_FUZZ_CASES=N``; the node started
+``test/test_node_fuzz.py`` on the copy (``-n 0``, ``QFA_FUZZ_CASES=N``; the nodes started
 with ``python -m`` from the copy, ``PYTHONPATH`` the copy), then records whether it failed,
 the invariant that caught it (its assertion message), after how many cases, and the time.
 A control run of the pristine copy comes first: a defect counts only if the same test on
@@ -35,13 +36,13 @@ DEFECTS = {
         '        if abs(time_ns - now_ns) > window_ns:\n',
         '        if False:  # planted: no stamp window\n'),
     'array size check removed': (
-        'qfa_ros/ros/params.py',
+        'qfa_ros/ros/parameter_checks.py',
         "    if spec.max_length is not None and len(value) > spec.max_length:\n"
         "        return f'{name} must have at most {spec.max_length} elements, "
         "got {len(value)}'\n",
         ''),
     'a choices refusal quoting the whole value, before the length check': (
-        'qfa_ros/ros/params.py',
+        'qfa_ros/ros/parameter_checks.py',
         "    limit = MAX_FRAME_ID_LENGTH if name == 'frame_id' else MAX_STRING_LENGTH\n",
         "    if spec.choices is not None and value not in spec.choices:\n"
         "        return f'{name} must be one of {\", \".join(spec.choices)}, got {value!r}'\n"
@@ -61,6 +62,27 @@ DEFECTS = {
         "            reason = f'recorder.directory: {system_reason(error)}' \\\n"
         '                if isinstance(error, OSError) else error\n',
         '            reason = error\n'),
+    # Issue 43: the managed node's unconfigured window, one hole at a time.
+    'state_file writable while the managed node is unconfigured': (
+        'qfa_ros/ros/parameter_table.py',
+        "                  'Persisted calibration state (JSON); empty: keep it in memory only', "
+        "OPERATOR,\n",
+        "                  'Persisted calibration state (JSON); empty: keep it in memory only', "
+        "CONFIGURE,\n"),
+    'output_dir writable while the managed node is unconfigured': (
+        'qfa_ros/ros/parameter_table.py',
+        "                  OPERATOR, why=FILES_WRITTEN),\n    ParameterSpec('min_free_bytes',",
+        "                  CONFIGURE, why=FILES_WRITTEN),\n    ParameterSpec('min_free_bytes',"),
+    'noise.imu_yaml writable while the managed node is unconfigured': (
+        'qfa_ros/ros/parameter_table.py',
+        "'by the operator only, so no participant can make the node read a file',\n"
+        "                  OPERATOR, why=FILE_READ),\n",
+        "'by the operator only, so no participant can make the node read a file',\n"
+        "                  CONFIGURE, why=FILE_READ),\n"),
+    'no confinement of trace_dir and recorder.directory while unconfigured': (
+        'qfa_ros/ros/parameter_checks.py',
+        '    if reason or name not in CONFINED:\n',
+        '    if True:  # planted: no confinement while unconfigured\n'),
 }
 """Name: (file, the text of the product, the defect put in its place)."""
 
@@ -85,9 +107,13 @@ def plant(tree, name):
 
 
 def run_fuzz(tree, cases):
-    """Run the fuzz test on ``tree``; return (passed, what caught it, after cases, seconds)."""
-    env = {**os.environ, 'PYTHONPATH': str(tree), 'QFA_FUZZ_CASES': str(cases),
-           'PYTHONDONTWRITEBYTECODE': '1'}
+    """Run the fuzz module on ``tree``; return (passed, what caught it, where, seconds, output).
+
+    Where: the test that failed (the executable and state) and the random case, if one.
+    """
+    env = {**os.environ, 'PYTHONPATH': str(tree), 'PYTHONDONTWRITEBYTECODE': '1'}
+    if cases is not None:
+        env['QFA_FUZZ_CASES'] = str(cases)
     started = time.monotonic()
     result = subprocess.run(
         [sys.executable, '-m', 'pytest', 'test/test_node_fuzz.py', '-n', '0', '-q', '-x',
@@ -96,21 +122,24 @@ def run_fuzz(tree, cases):
     seconds = time.monotonic() - started
     output = result.stdout + result.stderr
     if result.returncode == 0:
-        return True, '', cases, seconds, output
+        return True, '', 'all', seconds, output
     lines = [line[4:].strip() for line in output.splitlines() if line.startswith('E   ')]
     caught = next((line for line in lines if line), output.strip()[-300:])
+    failed = re.search(r'FAILED \S+::(\S+)', output)
     counted = re.search(r'case (\d+) of (\d+): ', caught)
-    after = int(counted.group(1)) if counted else f'all {cases} (after the cases)'
-    caught = re.sub(r'^(AssertionError: )?case \d+ of \d+: ', '', caught)
+    where = (failed.group(1) if failed else '?') + (
+        f', random case {counted.group(1)} of {counted.group(2)}' if counted else '')
+    caught = re.sub(r'^(AssertionError: )?(\w+ node, [\w ]+: )?case \d+ of \d+: ', '', caught)
     # A stranger's long string quoted back: its length, not its characters.
     caught = re.sub(r'(.)\1{19,}', lambda run: f'{run.group(1) * 3}...<{len(run.group(0))} '
                     f'characters>', caught)
-    return False, caught[:300], after, seconds, output
+    return False, caught[:300], where, seconds, output
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    parser.add_argument('--cases', type=int, default=300, help='QFA_FUZZ_CASES of each run')
+    parser.add_argument('--cases', type=int, default=None,
+                        help="QFA_FUZZ_CASES of each run (default: the suite's)")
     parser.add_argument('--only', nargs='*', choices=sorted(DEFECTS), default=None)
     parser.add_argument('--no-control', action='store_true', help='skip the pristine run')
     parser.add_argument('--out', type=Path, help='write the section into this file')
@@ -119,16 +148,17 @@ def main(argv=None):
     commit = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=ROOT,
                             capture_output=True, text=True).stdout.strip()
     domains = os.environ.get('QFA_TEST_DOMAINS', '1-100')
+    cases = f'QFA_FUZZ_CASES={args.cases}' if args.cases else "the suite's QFA_FUZZ_CASES"
     lines = [HEADING, '', f'`QFA_TEST_DOMAINS={domains} .venv/bin/python '
-             f'bench/planted_defects.py --cases {args.cases}'
+             'bench/planted_defects.py' + (f' --cases {args.cases}' if args.cases else '')
              + (f' --only {" ".join(repr(n) for n in args.only)}' if args.only else '')
              + (' --no-control' if args.no_control else '')
              + ' --out bench/results/boundary_36.md`', '',
              f'{datetime.date.today()}, commit {commit} (+ working tree), '
-             f'`test/test_node_fuzz.py` with `QFA_FUZZ_CASES={args.cases}` on a copy of the '
+             f'`test/test_node_fuzz.py` with {cases} on a copy of the '
              'tree with one defect planted (the product untouched); load average '
              f'{os.getloadavg()[0]:.1f} at the start.', '',
-             '| defect planted | file | fuzz test | caught by | after cases | time [s] | load |',
+             '| defect planted | file | fuzz test | caught by | at | time [s] | load |',
              '|---|---|---|---|---|---|---|']
     with tempfile.TemporaryDirectory(prefix='qfa_planted_') as scratch:
         tree = Path(scratch) / 'tree'
@@ -136,13 +166,12 @@ def main(argv=None):
         runs = ([] if args.no_control else [None]) + names
         for name in runs:
             plant(tree, name)
-            print(f'{name or "control (no defect)"}: running {args.cases} cases ...',
-                  flush=True)
+            print(f'{name or "control (no defect)"}: running ...', flush=True)
             passed, caught, after, seconds, output = run_fuzz(tree, args.cases)
             if name is None and not passed:
                 print(output[-5000:])
                 raise SystemExit(f'the pristine copy fails: {caught}')
-            print(f'  {"passed" if passed else "FAILED"} after {after} cases, {seconds:.0f} s: '
+            print(f'  {"passed" if passed else "FAILED"} ({after}), {seconds:.0f} s: '
                   f'{caught}', flush=True)
             label = name or 'none (control)'
             file = DEFECTS[name][0] if name else '—'

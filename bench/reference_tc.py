@@ -5,7 +5,7 @@ Run from the repository root::
 
     .venv/bin/python bench/reference_tc.py > bench/results/reference_tc.md
 
-Per unit: the node's default sensor (``qfa_ros.ros.params`` defaults with ``seed`` =
+Per unit: the node's default sensor (``qfa_ros.ros.parameter_table`` defaults with ``seed`` =
 the unit: drawn unit, ``sensor.error_profile: paper`` with the unit's own I_ref
 coefficient, drawn around +30 ppm/degC, 10 kHz
 loop, the default ``temperature_calibration.*``) captures its references, runs the
@@ -45,7 +45,8 @@ from qfa_ros.model.errors import ErrorProfile  # noqa: E402
 from qfa_ros.model.thermal import ThermalConfig  # noqa: E402
 from qfa_ros.model.triad_config import TriadConfig  # noqa: E402
 from qfa_ros.model.unit import draw_unit  # noqa: E402
-from qfa_ros.ros.params import make_triad, PARAMETERS, temperature_settings  # noqa: E402
+from qfa_ros.ros.model_settings import make_triad, temperature_settings
+from qfa_ros.ros.parameter_table import PARAMETERS
 
 
 def short_unit(seed):

@@ -31,7 +31,8 @@ from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.ros.params import feedback_settings, forward_settings, PARAMETERS
+from qfa_ros.ros.model_settings import feedback_settings, forward_settings
+from qfa_ros.ros.parameter_table import PARAMETERS
 
 QUIET = NoiseConfig(noise_density=0.0, bias_instability=0.0)
 

@@ -1,7 +1,7 @@
 """
 Unit 218566 on the node's sensor: temperature calibration, eight attitudes (issue 28).
 
-The node's default sensor (``qfa_ros.ros.params`` defaults: drawn unit, paper error
+The node's default sensor (``qfa_ros.ros.parameter_table`` defaults: drawn unit, paper error
 profile, 10 kHz loop) with ``unit.seed: 218566``, ``sample_rate_hz: 200`` and
 ``thermal.sensor_tau_s: 8`` (the body follows the chamber within seconds, as the node was
 tried), a constant ambient; ``calibrate_temperature``'s schedule (the default
@@ -26,7 +26,8 @@ from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.verification import verify_attitudes
 from qfa_ros.model.unit import draw_unit
 from qfa_ros.model.units import MICRO_G
-from qfa_ros.ros.params import make_triad, PARAMETERS, temperature_settings
+from qfa_ros.ros.model_settings import make_triad, temperature_settings
+from qfa_ros.ros.parameter_table import PARAMETERS
 
 SEED = 218566
 

@@ -24,7 +24,7 @@ from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import DEG_PER_HOUR, PPM
 from qfa_ros.ros.ground_truth import GroundTruthInput
-from qfa_ros.ros.params import PARAMETERS
+from qfa_ros.ros.parameter_table import PARAMETERS
 
 
 def _run(config, rate, force=None, temperature=25.0, seed=0):

@@ -28,7 +28,8 @@ from qfa_ros.model.imu_noise import (
     KEYS,
     model_fit_figures,
 )
-from qfa_ros.ros.params import load_imu_noise, PARAMETERS, triad_config
+from qfa_ros.ros.model_settings import load_imu_noise, triad_config
+from qfa_ros.ros.parameter_table import PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[1]
 RATE_HZ = 1000.0

@@ -24,7 +24,8 @@ from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.unit import draw_unit
-from qfa_ros.ros.params import make_triad, PARAMETERS
+from qfa_ros.ros.model_settings import make_triad
+from qfa_ros.ros.parameter_table import PARAMETERS
 
 sys.path.insert(0, os.path.dirname(__file__))
 import strapdown  # noqa: E402

@@ -456,7 +456,8 @@ def test_allan_deviation_follows_allantools():
 
 
 def test_qfa_sim_static_simulates_the_node_default_sensor():
-    from qfa_ros.ros.params import input_profile, PARAMETERS, triad_config
+    from qfa_ros.ros.model_settings import input_profile, triad_config
+    from qfa_ros.ros.parameter_table import PARAMETERS
     defaults = {spec.name: spec.default for spec in PARAMETERS}
     defaults['unit.draw'] = False  # the nominal unit: see static_sensor's docstring
     defaults['thermal.ambient_profile'] = 'constant'  # a still ambient, likewise

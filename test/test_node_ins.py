@@ -22,7 +22,8 @@ from std_srvs.srv import Trigger
 
 from qfa_ros.model import earth
 from qfa_ros.model.design import published_acceleration_variance
-from qfa_ros.ros.params import load_imu_noise, PARAMETERS, triad_config
+from qfa_ros.ros.model_settings import load_imu_noise, triad_config
+from qfa_ros.ros.parameter_table import PARAMETERS
 
 NODE = '/qfa_node'
 POLAR_GRAVITY = 9.8321849378

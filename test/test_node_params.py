@@ -4,7 +4,7 @@ import json
 import math
 from pathlib import Path
 
-from node_helpers import domain_id
+from node_helpers import domain_id, OPERATOR_ONLY
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -12,19 +12,10 @@ import yaml
 
 from qfa_ros.calibration.state import AxisReference, CalibrationState
 from qfa_ros.model.unit import draw_unit, FORWARD_TC_COMPONENTS
-from qfa_ros.ros.params import (
-    as_declared_type,
-    check_all,
-    check_value,
-    config_yaml,
-    descriptor,
-    EFFECT_OF,
-    make_triad,
-    parameter_table,
-    PARAMETERS,
-    RUNTIME_EFFECTS,
-    SPECS,
-)
+from qfa_ros.ros.model_settings import make_triad
+from qfa_ros.ros.parameter_checks import as_declared_type, check_all, check_value, descriptor
+from qfa_ros.ros.parameter_docs import access_table, config_yaml, markdown_table
+from qfa_ros.ros.parameter_table import EFFECT_OF, OPERATOR, PARAMETERS, RUNTIME_EFFECTS, SPECS
 from qfa_ros.ros.state_store import StateFileError, StateStore
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,7 +27,7 @@ def defaults():
 
 def test_config_file_holds_every_parameter_with_its_default():
     text = (ROOT / 'config' / 'qfa.yaml').read_text()
-    assert text == config_yaml(), 'regenerate: python -m qfa_ros.ros.params yaml'
+    assert text == config_yaml(), 'regenerate: python -m qfa_ros.ros.parameter_docs yaml'
     values = yaml.safe_load(text)['/**']['ros__parameters']
     assert set(values) == set(SPECS)
     for name, value in values.items():
@@ -45,8 +36,13 @@ def test_config_file_holds_every_parameter_with_its_default():
 
 
 def test_docs_list_every_parameter():
-    assert parameter_table() in (ROOT / 'docs' / 'node.md').read_text(), \
-        'regenerate the table: python -m qfa_ros.ros.params markdown'
+    assert markdown_table() in (ROOT / 'docs' / 'node.md').read_text(), \
+        'regenerate the table: python -m qfa_ros.ros.parameter_docs markdown'
+
+
+def test_the_security_page_says_who_may_set_what():
+    assert access_table() in (ROOT / 'docs' / 'security.md').read_text(), \
+        'regenerate the table: python -m qfa_ros.ros.parameter_docs access'
 
 
 def test_every_parameter_has_a_description_and_fixed_names_exist():
@@ -57,6 +53,12 @@ def test_every_parameter_has_a_description_and_fixed_names_exist():
         assert name in SPECS
     assert descriptor(SPECS['sample_rate_hz']).read_only
     assert descriptor(SPECS['drift.time_acceleration']).floating_point_range
+
+
+def test_the_operator_alone_sets_files_directories_and_resources():
+    # The table agrees with the tests' list: what no participant sets in any state.
+    operator = {spec.name for spec in PARAMETERS if spec.access == OPERATOR}
+    assert operator == OPERATOR_ONLY, operator ^ OPERATOR_ONLY
 
 
 def test_defaults_are_consistent():

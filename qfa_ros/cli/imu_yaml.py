@@ -43,7 +43,8 @@ def config_figures(path):
     node reads it) and emulated.
     """
     from qfa_ros.model.files import read_regular_file
-    from qfa_ros.ros.params import load_imu_noise, PARAMETERS, triad_config
+    from qfa_ros.ros.model_settings import load_imu_noise, triad_config
+    from qfa_ros.ros.parameter_table import PARAMETERS
     document = yaml.safe_load(read_regular_file(path, MAX_CONFIG_BYTES)) or {}
     values = {spec.name: spec.default for spec in PARAMETERS}
     for section in (document.values() if isinstance(document, dict) else ()):

@@ -151,12 +151,17 @@ class ProcessTuning:
 
     def released(self):
         """
-        Let the collector have the frozen objects again (a managed node removed its unit).
+        Reclaim a unit the managed node removed (``cleanup``), frozen objects and all.
 
-        A unit removed at ``cleanup`` leaves garbage among the frozen objects, which no
-        collection would otherwise reclaim; the next ``configure`` freezes its own.
+        The frozen objects go back to the collector and a full collection runs at once:
+        the removed unit's collaborators reference each other, and :meth:`warmed` collects
+        only the young generations before it freezes again, so without it every removed
+        unit stayed, frozen, for good (+0.12 MiB per configure/cleanup cycle, issue 43).
+        Nothing is published meanwhile; it takes about as long as the collection
+        :meth:`warmed` avoids (~0.1 s).
         """
         gc.unfreeze()
+        gc.collect()
 
 
 def create_node(secured, managed=False):

@@ -15,7 +15,8 @@ import io
 import sys
 
 from qfa_ros.cli import sim
-from qfa_ros.ros.params import input_profile, make_triad, PARAMETERS
+from qfa_ros.ros.model_settings import input_profile, make_triad
+from qfa_ros.ros.parameter_table import PARAMETERS
 from qfa_ros.ros.stream import WARM_UP_SAMPLES
 
 

@@ -8,7 +8,7 @@ import numpy as np
 from qfa_ros.model import earth
 from qfa_ros.model.trajectory import quaternion_to_dcm
 from qfa_ros.model.triad import NS_PER_S
-from qfa_ros.ros.params import static_profile
+from qfa_ros.ros.model_settings import static_profile
 
 MAX_PENDING_INPUTS = 10000
 MAX_SPECIFIC_FORCE = 1.0e4

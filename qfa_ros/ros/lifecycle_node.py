@@ -35,7 +35,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, TransitionCallbackReturn
 
 from qfa_ros.ros.node import QfaUnit
-from qfa_ros.ros.params import check_value, PARAMETERS, SPECS
+from qfa_ros.ros.parameter_checks import check_alone
+from qfa_ros.ros.parameter_table import OPERATOR, PARAMETERS, SPECS
 from qfa_ros.ros.runtime_parameters import declare_parameters
 
 TRANSITION_CLOSE_TIMEOUT_S = 2.0
@@ -92,10 +93,15 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
     """
     The emulated IMU as a managed node: the unit wired at ``configure``, published while active.
 
-    Its parameters are declared at construction, every one writable while unconfigured
-    (``configure`` checks the whole set); from ``configure`` to ``cleanup`` the read-only
-    ones are refused, as by the plain node. A start value rclpy refuses (type, range) does
-    not stop the process: ``configure`` answers FAILURE naming it until it is set.
+    Its parameters are declared at construction; who may set each, and when, is the table's
+    (:data:`~qfa_ros.ros.parameter_table.PARAMETERS`, ``access``): the operator's alone
+    (files, directories, rates, resources) are read-only in every state, as in the plain
+    node; the sensor's own settings are writable while unconfigured, each change judged on
+    its own (range, size, a directory confined to ``output_dir``) and ``configure`` checking
+    the whole set; from ``configure`` to ``cleanup`` the plain node's read-only ones are
+    refused. A start value rclpy refuses (type, range) does not stop the process:
+    ``configure`` answers FAILURE naming it until it is set (an operator's one: until the
+    node is started again with a valid one).
 
     :param node_name: Node name.
     :param process_tuning: The process's interpreter settings (see
@@ -113,12 +119,19 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         self._process_tuning = process_tuning
         # Start values rclpy refused at declaration (name: reason); set, they are forgotten.
         self._refused = {}
-        declare_parameters(self, read_only=False, refused=self._refused)
+        declare_parameters(self, managed=True, refused=self._refused)
         self.add_on_set_parameters_callback(self._check_by_state)
         self.add_post_set_parameters_callback(self._forget_refused)
         # The unit's entities by kind (what wire_unit created), or None while unconfigured;
-        # its parameter checks. Executor thread only, as is _active.
+        # the node attributes wire_unit set; its parameter checks. Executor thread only, as
+        # is _active.
         self._unit_entities = None
+        self._unit_attributes = ()
+        # Whether a configure's StartupRecovery looked everywhere: what an earlier run of
+        # the node left unfinished is recovered once per process, not at every configure
+        # (each look stats every bag directory: O(recordings) per cycle, and what it
+        # allocated kept the process growing over a thousand cycles).
+        self._recovered = False
         self._parameter_changes = None
         self._active = False
         # A fault the unit cannot ride out (any thread sets it), handled on the executor.
@@ -135,17 +148,32 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
 
     # Parameters -------------------------------------------------------------------------
     def _check_by_state(self, parameters):
-        """Refuse a read-only parameter unless unconfigured; check each value while it is."""
+        """
+        Refuse what the state does not allow; judge each value on its own while unconfigured.
+
+        The operator's parameters are read-only (rclpy refuses them before this callback);
+        the others of the plain node's read-only ones are refused from ``configure`` to
+        ``cleanup``. While unconfigured a change is judged alone (``check_alone``: the
+        directories confined to ``output_dir`` as in the plain node); ``configure`` checks
+        the whole set.
+        """
         configured = self._unit_entities is not None
         for parameter in parameters:
-            spec = SPECS.get(parameter.name)
+            name = parameter.name
+            spec = SPECS.get(name)
             if spec is None:
                 continue  # rclpy's own (use_sim_time, qos_overrides...)
-            if configured and spec.read_only:
-                return SetParametersResult(successful=False, reason=(
-                    f'{parameter.name} is read-only while the node is configured: set it '
-                    'while unconfigured (ros2 lifecycle set <node> cleanup first)'))
-            reason = None if configured else check_value(parameter.name, parameter.value)
+            if spec.access == OPERATOR:
+                reason = (f'{name} is set by the operator only, at start (command line, '
+                          'parameters file, launch file)')
+            elif not spec.writable(configured):
+                reason = (f'{name} is read-only while the node is configured: set it while '
+                          'unconfigured (ros2 lifecycle set <node> cleanup first)')
+            elif configured:
+                reason = None  # the unit's own callback checks the whole set
+            else:
+                reason = check_alone(name, parameter.value,
+                                     self.get_parameter('output_dir').value)
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
@@ -157,12 +185,15 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
     # Transitions (executor thread; each logs what it did) -------------------------------
     def on_configure(self, state):
         """Check the parameters, read the files, build the model, start the sensor unpublished."""
-        refused = '; '.join(f'start value of {name} refused: {reason}'
-                            for name, reason in self._refused.items())
+        refused = '; '.join(
+            f'start value of {name} refused: {reason}' + (
+                f' ({name} is set by the operator only: start the node again with a valid '
+                'one)' if SPECS[name].access == OPERATOR else '')
+            for name, reason in self._refused.items())
         if refused:
             return self._refuse('configure', refused)
         values = {spec.name: self.get_parameter(spec.name).value for spec in PARAMETERS}
-        before = [set(entities) for entities, _ in _destroyers(self)]
+        before = [set(entities) for entities, _ in _destroyers(self)], set(vars(self))
         try:
             self.wire_unit(values, self._process_tuning)
         except ValueError as error:
@@ -191,7 +222,8 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         self._stream.start()
         for line in self._start_lines:
             self.get_logger().info(line)
-        self._startup_recovery.start()
+        if not self._recovered:
+            self._startup_recovery.start()
         self.get_logger().info('configure: done (inactive: the sensor runs, nothing is '
                                'published until activate)')
         return SUCCESS
@@ -306,8 +338,11 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         return ERROR
 
     def _keep_unit_entities(self, before):
-        self._unit_entities = [set(entities) - known
-                               for (entities, _), known in zip(_destroyers(self), before)]
+        """Note what ``wire_unit`` made: its entities by kind and the attributes it set."""
+        entities, attributes = before
+        self._unit_entities = [set(now) - known
+                               for (now, _), known in zip(_destroyers(self), entities)]
+        self._unit_attributes = set(vars(self)) - attributes
 
     def _stop_publishing(self, transition, state):
         """Publish nothing more; cancel a running schedule; record and finish the file."""
@@ -343,8 +378,20 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         for (_, destroy), entities in zip(_destroyers(self), self._unit_entities):
             for entity in entities:
                 destroy(entity)
-        self._unit_entities = self._parameter_changes = self._stream = None
+        recovery = getattr(self, '_startup_recovery', None)
+        self._recovered = self._recovered or (recovery is not None and recovery.completed)
+        # Nothing of the unit stays reachable from the node: its collaborators, which
+        # reference each other, are garbage now (collected below in a process of its own,
+        # else in the collector's time), not held until the next configure replaces them.
+        for name in self._unit_attributes:
+            delattr(self, name)
+        self._unit_attributes = ()
+        self._unit_entities = self._parameter_changes = None
         self._active = False
         if self._process_tuning is not None:
             self._process_tuning.released()
+        # rclpy's callback group keeps a weak reference to every entity ever made in it
+        # (rclpy 7 and 9): forget those of the units gone, or each cycle adds some.
+        group = self.default_callback_group
+        group.entities.difference_update([ref for ref in list(group.entities) if ref() is None])
         return problem

@@ -22,13 +22,13 @@ from qfa_ros.ros.calibration import CalibrationKeeper
 from qfa_ros.ros.diagnostics import Diagnostics, temperature_status
 from qfa_ros.ros.ground_truth import GroundTruthInput
 from qfa_ros.ros.input_topic import InputSubscription
-from qfa_ros.ros.params import (
-    check_all,
+from qfa_ros.ros.model_settings import (
     input_profile,
     load_imu_noise,
     load_trajectory_file,
     make_triad,
 )
+from qfa_ros.ros.parameter_checks import check_all
 from qfa_ros.ros.recording import StreamRecording
 from qfa_ros.ros.runtime_parameters import (
     apply_ambient,

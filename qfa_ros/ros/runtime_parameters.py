@@ -1,10 +1,10 @@
 """
 The node's parameters at run time: declared from the table, checked and applied on change.
 
-Every parameter of :data:`~qfa_ros.ros.params.PARAMETERS` is declared with its
+Every parameter of :data:`~qfa_ros.ros.parameter_table.PARAMETERS` is declared with its
 ``ParameterDescriptor``; a change is accepted only if the whole set stays consistent and
 its effect on the running sensor (one step per runtime effect,
-:data:`~qfa_ros.ros.params.RUNTIME_EFFECTS`) has run.
+:data:`~qfa_ros.ros.parameter_table.RUNTIME_EFFECTS`) has run.
 """
 
 import collections
@@ -14,27 +14,26 @@ from rclpy.exceptions import InvalidParameterTypeException, ParameterException
 
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.units import PPM
-from qfa_ros.ros.params import (
-    ambient_settings,
-    as_declared_type,
-    check_all,
-    descriptor,
+from qfa_ros.ros.model_settings import ambient_settings, input_profile
+from qfa_ros.ros.parameter_checks import as_declared_type, check_all, descriptor
+from qfa_ros.ros.parameter_table import (
     EFFECT_OF,
     FEEDBACK_COMPONENT,
     FORWARD_COMPONENT,
-    input_profile,
     PARAMETERS,
     RUNTIME_EFFECTS,
     THERMAL_RUNTIME_PARAMETERS,
 )
 
 
-def declare_parameters(node, read_only=True, refused=None):
+def declare_parameters(node, managed=False, refused=None):
     """
     Declare every parameter of the table on ``node``; return their start values by name.
 
-    :param read_only: False declares every parameter writable (the managed node refuses a
-        change of a read-only one itself, except in its unconfigured state).
+    :param managed: Declare for the managed node: read-only only the operator's parameters
+        (``access`` :data:`~qfa_ros.ros.parameter_table.OPERATOR`); it refuses the others of
+        the plain node's read-only ones itself from ``configure`` to ``cleanup``. Otherwise
+        every parameter that is not writable at run time is read-only.
     :param refused: None, or a dict: a start value rclpy refuses (type, range) is then
         recorded there (name: reason) and the parameter declared with its default, instead
         of raising.
@@ -46,7 +45,7 @@ def declare_parameters(node, read_only=True, refused=None):
         lambda parameters: [as_declared_type(p) for p in parameters])
     for spec in PARAMETERS:
         declared = descriptor(spec)
-        declared.read_only = declared.read_only and read_only
+        declared.read_only = not spec.writable(configured=not managed)
         try:
             try:
                 node.declare_parameter(spec.name, spec.default, declared)

@@ -22,7 +22,7 @@ from qfa_ros.model.triad import AXES
 from qfa_ros.model.triad_output import concatenate
 from qfa_ros.model.units import DEG_PER_HOUR
 from qfa_ros.ros.bounds import confined_directory
-from qfa_ros.ros.params import feedback_settings, forward_settings
+from qfa_ros.ros.model_settings import feedback_settings, forward_settings
 from qfa_ros.ros.recording import FreeSpaceGuard
 
 SCHEDULE_PAUSE = {

@@ -11,7 +11,7 @@ from qfa_ros.calibration.estimation import (
 )
 from qfa_ros.calibration.gyro_bias import gyro_bias_schedule
 from qfa_ros.calibration.temperature import temperature_calibration
-from qfa_ros.ros.params import gyro_bias_settings, temperature_settings
+from qfa_ros.ros.model_settings import gyro_bias_settings, temperature_settings
 
 
 class CalibrationServices:

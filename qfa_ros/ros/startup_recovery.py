@@ -41,6 +41,9 @@ class StartupRecovery:
         self.results = []
         """The :class:`~qfa_ros.bag.recovery.Recovery` of everything recovered (tests)."""
         self.done = threading.Event()
+        self.completed = False
+        """Whether it looked everywhere (not stopped half way, no error): nothing an earlier
+        run left is left to find by this process (a managed node looks once)."""
 
     def start(self):
         """Start looking (and recovering) in the background; once, and not after ``stop``."""
@@ -96,6 +99,7 @@ class StartupRecovery:
                     f'recovered {len(done)} recording(s) and trace(s) an earlier run left '
                     f'unfinished (killed or cut off; `qfa-report recover DIR` does the same): '
                     + '; '.join(result.describe() for result in done))
+            self.completed = not self._stop.is_set()
         except Exception as error:  # a thread of the node never raises; it says why
             if not self._stop.is_set():
                 logger.error(f'recovery of unfinished recordings at start failed: '
