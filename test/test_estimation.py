@@ -435,8 +435,8 @@ def test_state_carried_to_another_loop_rate_is_refused():
 @pytest.mark.parametrize('seed', [0, 1, 2])
 def test_settings_that_may_differ_keep_the_estimate_within_1_ppm(seed):
     # The forward settings and the chopped cycles, motion limit and bias instability do
-    # not change what the estimate expects (bench/schedule_settings.py): with a real drift
-    # injected every variant reads it within 1 ppm.
+    # not change what the estimate expects (bench/results/schedule_settings.md): with a
+    # real drift injected every variant reads it within 1 ppm.
     triad, state = captured(seed)
     truth_forward, truth_feedback = -150.0, 220.0
     for axis in range(3):

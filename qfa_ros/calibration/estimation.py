@@ -135,7 +135,7 @@ class FeedbackSettings:
 FORWARD_MATCHED = ()
 """Forward settings an estimate must share with its reference: none. The open-loop chain
 has no transient that outlasts a sample, so points, step, settle, averaging time and order
-move a drift-free estimate by less than 0.1 ppm (``bench/schedule_settings.py``); the loop
+move a drift-free estimate by less than 0.1 ppm (``bench/results/schedule_settings.md``); the loop
 rate must match (the forward gain of k(D(z)) is per loop step: +4086 ppm at twice the
 rate)."""
 FEEDBACK_MATCHED = ('settle_s', 'average_s', 'order')
