@@ -280,7 +280,10 @@ class Client:
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
 
-    def subscribe(self, msg_type, topic, callback, depth=1000, latched=False):
+    def subscribe(self, msg_type, topic, callback, depth=1000, latched=False, qos=None):
+        """Subscribe reliably (``depth``), latched, or with the profile ``qos`` if given."""
+        if qos is not None:
+            return self.node.create_subscription(msg_type, topic, callback, qos)
         qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
         if latched:
             qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -353,15 +356,19 @@ class Lifecycle:
 
 
 class ImuCollector:
-    """Collect ``imu/data_raw`` samples as (stamp ns, ax, ay, az) and whole messages."""
+    """
+    Collect ``imu/data_raw`` samples as (stamp ns, ax, ay, az) and whole messages.
 
-    def __init__(self, client, topic='imu/data_raw', depth=1000):
+    Reliable with ``depth`` unless ``qos`` (e.g. ``qos_profile_sensor_data``) is given.
+    """
+
+    def __init__(self, client, topic='imu/data_raw', depth=1000, qos=None):
         from sensor_msgs.msg import Imu
         self.samples = []
         self.after_ns = 0
         self.latest_ns = 0  # the stamp of the last sample received, kept or not
         self.last_message = None
-        self.subscription = client.subscribe(Imu, topic, self.callback, depth)
+        self.subscription = client.subscribe(Imu, topic, self.callback, depth, qos=qos)
 
     def callback(self, message):
         stamp = message.header.stamp

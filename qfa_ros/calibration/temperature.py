@@ -189,7 +189,8 @@ class TemperatureResult:
         Bias and scale-factor calibrations per axis, misalignment, K2.
     points : dict of numpy arrays
         Per tumble: ``time_ns``, ``v_temp`` [V], ``bias_<axis>`` [m/s^2],
-        ``scale_<axis>`` (relative scale-factor error) [1].
+        ``scale_<axis>`` (relative scale-factor error) [1] at the reading
+        ``v_temp_scale_<axis>`` [V] (the axis's +-g pair's).
     blocks : dict of numpy arrays
         Raw position blocks: ``time_ns``, ``v_temp`` [V], ``temperature`` (on-board
         reading) [degC], ``force`` (n, 3) fixture input and ``output`` (n, 3) [m/s^2].
@@ -501,8 +502,12 @@ def fit_multiposition(blocks, tumbles, settings):
     ``y_i = B(V) + (1 + S(V)) f_i + M_ij f_j + M_il f_l + K2_i f_i^2`` with ``B`` and
     ``S`` Chebyshev series in the scaled V (degrees 6 and 4): the constant ``M`` and
     ``K2``. Then per tumble, with those removed, ``y_i - f_i = b + b' dV + s f_i +
-    s' dV f_i`` (``dV = V - V_mean``: the temperature moves during a tumble): the bias
-    and scale-factor error at the tumble's mean reading. Last, seed
+    s' dV_pair f_i`` (``dV = V - V_mean``, ``dV_pair = V - V_pair``, ``V_pair`` the mean
+    reading of the axis's +-g pair: the temperature moves during a tumble): the bias at
+    the tumble's mean reading, the scale-factor error at the pair's, where the pair's
+    difference fixes it whatever ``s'`` (at the tumble's mean it would be carried there by
+    ``s'``, which two blocks read at almost one temperature leave undetermined: thousands
+    of ppm at a plateau's end, issue 45). Last, seed
     2's double exponential (linear baseline) through the tumbles' bias and through the
     scale-factor correction ``1/(1 + s) - 1``, and their fixed-point compensators.
     """
@@ -516,28 +521,35 @@ def fit_multiposition(blocks, tumbles, settings):
     v = v + lag * rate
     misalignment, k2, _ = _global_fit(v, force, output)
     corrected = output - force @ misalignment.T - k2 * force ** 2
-    v_mean, bias, scale, times = [], [], [], []
+    v_mean, v_pair, bias, scale, times = [], [], [], [], []
     n = len(POSITIONS)
     for first in tumbles:
         rows = slice(first, first + n)
         vv = v[rows]
         v_mean.append(vv.mean())
         times.append(blocks[first + n - 1][0])
-        b_row, s_row = [], []
+        b_row, s_row, p_row = [], [], []
         for i in range(3):
             f = force[rows, i]
             dv = vv - vv.mean()
-            design = np.column_stack([np.ones(n), dv, f, dv * f])
+            # The scale factor at the +-g pair's own mean reading: the pair's difference
+            # gives it whatever s' is. Taken at the tumble's mean instead, it is carried
+            # there by s', which two blocks read at almost one temperature do not fix.
+            pair = vv[f != 0].mean()
+            design = np.column_stack([np.ones(n), dv, f, (vv - pair) * f])
             c = np.linalg.lstsq(design, corrected[rows, i] - f, rcond=None)[0]
             b_row.append(c[0])
             s_row.append(c[2])
+            p_row.append(pair)
         bias.append(b_row)
         scale.append(s_row)
-    v_mean, bias, scale = np.array(v_mean), np.array(bias), np.array(scale)
+        v_pair.append(p_row)
+    v_mean, v_pair = np.array(v_mean), np.array(v_pair)
+    bias, scale = np.array(bias), np.array(scale)
     try:
         bias_cal = [calibrate_zero_bias(v_mean, bias[:, i], m_bits=settings.m_bits,
                                         n_bins=settings.bins, baseline=True) for i in range(3)]
-        scale_cal = [calibrate_zero_bias(v_mean, 1.0 / (1.0 + scale[:, i]) - 1.0,
+        scale_cal = [calibrate_zero_bias(v_pair[:, i], 1.0 / (1.0 + scale[:, i]) - 1.0,
                                          m_bits=settings.sf_m_bits, n_bins=settings.bins,
                                          baseline=True) for i in range(3)]
     except ValueError as error:
@@ -550,4 +562,5 @@ def fit_multiposition(blocks, tumbles, settings):
             v_mean, clip=True)
     for i, name in enumerate(AXES):
         points[f'scale_{name}'] = scale[:, i]
+        points[f'v_temp_scale_{name}'] = v_pair[:, i]
     return ThermalCompensation(bias_cal, scale_cal, misalignment, k2), points, lag
