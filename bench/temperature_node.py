@@ -47,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 from node_helpers import node_environment, ROOT  # noqa: E402
 
 from qfa_ros.calibration.verification import ATTITUDES, SCALE_PAIRS  # noqa: E402
-from qfa_ros.model.units import MICRO_G, PPM  # noqa: E402
+from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY  # noqa: E402
 
 PLATEAUS_C = (-27.0, 8.0, 41.0, 64.0)
 ZERO_LIMIT_UG = 30.0
@@ -203,7 +203,8 @@ def run_offline(args, unit, seed, call_sample):
     from qfa_ros.calibration.state import CalibrationState
     from qfa_ros.calibration.temperature import temperature_calibration
     from qfa_ros.calibration.verification import verify_attitudes
-    from qfa_ros.ros.params import make_triad, PARAMETERS, temperature_settings
+    from qfa_ros.ros.model_settings import make_triad, temperature_settings
+    from qfa_ros.ros.parameter_table import PARAMETERS
 
     with tempfile.TemporaryDirectory() as scratch:
         values = {spec.name: spec.default for spec in PARAMETERS}
@@ -226,7 +227,7 @@ def run_offline(args, unit, seed, call_sample):
     error = np.full((2, len(PLATEAUS_C), len(ATTITUDES), 3), np.nan)
     error[1] = verification.error
     record['error'] = error.tolist()
-    record['g'] = 9.80665
+    record['g'] = STANDARD_GRAVITY
     return record
 
 
