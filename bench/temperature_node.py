@@ -70,7 +70,8 @@ def node_parameters(args, unit, seed, directory):
 
 def expected_force(values, roll, pitch):
     """Return the specific force [m/s^2] the node's static input gives at an attitude."""
-    from qfa_ros.ros.params import PARAMETERS, static_profile
+    from qfa_ros.ros.model_settings import static_profile
+    from qfa_ros.ros.parameter_table import PARAMETERS
     full = {spec.name: spec.default for spec in PARAMETERS}
     full.update(values)
     full.update({'input.roll': roll, 'input.pitch': pitch})
