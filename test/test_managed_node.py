@@ -31,11 +31,15 @@ from qfa_ros.ros.recording import GUARD_BAND_BYTES
 IMU_TOPIC = '/imu/data_raw'
 PERIOD_NS = 1_000_000  # 1 kHz
 CYCLES = 20
-WARM_UP = 5
-"""Configure/cleanup cycles, and how many of them warm the process up (allocator, caches)."""
+WARM_UP = 10
+"""Configure/cleanup cycles, and how many of them warm the process up (allocator, caches):
+a fresh process grows ~0.07 MiB a cycle at first, then flat (bench/lifecycle_cycles.py);
+after 5, one run at load 14 measured 0.041 (rising for 13 cycles, flat for the last 7),
+0.022 over its last 10."""
 RSS_SLOPE_LIMIT = 0.04
 """Largest least-squares slope of the resident memory after the warm-up [MiB per cycle]:
-measured 0.009 (and flat over the last ten) on the fixed node, 0.093 before (issue 43)."""
+measured 0.009 (and flat over the last ten) on the fixed node, 0.093 before (issue 43),
+when every removed unit stayed for good."""
 
 
 def rss_mib(pid):
