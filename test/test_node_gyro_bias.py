@@ -16,6 +16,8 @@ NODE = '/qfa_node'
 LATITUDE = math.radians(45.0)  # the default latitude_deg
 # Level, x east (input.yaw 0): the Earth rate 15.041 deg/h in the body axes.
 EARTH = 15.041 * DEG_PER_HOUR * np.array([0.0, math.cos(LATITUDE), math.sin(LATITUDE)])
+MEAN_SAMPLES = 1000
+"""Samples of each mean rate (1 s at 1 kHz)."""
 
 
 def mean_rate(client, rates, count):
@@ -31,7 +33,7 @@ def mean_rate(client, rates, count):
 def test_gyro_bias_at_rest_is_estimated_and_removed(tmp_path):
     # A unit drawn with a 500 deg/h (1 sigma) turn-on bias: the published mean sits far
     # from the Earth rate; after the call it sits on it within the noise of two short
-    # means (ARW 0.002 deg/sqrt(h): 0.08 deg/h per 2 s mean at 1 kHz).
+    # means (ARW 0.002 deg/sqrt(h): 0.12 deg/h per 1 s mean at 1 kHz, the bound 1 deg/h).
     domain = domain_id('gyro_bias')
     state_file = tmp_path / 'state.json'
     node = NodeProcess(domain, tmp_path, {
@@ -44,7 +46,7 @@ def test_gyro_bias_at_rest_is_estimated_and_removed(tmp_path):
         client.subscribe(Imu, 'imu/data_raw', lambda m: rates.append((
             m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec,
             (m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z))))
-        before = mean_rate(client, rates, 2000)
+        before = mean_rate(client, rates, MEAN_SAMPLES)
         assert np.max(np.abs(before - EARTH)) > 100 * DEG_PER_HOUR
 
         # Moving (a rate-table turn): refused, nothing applied.
@@ -63,7 +65,7 @@ def test_gyro_bias_at_rest_is_estimated_and_removed(tmp_path):
         assert response.success, response.message
         assert 'gyro bias [deg/h]' in response.message and 'Earth rate removed' in response.message
 
-        after = mean_rate(client, rates, 2000)
+        after = mean_rate(client, rates, MEAN_SAMPLES)
         assert np.max(np.abs(after - EARTH)) < 1.0 * DEG_PER_HOUR, (after - EARTH) / DEG_PER_HOUR
         # Kept in the calibration state file, traced like the other schedules.
         stored = np.array(json.loads(state_file.read_text())['gyro_bias'])

@@ -136,18 +136,21 @@ def test_start_up_lines_come_without_a_sample_then_a_first_calibration_is_stored
 def test_the_next_start_loads_it_a_sigterm_in_a_schedule_stops_and_state_fresh_ignores_it(
         tmp_path):
     # What a first session stored (the test above runs one): references and the words, the
-    # compensation on.
+    # compensation on; one copy for the next start, one for a start with state.fresh, the
+    # two nodes started at once (their start-ups overlap).
     state_file = tmp_path / 'calibration.json'
+    fresh_file = tmp_path / 'calibration_fresh.json'
     triad = make_triad({spec.name: spec.default for spec in PARAMETERS})
     StateStore(str(state_file)).save(CalibrationState(
         references=[AxisReference(73.4, -71739.0, 25.0) for _ in range(3)],
         controller_gain=[loop.controller.gain for loop in triad.axes],
         n_vref=[loop.n_vref for loop in triad.axes]), True)
-    parameters = {'state_file': str(state_file), 'output_dir': str(tmp_path)}
+    stored = state_file.read_text()
+    fresh_file.write_text(stored)
 
     def session(name, extra):
         domain = domain_id(f'start-line-{name}')
-        node = NodeProcess(domain, tmp_path / name, {**parameters, **extra})
+        node = NodeProcess(domain, tmp_path / name, {'output_dir': str(tmp_path), **extra})
         client = Client(domain)
         flags = []
         client.subscribe(Bool, f'{NODE}/is_calibrated', flags.append, latched=True)
@@ -156,8 +159,9 @@ def test_the_next_start_loads_it_a_sigterm_in_a_schedule_stops_and_state_fresh_i
     # The next start (make run again) is compensated, and says so in one line. A realtime
     # schedule running, SIGTERM stops it within seconds and finishes the recording.
     node, client, flags = session('second', {
-        'estimation.realtime': True, 'recorder.enabled': True,
+        'state_file': str(state_file), 'estimation.realtime': True, 'recorder.enabled': True,
         'recorder.directory': str(tmp_path / 'recordings')})
+    fresh = session('fresh', {'state_file': str(fresh_file), 'state.fresh': True})
     try:
         lines = start_line(node, client)
         assert len(lines) == 1, node.log()
@@ -178,23 +182,19 @@ def test_the_next_start_loads_it_a_sigterm_in_a_schedule_stops_and_state_fresh_i
         assert not future.done() or not future.result().success
     except BaseException:
         node.stop(signal.SIGKILL)
+        fresh[0].stop(signal.SIGKILL)
+        fresh[1].close()
         raise
     finally:
         client.close()
-    assert status == 0, node.log()
-    assert seconds < STOP_DEADLINE_S
-    # The recording was finished: a rosbag2 bag directory, no half-written file.
-    recordings = tmp_path / 'recordings'
-    assert list(recordings.glob('*/metadata.yaml')), node.log()
-    assert not list(recordings.glob('**/*.part'))
-    stored = state_file.read_text()
+    second = node
 
     # state.fresh: the stored file is neither loaded nor touched; the sensor is bare.
-    node, client, flags = session('fresh', {'state.fresh': True})
+    node, client, flags = fresh
     try:
         lines = start_line(node, client)
         assert len(lines) == 1, node.log()
-        assert f'fresh (state.fresh: {state_file} not loaded)' in lines[0]
+        assert f'fresh (state.fresh: {fresh_file} not loaded)' in lines[0]
         assert 'compensation off (nothing stored)' in lines[0]
         client.spin_until(lambda: flags, 30, 'is_calibrated')
         assert flags[-1].data is False
@@ -203,4 +203,11 @@ def test_the_next_start_loads_it_a_sigterm_in_a_schedule_stops_and_state_fresh_i
     finally:
         client.close()
         assert node.stop(signal.SIGINT) == 0, node.log()
-    assert state_file.read_text() == stored
+    assert fresh_file.read_text() == stored
+
+    assert status == 0, second.log()
+    assert seconds < STOP_DEADLINE_S
+    # The recording was finished: a rosbag2 bag directory, no half-written file.
+    recordings = tmp_path / 'recordings'
+    assert list(recordings.glob('*/metadata.yaml')), second.log()
+    assert not list(recordings.glob('**/*.part'))
