@@ -13,8 +13,9 @@ loop step, and scales it to the worst cases of ``qfa_ros.ros.parameter_table``::
 settings every parameter range allows (``bounds.LARGEST_*``, the values of
 ``test_trust_boundary.py::test_the_largest_schedules_the_ranges_allow_run``) on the default
 sensor, and checks that each ends within its documented bound (``SCHEDULE_WORST_S``,
-``CHAMBER_WORST_S``) and the loop-step budget; the suite runs the estimation call, this the
-chamber program too (6.2e7 loop steps at the default limits, ~30 CPU-s). Its result:
+``CHAMBER_WORST_S``) and the loop-step budget; the suite runs the estimation call with the
+same words but short averaging, this both calls at their largest (the chamber program 6.2e7
+loop steps at the default limits, ~30 CPU-s). Its result:
 ``bench/results/schedule_cost.md``.
 """
 

@@ -75,86 +75,6 @@ def test_study_validation_keeps_good_values():
     assert study.digest() != Study.from_dict({**CHEAP, 'seed': 1}).digest()
 
 
-def test_one_and_two_workers_give_identical_tables(tmp_path):
-    study = Study.from_dict(CHEAP)
-    one = run_study(study, tmp_path / 'one.parquet', workers=1, progress=False,
-                    log=lambda line: None)
-    two = run_study(study, tmp_path / 'two.parquet', workers=2, progress=False,
-                    log=lambda line: None)
-    assert one.num_rows == study.units * study.calibrations
-    assert one.equals(two)
-    assert pq.read_table(tmp_path / 'one.parquet').equals(pq.read_table(tmp_path / 'two.parquet'))
-    # The summary's rows say what they compare: the estimate rows are not the accuracy.
-    summary = format_summary(one)
-    assert '| scale-factor error after (known input): the accuracy [ppm] |' in summary
-    feedback = next(line for line in summary.splitlines() if 'feedback estimate -' in line)
-    assert 'k_VI k_DA drift alone' in feedback and 'not an error' in feedback
-    assert 'temperature change since the reference' in feedback
-    # A unit's rows depend on its own seed only, not on the batch it ran in.
-    alone = simulate_unit(study, 2)
-    assert one.slice(2, 1).to_pylist() == alone
-
-
-FIRST_TWO_BATCHES_ONLY = """
-import sys
-import threading
-
-from qfa_ros.cli import fleet
-from qfa_ros.fleet import runner
-
-original = runner.batch_table
-
-
-def first_two_batches_only(study, start, stop):
-    if start >= 2:
-        threading.Event().wait()  # never finishes: the run is killed meanwhile
-    return original(study, start, stop)
-
-
-runner.batch_table = first_two_batches_only
-sys.exit(fleet.main(sys.argv[1:]))
-"""
-"""``qfa-fleet`` whose batches from unit 2 on never finish (a run killed half way)."""
-
-
-def test_killed_study_restarts_with_only_the_missing_units(tmp_path):
-    study_file = write_study(tmp_path / 'study.yaml', {**CHEAP, 'units': 4})
-    out = tmp_path / 'study.parquet'
-    env = {**os.environ, 'PYTHONPATH': str(ROOT)}
-    # Units 2 and 3 never finish in this run: the kill always finds two batches written
-    # and two running, however fast or slow the machine.
-    log = open(tmp_path / 'fleet.log', 'w')
-    process = subprocess.Popen(
-        [sys.executable, '-c', FIRST_TWO_BATCHES_ONLY, str(study_file), '--workers', '1',
-         '--no-progress'], cwd=tmp_path, env=env, start_new_session=True,
-        stdout=subprocess.DEVNULL, stderr=log)
-    parts = parts_directory(out)
-    deadline = time.monotonic() + 240
-    try:
-        # Each batch appears by an atomic rename: a file seen is a finished batch.
-        while len(list(parts.glob('batch-*.parquet'))) < 2:
-            assert time.monotonic() < deadline, 'two batches not written in 240 s'
-            try:
-                process.wait(timeout=0.05)
-            except subprocess.TimeoutExpired:
-                continue
-            pytest.fail('the study ended before it was killed: '
-                        + (tmp_path / 'fleet.log').read_text())
-    finally:
-        os.killpg(process.pid, signal.SIGKILL)
-        process.wait(timeout=30)
-        log.close()
-    kept = {path.name: path.stat().st_mtime_ns for path in parts.glob('batch-*.parquet')}
-    assert sorted(kept) == ['batch-0000000-0000001.parquet', 'batch-0000001-0000002.parquet']
-    lines = []
-    table = run_study(Study.load(study_file), out, workers=1, progress=False,
-                      log=lines.append)
-    assert lines[0].startswith(f'{len(kept)} of 4 batches already done'), lines
-    assert {p.name: p.stat().st_mtime_ns for p in parts.glob('batch-*.parquet')
-            if p.name in kept} == kept, 'finished batches must not be recomputed'
-    assert sorted(set(table.column('unit').to_pylist())) == [0, 1, 2, 3]
-
-
 def test_uniform_aging_stays_within_its_span():
     # Uniform in +-a: variance a^2 / 3, the sample variance's standard error
     # a^2 sqrt((1/5 - 1/9) / n); per seed (5 x 2000 draws) and pooled, within z = 5.45 of
@@ -303,6 +223,104 @@ def test_drawn_component_coefficients_differ_per_unit_and_move_no_other_draw():
             row_typed[f'feedback_truth_ppm_{axis}'], abs=1e-6)
 
 
+# --- studies run in-process, on one shared cluster (last: it is torn down after them) ---
+
+@pytest.fixture(scope='module')
+def one_worker_client():
+    """Yield a client of a one-worker local cluster, shared by this module's studies.
+
+    Each cluster start costs seconds; the studies here share one (``run_study(client=)``).
+    ``run_study`` starting its own cluster is exercised by the two-worker run and by every
+    ``qfa-fleet`` command this module starts.
+    """
+    import logging
+
+    from dask.distributed import Client, LocalCluster
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=':0',
+                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        yield client
+
+
+def test_one_and_two_workers_give_identical_tables(tmp_path, one_worker_client):
+    study = Study.from_dict(CHEAP)
+    one = run_study(study, tmp_path / 'one.parquet', client=one_worker_client, progress=False,
+                    log=lambda line: None)
+    two = run_study(study, tmp_path / 'two.parquet', workers=2, progress=False,
+                    log=lambda line: None)
+    assert one.num_rows == study.units * study.calibrations
+    assert one.equals(two)
+    assert pq.read_table(tmp_path / 'one.parquet').equals(pq.read_table(tmp_path / 'two.parquet'))
+    # The summary's rows say what they compare: the estimate rows are not the accuracy.
+    summary = format_summary(one)
+    assert '| scale-factor error after (known input): the accuracy [ppm] |' in summary
+    feedback = next(line for line in summary.splitlines() if 'feedback estimate -' in line)
+    assert 'k_VI k_DA drift alone' in feedback and 'not an error' in feedback
+    assert 'temperature change since the reference' in feedback
+    # A unit's rows depend on its own seed only, not on the batch it ran in.
+    alone = simulate_unit(study, 2)
+    assert one.slice(2, 1).to_pylist() == alone
+
+
+FIRST_TWO_BATCHES_ONLY = """
+import sys
+import threading
+
+from qfa_ros.cli import fleet
+from qfa_ros.fleet import runner
+
+original = runner.batch_table
+
+
+def first_two_batches_only(study, start, stop):
+    if start >= 2:
+        threading.Event().wait()  # never finishes: the run is killed meanwhile
+    return original(study, start, stop)
+
+
+runner.batch_table = first_two_batches_only
+sys.exit(fleet.main(sys.argv[1:]))
+"""
+"""``qfa-fleet`` whose batches from unit 2 on never finish (a run killed half way)."""
+
+
+def test_killed_study_restarts_with_only_the_missing_units(tmp_path, one_worker_client):
+    study_file = write_study(tmp_path / 'study.yaml', CHEAP)
+    out = tmp_path / 'study.parquet'
+    env = {**os.environ, 'PYTHONPATH': str(ROOT)}
+    # Unit 2 never finishes in this run: the kill always finds two batches written
+    # and one running, however fast or slow the machine.
+    log = open(tmp_path / 'fleet.log', 'w')
+    process = subprocess.Popen(
+        [sys.executable, '-c', FIRST_TWO_BATCHES_ONLY, str(study_file), '--workers', '1',
+         '--no-progress'], cwd=tmp_path, env=env, start_new_session=True,
+        stdout=subprocess.DEVNULL, stderr=log)
+    parts = parts_directory(out)
+    deadline = time.monotonic() + 240
+    try:
+        # Each batch appears by an atomic rename: a file seen is a finished batch.
+        while len(list(parts.glob('batch-*.parquet'))) < 2:
+            assert time.monotonic() < deadline, 'two batches not written in 240 s'
+            try:
+                process.wait(timeout=0.05)
+            except subprocess.TimeoutExpired:
+                continue
+            pytest.fail('the study ended before it was killed: '
+                        + (tmp_path / 'fleet.log').read_text())
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=30)
+        log.close()
+    kept = {path.name: path.stat().st_mtime_ns for path in parts.glob('batch-*.parquet')}
+    assert sorted(kept) == ['batch-0000000-0000001.parquet', 'batch-0000001-0000002.parquet']
+    lines = []
+    table = run_study(Study.load(study_file), out, client=one_worker_client, progress=False,
+                      log=lines.append)
+    assert lines[0].startswith(f'{len(kept)} of 3 batches already done'), lines
+    assert {p.name: p.stat().st_mtime_ns for p in parts.glob('batch-*.parquet')
+            if p.name in kept} == kept, 'finished batches must not be recomputed'
+    assert sorted(set(table.column('unit').to_pylist())) == [0, 1, 2]
+
+
 TEMPERATURE = {'kind': 'temperature', 'units': 2, 'batch_units': 1, 'seed': 3,
                'temperature': {'period_s': 720.0, 'block_s': 2.0, 'bins': 40},
                'sensor': {'sensor_tau_s': 60.0, 'loop_rate_hz': 2000.0,
@@ -311,13 +329,13 @@ TEMPERATURE = {'kind': 'temperature', 'units': 2, 'batch_units': 1, 'seed': 3,
                                 'average_s': 1.0}}
 
 
-def test_temperature_study_calibrates_and_verifies_every_unit(tmp_path):
+def test_temperature_study_calibrates_and_verifies_every_unit(tmp_path, one_worker_client):
     from qfa_ros.fleet.summary import format_summary, temperature_rows
     from qfa_ros.fleet.temperature_unit import unit_seed
     study = Study.from_dict(TEMPERATURE)
     assert study.calibrations == 1
-    table = run_study(study, tmp_path / 'temperature.parquet', workers=1, progress=False,
-                      log=lambda line: None)
+    table = run_study(study, tmp_path / 'temperature.parquet', client=one_worker_client,
+                      progress=False, log=lambda line: None)
     assert table.num_rows == 2
     rows = table.to_pylist()
     assert [r['unit_seed'] for r in rows] == [unit_seed(study, 0), unit_seed(study, 1)]

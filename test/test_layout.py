@@ -1,6 +1,7 @@
 """The architecture as a contract: layers, ROS only where it belongs, no circles."""
 
 import ast
+import functools
 import importlib
 import inspect
 from pathlib import Path
@@ -60,10 +61,19 @@ def test_no_import_cycles_between_modules():
             visit(module, [module])
 
 
+@functools.cache
+def _walked(path):
+    """Return every node of the syntax tree of ``path`` (``ast.walk``), parsed and walked once.
+
+    The parse and the walk are most of the time of the checks below, which share them.
+    """
+    return tuple(ast.walk(ast.parse(path.read_text())))
+
+
 def test_no_private_name_imported_across_modules():
     offences = []
     for path, _ in _modules():
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in _walked(path):
             if isinstance(node, ast.ImportFrom) and (node.module or '').startswith('qfa_ros'):
                 offences += [f'{path.relative_to(ROOT)}: {alias.name} from {node.module}'
                              for alias in node.names if alias.name.startswith('_')]
@@ -86,11 +96,14 @@ def _private(name):
     return name.startswith('_') and not (name.startswith('__') and name.endswith('__'))
 
 
-def _project_private_names(trees):
-    """Return every private name qfa_ros/ defines: functions, classes, attributes, variables."""
+def _project_private_names(modules_nodes):
+    """Return every private name qfa_ros/ defines: functions, classes, attributes, variables.
+
+    ``modules_nodes``: per module, the list of its syntax tree's nodes (``ast.walk``).
+    """
     names = set()
-    for tree in trees:
-        for node in ast.walk(tree):
+    for nodes in modules_nodes:
+        for node in nodes:
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
                 names.add(node.name)
             elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
@@ -106,15 +119,17 @@ def _project_private_names(trees):
     return {name for name in names if _private(name)}
 
 
-def _dependency_private_names(tree):
+def _dependency_private_names(nodes):
     """Return, per class of a module, the private names its other-package base classes use.
+
+    ``nodes``: the module's syntax tree's nodes (``ast.walk``).
 
     A class of qfa_ros/ that derives from another package's class (``rclpy.node.Node``,
     ``threading.Thread``) must neither read nor overwrite that class's private state
     (``self._parameter_overrides``) or methods (``Thread._stop``).
     """
     imported = {}
-    for node in ast.walk(tree):
+    for node in nodes:
         if isinstance(node, ast.ImportFrom) and node.level == 0 and \
                 not node.module.startswith('qfa_ros'):
             imported.update({alias.asname or alias.name: (node.module, alias.name)
@@ -124,7 +139,7 @@ def _dependency_private_names(tree):
                              (alias.name if alias.asname else alias.name.split('.')[0], None)
                              for alias in node.names if not alias.name.startswith('qfa_ros')})
     found = {}
-    for node in ast.walk(tree):
+    for node in nodes:
         if not isinstance(node, ast.ClassDef):
             continue
         names = set()
@@ -140,27 +155,39 @@ def _dependency_private_names(tree):
             for part in ([name] if name else []) + chain:
                 cls = getattr(cls, part)
             for ancestor in inspect.getmro(cls) if inspect.isclass(cls) else ():
-                try:
-                    source = textwrap.dedent(inspect.getsource(ancestor))
-                except (OSError, TypeError):  # built in (ctypes.Structure, object)
-                    continue
-                for item in ast.walk(ast.parse(source)):
-                    if isinstance(item, ast.Attribute) and _private(item.attr):
-                        names.add(item.attr)
-                    elif isinstance(item, ast.FunctionDef) and _private(item.name):
-                        names.add(item.name)
+                names |= _private_names_of_class(ancestor)
         found[node.name] = names
     return found
 
 
+@functools.cache
+def _private_names_of_class(cls):
+    """Return the private attributes and methods the source of ``cls`` itself uses.
+
+    Cached: many classes of qfa_ros/ share an ancestor (``rclpy.node.Node``, ``object``),
+    whose source is parsed once.
+    """
+    try:
+        source = textwrap.dedent(inspect.getsource(cls))
+    except (OSError, TypeError):  # built in (ctypes.Structure, object)
+        return frozenset()
+    names = set()
+    for item in ast.walk(ast.parse(source)):
+        if isinstance(item, ast.Attribute) and _private(item.attr):
+            names.add(item.attr)
+        elif isinstance(item, ast.FunctionDef) and _private(item.name):
+            names.add(item.name)
+    return frozenset(names)
+
+
 def private_dependency_uses(sources):
     """Return ``file:line: what`` for each private name of another package qfa_ros/ touches."""
-    trees = {path: ast.parse(path.read_text()) for path in sources}
-    own = _project_private_names(trees.values())
+    walked = {path: _walked(path) for path in sources}
+    allowed = _project_private_names(walked.values()) | PUBLIC_UNDERSCORE_NAMES
     offences = []
-    for path, tree in trees.items():
+    for path, nodes in walked.items():
         where = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
-        for node in ast.walk(tree):
+        for node in nodes:
             if isinstance(node, ast.Import):
                 modules = [alias.name for alias in node.names]
             elif isinstance(node, ast.ImportFrom) and node.level == 0:
@@ -171,10 +198,13 @@ def private_dependency_uses(sources):
                          if not module.startswith('qfa_ros')
                          and any(_private(part) for part in module.split('.'))]
             if isinstance(node, ast.Attribute) and _private(node.attr) and \
-                    node.attr not in own | PUBLIC_UNDERSCORE_NAMES:
+                    node.attr not in allowed:
                 offences.append(f'{where}:{node.lineno}: .{node.attr}')
-        for cls in (n for n in ast.walk(tree) if isinstance(n, ast.ClassDef)):
-            inherited = _dependency_private_names(tree).get(cls.name, set())
+        inherited_by_class = _dependency_private_names(nodes)
+        for cls in (n for n in nodes if isinstance(n, ast.ClassDef)):
+            inherited = inherited_by_class.get(cls.name)
+            if not inherited:
+                continue
             offences += [f'{where}:{node.lineno}: {cls.name} touches inherited .{node.attr}'
                          for node in ast.walk(cls)
                          if isinstance(node, ast.Attribute) and node.attr in inherited
