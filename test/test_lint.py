@@ -1,5 +1,6 @@
 """Run the linter configured like ament_flake8 / ament_pep257 (ruff.toml)."""
 
+import os
 from pathlib import Path
 import subprocess
 import sys
@@ -16,17 +17,18 @@ def test_ruff_reports_no_issue():
 def test_no_merge_conflict_marker_is_left_in_the_sources_or_docs():
     # A marker in a Markdown file passes every other check (one was found in docs/node.md).
     markers = ('<<<<<<< ', '>>>>>>> ', '=======\n')
-    patterns = ['*.py', '*.md', '*.yaml', '*.cfg', '*.toml', '*.txt', 'Makefile', '*/Makefile']
+    suffixes = ('.py', '.md', '.yaml', '.cfg', '.toml', '.txt')
     found = []
-    # The files git tracks or would add (not ignored): walking the venvs took seconds.
-    listed = subprocess.run(['git', 'ls-files', '--cached', '--others', '--exclude-standard',
-                             '-z', '--', *patterns], capture_output=True, text=True,
-                            cwd=ROOT, check=True).stdout.split('\0')
-    for name in filter(None, listed):
-        path = ROOT / name
-        if any(part == 'build' for part in Path(name).parts) or not path.is_file():
-            continue
-        for number, line in enumerate(path.read_text(errors='replace').splitlines(True)):
-            if line.startswith(markers):
-                found.append(f'{name}:{number + 1}')
+    # Hidden directories (the venvs, .git) and build/ pruned, not walked: walking the
+    # venvs took seconds.
+    for directory, subdirectories, names in os.walk(ROOT):
+        subdirectories[:] = [name for name in subdirectories
+                             if not name.startswith('.') and name != 'build']
+        for name in names:
+            if name.startswith('.') or not (name.endswith(suffixes) or name == 'Makefile'):
+                continue
+            path = Path(directory) / name
+            for number, line in enumerate(path.read_text(errors='replace').splitlines(True)):
+                if line.startswith(markers):
+                    found.append(f'{path.relative_to(ROOT)}:{number + 1}')
     assert not found, found
