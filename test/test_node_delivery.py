@@ -200,7 +200,9 @@ def stall(node, client, owed):
 
     Waits for events, not for a fixed time: the process seen stopped, the clock ``owed``
     sample periods past that (it published nothing since), the process seen running again.
+    Returns when the stop was signalled [ns].
     """
+    signalled = time.time_ns()
     node.process.send_signal(signal.SIGSTOP)
     try:
         client.spin_until(lambda: process_state(node.pid) in 'Tt', 10, 'the node stopped')
@@ -210,6 +212,7 @@ def stall(node, client, owed):
     finally:
         node.process.send_signal(signal.SIGCONT)
     client.spin_until(lambda: process_state(node.pid) not in 'Tt', 10, 'the node running')
+    return signalled
 
 
 def test_a_short_stall_is_caught_up_as_a_stream_not_a_burst(setup):
@@ -218,14 +221,17 @@ def test_a_short_stall_is_caught_up_as_a_stream_not_a_burst(setup):
     node, client, everything = setup['node'], setup['client'], setup['everything']
     client.spin_until(lambda: len(everything.stamps) > 10, 60, 'the stream')
     everything.clear()
-    stall(node, client, owed=30)
+    signalled = stall(node, client, owed=30)
     resumed = time.time_ns()
     client.spin_until(lambda: sum(s >= resumed for s in everything.stamps) > 20, 30,
                       'samples after the stall')
     stamps = np.asarray(everything.stamps, dtype=np.int64)
     published = np.asarray(everything.published, dtype=np.int64)
     assert np.all(np.diff(stamps) == PERIOD_NS), 'a sample lost across a short stall'
-    late = np.flatnonzero(published - stamps > 20_000_000)
+    # The stall's debt: samples stamped from a period before the stop on (one published
+    # 20 ms late before it is a busy machine's jitter, not the catch-up; CI saw two).
+    owed = stamps >= signalled - PERIOD_NS
+    late = np.flatnonzero(owed & (published - stamps > 20_000_000))
     assert len(late) >= 10, f'only {len(late)} samples were late: no stall seen'
     assert np.all(np.diff(late) == 1)
     # At most CATCH_UP_BURST back to back, then one per CATCH_UP_SPACING_NS at most: any

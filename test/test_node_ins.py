@@ -113,6 +113,23 @@ def fresh(client, stream, count, settle_s=0.3):
     return stream.since(start)[:count].astype(float)
 
 
+def consecutive(client, stream, count, settle_s=0.3):
+    """Return the first ``count`` rows stamped back to back (1 ms) ``settle_s`` from now."""
+    start = time.time_ns() + int(settle_s * 1e9)
+    found = []
+
+    def run_found():
+        rows = stream.since(start)
+        stamps = rows[:, 0].astype(np.int64)
+        edges = np.r_[0, np.flatnonzero(np.diff(stamps) != 1_000_000) + 1, len(rows)]
+        runs = [first for first, end in zip(edges[:-1], edges[1:]) if end - first >= count]
+        found[:] = [rows[runs[0]:runs[0] + count]] if runs else []
+        return bool(found)
+
+    client.spin_until(run_found, 60, f'{count} consecutive samples', progress=stream.latest_ns)
+    return found[0]
+
+
 def test_the_node_publishes_the_noise_of_its_imu_yaml(setup):
     # Your own IMU's noise: noise.imu_yaml, read at start. The gyros (ideal: no
     # quantization) publish exactly the file's white noise, N sqrt(f_s) a sample; both
@@ -138,16 +155,22 @@ def test_the_node_publishes_the_noise_of_its_imu_yaml(setup):
 def test_a_node_at_the_north_pole_gives_the_vertical_earth_rate_and_polar_gravity(setup):
     # Issue 38: latitude_deg stopped at 89.9. At 90 deg N, level: the specific force is
     # polar normal gravity on z, the angular rate the Earth rate, all of it vertical.
-    client, stream = setup['client'], setup['stream']
+    client, stream, best_effort = setup['client'], setup['window'], setup['stream']
     origin = setup['origin'][-1]
     assert (origin.latitude, origin.longitude) == pytest.approx((90.0, 30.0), abs=1e-12)
-    rows = fresh(client, stream, 500)
-    accel, rate = rows[:, 1:4].mean(axis=0), rows[:, 4:7].mean(axis=0)
-    # The ideal loop's quantization and the file's 0.3 ug a sample average to far below a
-    # ug; gravity at 89.9 deg differs from the pole's by 1.6e-7 m/s^2 only, the Earth
-    # rate's horizontal part by 1.3e-7 rad/s (what the gyros check, to 6 sigma of the
-    # file's noise: 8.5e-10 rad/s).
+    rows = consecutive(client, stream, 500)
+    accel, rate = rows[:, 1:4].astype(float).mean(axis=0), rows[:, 4:7].astype(float).mean(axis=0)
+    # The ideal loop's quantization (1.5e-5 m/s^2 a sample, noise-shaped) and the file's
+    # 0.3 ug a sample average over 500 consecutive samples to 5e-7 m/s^2 at most (offline,
+    # every window of a minute); over a best-effort reader's gappy subset the shaping is
+    # lost (CI saw 1.1e-6), hence the reliable reader. Gravity at 89.9 deg differs from the
+    # pole's by 1.6e-7 m/s^2 only, the Earth rate's horizontal part by 1.3e-7 rad/s (what
+    # the gyros check, to 6 sigma of the file's noise: 8.5e-10 rad/s).
     assert np.abs(accel - [0.0, 0.0, POLAR_GRAVITY]).max() < 1e-6, accel - [0, 0, POLAR_GRAVITY]
+    # What the best-effort reader got of them is the same stream.
+    seen = {r[0]: r[3] for r in best_effort.since(rows[0, 0]) if r[0] <= rows[-1, 0]}
+    assert seen and all(seen[t] == value for t, value in zip(rows[:, 0], rows[:, 3])
+                        if t in seen)
     sigma = 6 * 1.0e-10 * math.sqrt(1000.0 / 500)
     assert np.abs(rate - [0.0, 0.0, earth.EARTH_RATE]).max() < sigma, rate
     assert earth.EARTH_RATE == 7.292115e-5
