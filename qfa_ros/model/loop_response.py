@@ -27,7 +27,6 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
-from scipy import signal
 
 from qfa_ros.model.axis import AxisLoop
 from qfa_ros.model.design import LinearLoop
@@ -263,6 +262,11 @@ def measure_loop(config, rng=0, controller=None, amplitude=0.2 * STANDARD_GRAVIT
         raise ValueError('periods must be >= 2, settle_periods >= 1 and period_steps >= 64')
     if not amplitude > 0:
         raise ValueError(f'amplitude must be positive, got {amplitude!r}')
+    # Imported here: scipy.signal costs ~1.3 CPU-s to import, paid otherwise at every
+    # start of the node and of the command-line tools, which import this module for the
+    # step response only.
+    from scipy import signal
+
     loop = _loop(config, rng, controller)
     t = np.arange(period_steps) / rate
     # A logarithmic sweep over exactly one period, repeated: its spectrum lives on the
