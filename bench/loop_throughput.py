@@ -45,7 +45,6 @@ def main():
     args = parser.parse_args()
 
     from qfa_ros.cli.sim import static_sensor
-    from qfa_ros.model import kernel
     from qfa_ros.model.noise import NoiseConfig
     from qfa_ros.model.parallel import available_cores
     from qfa_ros.model.triad import QfaTriad
@@ -65,9 +64,7 @@ def main():
         rates = []
         for _ in range(args.repeat):
             start, cpu = time.perf_counter(), time.thread_time()
-            kernel.run_axis(loop.rng, np.array([STANDARD_GRAVITY]), np.ones(1), np.zeros(1),
-                            loop.gm_phi, loop.gm_drive, loop.gm_state, 10, loop.params_f,
-                            loop.params_i, loop.state_f, loop.state_i, mean, flags)
+            loop.run(np.array([STANDARD_GRAVITY]), np.ones(1), np.zeros(1), 10, mean, flags)
             rates.append((samples * 10 / (time.perf_counter() - start),
                           samples * 10 / (time.thread_time() - cpu)))
         kernel_rates[label] = rates

@@ -14,7 +14,7 @@ Each repetition runs, interleaved so that a busy machine affects all alike:
   delay, 10:1 averaging) and the full noise model (white and ADC noise per step, four
   Gauss-Markov drives per 0.1 s block, as the model) drawn inside the loop from a
   ``numpy.random.Generator`` passed into ``@njit``; the same loop without noise; and the
-  project's kernel (``kernel.run_axis``, one axis, noise drawn inside) over the same
+  project's kernel (``AxisLoop.run``: one axis, its normals drawn by numpy) over the same
   steps. These run in this process on one core; their CPU time is reported beside the
   wall time.
 
@@ -115,8 +115,7 @@ def run_limit(n_samples, noise_on):
 
 
 def run_kernel(n_samples):
-    """Time the project's kernel, noise drawn inside, over ``n_samples`` (one axis)."""
-    from qfa_ros.model import kernel
+    """Time the project's kernel with its noise over ``n_samples`` (one axis)."""
     from qfa_ros.model.triad import QfaTriad
     from qfa_ros.model.triad_config import TriadConfig
 
@@ -127,9 +126,7 @@ def run_kernel(n_samples):
     flags = np.empty(n_samples, dtype=np.int8)
 
     def call():
-        kernel.run_axis(loop.rng, sensed, scale, offset, loop.gm_phi, loop.gm_drive,
-                        loop.gm_state, triad.decimation, loop.params_f, loop.params_i,
-                        loop.state_f, loop.state_i, out, flags)
+        loop.run(sensed, scale, offset, triad.decimation, out, flags)
 
     return timed(call)
 

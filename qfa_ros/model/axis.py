@@ -17,9 +17,12 @@ SLICE_STEPS = 20_000
 BESIDE_SLICE_STEPS = 100_000
 """Loop steps' worth of samples per call of the work beside the axes (the gyros).
 
-Five axis slices: that work costs ~1/20 of an axis a sample, and each call pays a fixed
-~20 us (numba unboxing its random generator), so its calls can be fewer; each still
-lasts less than an axis slice, so the last one adds no tail to the chunk."""
+Five axis slices: that work costs ~1/20 of an axis a sample, so its calls can be fewer;
+each still lasts less than an axis slice, so the last one adds no tail to the chunk."""
+
+
+DRAW_BLOCK_STEPS = 1 << 18
+"""Loop steps whose normals an axis draws at once (2 MiB a noise source)."""
 
 
 class AxisLoop:
@@ -103,10 +106,33 @@ class AxisLoop:
         self.open_loop = True
 
     def run(self, sensed, scale, offset, decimation, out_mean, out_flags):
-        """Run the compiled kernel, noise included, over one chunk (:func:`kernel.run_axis`)."""
-        kernel.run_axis(self.rng, sensed, scale, offset, self.gm_phi, self.gm_drive,
-                        self.gm_state, decimation, self.params_f, self.params_i,
-                        self.state_f, self.state_i, out_mean, out_flags)
+        """
+        Run the compiled kernel, noise included, over one chunk (:func:`kernel.run_axis`).
+
+        The stream's normals are drawn for at most ``DRAW_BLOCK_STEPS`` loop steps at a
+        time (the kernel runs block after block), so a long chunk costs no more memory.
+        """
+        n_samples = len(out_mean)
+        block = max(1, DRAW_BLOCK_STEPS // decimation)
+        per_step = len(sensed) == n_samples * decimation and decimation > 1
+        for a in range(0, n_samples, block):
+            b = min(a + block, n_samples)
+            normals = self.rng.standard_normal(kernel.axis_draws(
+                b - a, decimation, self.params_f, self.params_i, self.state_i,
+                len(self.gm_phi)))
+            drawn = kernel.run_axis(
+                normals, _part(sensed, a, b, decimation if per_step else 1),
+                _part(scale, a, b), _part(offset, a, b), self.gm_phi, self.gm_drive,
+                self.gm_state, decimation, self.params_f, self.params_i, self.state_f,
+                self.state_i, out_mean[a:b], out_flags[a:b])
+            if drawn != len(normals):
+                raise RuntimeError(f'the loop kernel read {drawn} normals of {len(normals)}')
+
+
+def _part(values, first, end, per_sample=1):
+    # Samples first..end-1 of a chunk input: one value for the chunk, or ``per_sample``
+    # values a sample.
+    return values if len(values) == 1 else values[first * per_sample:end * per_sample]
 
 
 def start_axes(loops, sensed, scale, offset, decimation, counts, flags, workers, beside=()):
@@ -145,14 +171,6 @@ def start_axes(loops, sensed, scale, offset, decimation, counts, flags, workers,
         Its ``join()`` returns when every output is written (at once when run in turn).
     """
     n_samples = counts.shape[1]
-
-    def part(array, start, stop, per_step):
-        if len(array) == 1:
-            return array
-        if per_step:
-            return array[start * decimation:stop * decimation]
-        return array[start:stop]
-
     threaded = workers > 1 and n_samples * decimation >= PARALLEL_MIN_STEPS
     if not threaded:
         for i, loop in enumerate(loops):
@@ -161,6 +179,7 @@ def start_axes(loops, sensed, scale, offset, decimation, counts, flags, workers,
             call(0, n_samples)
         return ChainRun(())
     step_input = sensed.shape[1] == n_samples * decimation and decimation > 1
+    per_sample = decimation if step_input else 1
 
     def slices(steps):
         # (first, end) samples of consecutive slices of about ``steps`` loop steps.
@@ -168,8 +187,8 @@ def start_axes(loops, sensed, scale, offset, decimation, counts, flags, workers,
         return [(a, min(a + size, n_samples)) for a in range(0, n_samples, size)]
 
     bounds = slices(SLICE_STEPS)
-    chains = [[functools.partial(loop.run, part(sensed[i], a, b, step_input),
-                                 part(scale[i], a, b, False), part(offset[i], a, b, False),
+    chains = [[functools.partial(loop.run, _part(sensed[i], a, b, per_sample),
+                                 _part(scale[i], a, b), _part(offset[i], a, b),
                                  decimation, counts[i, a:b], flags[i, a:b])
                for a, b in bounds] for i, loop in enumerate(loops)]
     chains += [[functools.partial(call, a, b) for a, b in slices(BESIDE_SLICE_STEPS)]

@@ -257,15 +257,17 @@ class GyroTriad:
         n_components = len(self._phi)
 
         def call(a, b):
-            # The slow processes' normals for the blocks starting in a..b-1, drawn here
-            # in their kernel order: numba unboxes each Generator argument in ~20 us, as
-            # long as ~3 000 draws, so the kernel gets only the white stream.
+            # Every stream's normals for a..b-1, drawn here in the kernel's order (the
+            # slow processes' per block starting in it, the white noise's per sample and
+            # axis): numba 0.58-0.60 keeps ~550 bytes at every call that unboxes a
+            # Generator (numba issue 9103), and numpy draws the same numbers.
             starts = len(range(self._slow_left, b - a, self._block))
             shocks = self._flicker.standard_normal((starts if flicker_on else 0, 3,
                                                     n_components))
             steps = self._walk.standard_normal((starts if self._walk_std > 0 else 0, 3))
+            white = self._white.standard_normal((b - a if self._white_std > 0 else 0, 3))
             slow_left = np.array([self._slow_left], dtype=np.int64)
-            _gyro_chunk(self._white, self._white_std, self._block, shocks, self._phi,
+            _gyro_chunk(white, self._white_std, self._block, shocks, self._phi,
                         self._innovation_std, self._flicker_state, steps, self._walk_std,
                         self._walk_state, self._slow, slow_left, rate[a:b], force[a:b],
                         d_t[a:b], self._sensing, u.scale_factor, u.scale_factor_tc,
@@ -290,10 +292,10 @@ def _gyro_chunk(white, white_std, block, shocks, phi, innovation_std, flicker_st
     the value held and ``slow_left[0]`` the samples it still holds. Their standard
     normals come per block that starts in the chunk: ``shocks`` (blocks, 3, components)
     for the Gauss-Markov sum (none: no bias instability) and ``steps`` (blocks, 3) for
-    the walk (none: no walk). The white noise is ``white_std`` times a standard normal
-    drawn here per sample and axis. Each stream is read in a fixed order, so the output
-    depends on the seed, not on the chunk lengths. Then the angle is quantized
-    (``residual`` carries the remainder) and clipped.
+    the walk (none: no walk). The white noise is ``white_std`` times ``white`` (n, 3),
+    standard normals per sample and axis (none when ``white_std`` is 0). Each stream is
+    read in a fixed order, so the output depends on the seed, not on the chunk lengths.
+    Then the angle is quantized (``residual`` carries the remainder) and clipped.
     """
     n = rate.shape[0]
     n_components = phi.shape[0]
@@ -333,7 +335,7 @@ def _gyro_chunk(white, white_std, block, shocks, phi, innovation_std, flicker_st
         left -= 1
         if white_std > 0:
             for i in range(3):
-                out[k, i] += slow[i] + white.standard_normal() * white_std
+                out[k, i] += slow[i] + white[k, i] * white_std
         else:
             for i in range(3):
                 out[k, i] += slow[i]

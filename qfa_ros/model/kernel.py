@@ -1,9 +1,13 @@
 """Compiled per-step kernel of one digital closed-loop QFA axis (numba, over chunks).
 
-The noise of the axis is drawn inside the loop from its own ``numpy.random.Generator``
-(numba shares the bit generator's state with the Python object, so a run split into
-chunks draws the same numbers as one long run), and the input arrives at the rate it
-changes: one value per chunk, per sample or per loop step.
+The noise of the axis comes as the standard normals its stream drew for the chunk
+(:func:`axis_draws` of them, read in the kernel's order), not as the
+``numpy.random.Generator`` itself: numba 0.58-0.60 (Ubuntu 24.04's) keeps ~550 bytes at
+every call that unboxes a Generator (numba issue 9103), ~100 MiB an hour of a streaming
+node. Drawn by numpy in the kernel's order, the numbers are the ones the Generator would
+have given inside the loop, so a run split into chunks still draws what one long run
+does. The input arrives at the rate it changes: one value per chunk, per sample or per
+loop step.
 """
 
 from numba import njit
@@ -67,8 +71,22 @@ def _round_shift(value, shift):
     return (value + (np.int64(1) << (shift - 1))) >> shift
 
 
+def axis_draws(n_samples, decimation, params_f, params_i, state_i, n_components):
+    """
+    Return how many standard normals :func:`run_axis` reads over ``n_samples`` samples.
+
+    ``n_components`` per Gauss-Markov step (one at each sample where the held value runs
+    out: the first after ``state_i[T_GM_LEFT]`` samples, then every ``Q_GM_BLOCK``), and
+    per loop step one for the white noise and one for the ADC where their std is not 0.
+    """
+    per_step = int(params_f[P_WHITE_STD] > 0.0) + int(params_f[P_ADC_STD] > 0.0)
+    gm_steps = len(range(max(int(state_i[T_GM_LEFT]), 0), n_samples,
+                         int(params_i[Q_GM_BLOCK]))) if n_components else 0
+    return gm_steps * n_components + n_samples * decimation * per_step
+
+
 @njit(cache=True, nogil=True)
-def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
+def run_axis(normals, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
              params_f, params_i, state_f, state_i, out_mean, out_flags):
     r"""
     Advance one axis over a chunk of ``n = len(out_mean) * decimation`` loop steps.
@@ -79,15 +97,17 @@ def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
     scale (1 + e(T)) and zero bias, ``b_k`` the first-order Gauss-Markov processes of
     the bias instability, ``b_k = phi_k b_k + q_k v_k`` once every ``Q_GM_BLOCK``
     samples and held in between (``phi_k``, ``q_k`` for that step), and ``w_i`` white.
-    The ADC adds ``sigma_adc n_i`` [count]. ``v``, ``w`` and ``n`` are standard normal
-    draws from ``rng`` in a fixed order (at a Gauss-Markov step, before its sample: the
-    drives; per step: ``w`` then ``n``; a source whose std is 0 draws nothing), so the
-    output depends on the seed, not on the chunk lengths.
+    The ADC adds ``sigma_adc n_i`` [count]. ``v``, ``w`` and ``n`` are read from
+    ``normals`` in a fixed order (at a Gauss-Markov step, before its sample: the drives;
+    per step: ``w`` then ``n``; a source whose std is 0 reads nothing), so the output
+    depends on the stream's seed, not on the chunk lengths.
+
+    Returns the count of normals read (:func:`axis_draws`).
 
     Parameters
     ----------
-    rng : numpy.random.Generator
-        This axis's stream (its state advances).
+    normals : float64[axis_draws(...)]
+        Standard normal draws of this axis's stream, in the order above.
     sensed : float64[1], float64[n // decimation] or float64[n]
         Sensed specific force ``s`` [m/s^2]: constant over the chunk, per sample or
         per loop step (the latter only when its length is ``n`` and ``decimation > 1``).
@@ -155,6 +175,7 @@ def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
     output = state_i[T_LAST]
     gm_left = state_i[T_GM_LEFT]
 
+    drawn = 0
     n_samples = out_mean.shape[0]
     per_step = sensed.shape[0] == n_samples * decimation and decimation > 1
     per_sample = sensed.shape[0] > 1 and not per_step
@@ -165,7 +186,8 @@ def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
         if n_components:
             if gm_left <= 0:
                 for k in range(n_components):
-                    gm_state[k] = gm_phi[k] * gm_state[k] + gm_drive[k] * rng.standard_normal()
+                    gm_state[k] = gm_phi[k] * gm_state[k] + gm_drive[k] * normals[drawn]
+                    drawn += 1
                 gm_left = gm_block
             gm_left -= 1
             for k in range(n_components):
@@ -181,12 +203,14 @@ def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
             if per_step:
                 accel += sensed[base + s] * factor
             if draw_white:
-                accel += white_std * rng.standard_normal()
+                accel += white_std * normals[drawn]
+                drawn += 1
             # Pick-off, bridge, ADC: in open loop the latched bridge gives a fixed level
             # (eq. 16).
             volts = sense * theta + level
             if draw_adc:
-                volts += adc_std * rng.standard_normal()
+                volts += adc_std * normals[drawn]
+                drawn += 1
             code = np.int64(np.floor(volts + 0.5))
             if code > adc_fs:
                 code = adc_fs
@@ -253,3 +277,4 @@ def run_axis(rng, sensed, scale, offset, gm_phi, gm_drive, gm_state, decimation,
     state_i[T_APPLIED] = applied
     state_i[T_LAST] = output
     state_i[T_GM_LEFT] = gm_left
+    return drawn
