@@ -231,7 +231,7 @@ def main():
           f'{median("start-up", 1):.2f} | | | peak RSS {median("start-up", 2):.0f} MB |')
     for name, label in (('limit', 'limit loop, full noise from a Generator, 1 axis'),
                         ('limit, noise off', 'limit loop without noise, 1 axis'),
-                        ('kernel', '`kernel.run_axis`, noise inside, 1 axis')):
+                        ('kernel', '`AxisLoop.run`, its noise, 1 axis')):
         wall, cpu = median(name, 0), median(name, 1)
         print(f'| {label} | {wall:.2f} | {cpu:.2f} | {steps / cpu / 1e6:.1f} M | '
               f'{args.duration / wall:.0f}x per axis | |')
