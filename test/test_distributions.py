@@ -32,6 +32,7 @@ from qfa_ros.cli.own_libraries import (
     own_environment,
     own_library_directories,
     REEXEC_MARK,
+    use_own_numba_cache,
     use_own_ros_libraries,
 )
 from qfa_ros.ros.distro import ros_distribution
@@ -107,6 +108,12 @@ def test_a_client_of_one_distribution_talks_to_a_node_of_the_other(tmp_path):
             node.stop()
 
 
+def cache_files(directory):
+    """Return ``{path: modification time [ns]}`` of the files under ``directory``."""
+    return {path: path.stat().st_mtime_ns for path in Path(directory).rglob('*')
+            if path.is_file()}
+
+
 def fake_environment(root, venv, leave_out=()):
     """
     Lay out ``root/lib`` as another environment's library directory; return it.
@@ -173,6 +180,8 @@ def test_the_node_started_from_another_ros_environment_runs_on_its_own_libraries
                                  LD_LIBRARY_PATH=str(lib), **{BOOTSTRAP_GUARD: '1'}),
         'sourced ROS 2': sourced_ros_environment(tmp_path / 'sourced', VENVS[other], other,
                                                  domains['sourced ROS 2'])}
+    # The other venv's numba cache (Jazzy's has one), which its processes hand down.
+    other_cache = cache_files(VENVS[other] / 'numba_cache')
     nodes = {}
     try:
         for case, domain in domains.items():
@@ -193,6 +202,8 @@ def test_the_node_started_from_another_ros_environment_runs_on_its_own_libraries
             assert len(stamps) >= 50, f'{case}: {node.log()[-3000:]}'
             assert distribution_of(node.pid) == ros_distribution(), case
             assert foreign_files(node.pid, VENVS[other]) == [], case
+        # Left alone: this venv's numba compiled nothing into it (nor found it stale).
+        assert cache_files(VENVS[other] / 'numba_cache') == other_cache
     finally:
         for node in nodes.values():
             node.stop()
@@ -214,6 +225,26 @@ def test_the_environment_a_node_of_this_venv_needs(tmp_path):
     assert env['LD_LIBRARY_PATH'].split(':') == own + [str(kept)]
     assert env['PYTHONPATH'] == str(kept) and env[BOOTSTRAP_GUARD] == '1'
     assert env['ROS_DISTRO'] == 'jazzy' and environ['LD_LIBRARY_PATH'] == f'{other}:{kept}'
+
+
+def test_a_program_started_from_another_venv_keeps_to_its_own_numba_cache(tmp_path):
+    # Another venv's cache (the Jazzy venv's .pth sets it) holds another numba's index.
+    mine, other = tmp_path / 'mine', tmp_path / 'other'
+    for venv in (mine, other):
+        (venv / 'numba_cache').mkdir(parents=True)
+        (venv / 'pyvenv.cfg').write_text('home = /usr/bin\n')
+    environ = {'NUMBA_CACHE_DIR': str(other / 'numba_cache')}
+    assert use_own_numba_cache(environ, prefix=mine) == str(mine / 'numba_cache')
+    assert environ == {'NUMBA_CACHE_DIR': str(mine / 'numba_cache')}
+    assert use_own_numba_cache(environ, prefix=mine) is False  # its own: kept
+    # A venv without a cache of its own (Kilted's) caches in __pycache__.
+    (mine / 'numba_cache').rmdir()
+    environ = {'NUMBA_CACHE_DIR': str(other / 'numba_cache' / 'sub')}
+    assert use_own_numba_cache(environ, prefix=mine) is None and environ == {}
+    # A directory outside any venv is the user's choice.
+    environ = {'NUMBA_CACHE_DIR': str(tmp_path)}
+    assert use_own_numba_cache(environ, prefix=mine) is False
+    assert environ == {'NUMBA_CACHE_DIR': str(tmp_path)}
 
 
 def test_a_node_still_in_another_environment_after_its_restart_refuses_in_one_line(

@@ -89,6 +89,41 @@ def stream_status(diagnostics):
     return next(s for s in diagnostics[-1].status if s.name.endswith('stream'))
 
 
+# Before the tests of the shared node (``setup``), which then streams only while they run.
+def test_a_simulated_clock_paces_the_stream(tmp_path):
+    domain = domain_id('delivery sim')
+    client = Client(domain)
+    samples = Stamps(client, QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
+                                        reliability=ReliabilityPolicy.RELIABLE))
+    clock_publisher = client.node.create_publisher(Clock, '/clock', 10)
+    published = []
+
+    def tick():
+        # Simulated time from 1000 s, at half the wall-clock rate.
+        now = 1000 * 10**9 + len(published) * 5_000_000
+        published.append((time.time_ns(), now))
+        clock_publisher.publish(Clock(clock=Time(sec=now // 10**9, nanosec=now % 10**9)))
+
+    node = NodeProcess(domain, tmp_path, {'sample_rate_hz': RATE, **BATCH,
+                                          'use_sim_time': True, 'state_file': '',
+                                          'output_dir': str(tmp_path)})
+    try:
+        client.node.create_timer(0.01, tick)
+        client.spin_until(lambda: len(samples.stamps) > 100, 120, 'samples on the sim clock')
+    finally:
+        client.close()
+        node.stop(signal.SIGKILL)
+    stamps = np.asarray(samples.stamps, dtype=np.int64)
+    assert np.all(np.diff(stamps) == PERIOD_NS)
+    assert 1000 * 10**9 < stamps[0] < published[-1][1]
+    # Never published before the simulated clock reached the stamp.
+    wall, sim = np.asarray(published, dtype=np.int64).T
+    clock_at_receipt = sim[np.searchsorted(wall, samples.received, side='right') - 1]
+    assert np.all(stamps <= clock_at_receipt)
+    # The writer's (system) clock at publication is no use here: only the sim clock counts.
+    assert len(samples.published) == len(stamps)
+
+
 def test_first_samples_arrive_spread_like_their_stamps(setup):
     client, everything = setup['client'], setup['everything']
     client.spin_until(lambda: len(everything.stamps) >= STARTUP, 120, 'the first samples')
@@ -267,37 +302,3 @@ def test_a_stall_that_skips_samples_is_a_warning(setup):
     client.spin_until(lambda: sum(s >= after for s in everything.stamps) > 100, 30,
                       'samples after the stall')
     assert np.all(np.diff([s for s in everything.stamps if s >= after]) == PERIOD_NS)
-
-
-def test_a_simulated_clock_paces_the_stream(tmp_path):
-    domain = domain_id('delivery sim')
-    client = Client(domain)
-    samples = Stamps(client, QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
-                                        reliability=ReliabilityPolicy.RELIABLE))
-    clock_publisher = client.node.create_publisher(Clock, '/clock', 10)
-    published = []
-
-    def tick():
-        # Simulated time from 1000 s, at half the wall-clock rate.
-        now = 1000 * 10**9 + len(published) * 5_000_000
-        published.append((time.time_ns(), now))
-        clock_publisher.publish(Clock(clock=Time(sec=now // 10**9, nanosec=now % 10**9)))
-
-    node = NodeProcess(domain, tmp_path, {'sample_rate_hz': RATE, **BATCH,
-                                          'use_sim_time': True, 'state_file': '',
-                                          'output_dir': str(tmp_path)})
-    try:
-        client.node.create_timer(0.01, tick)
-        client.spin_until(lambda: len(samples.stamps) > 100, 120, 'samples on the sim clock')
-    finally:
-        client.close()
-        node.stop(signal.SIGKILL)
-    stamps = np.asarray(samples.stamps, dtype=np.int64)
-    assert np.all(np.diff(stamps) == PERIOD_NS)
-    assert 1000 * 10**9 < stamps[0] < published[-1][1]
-    # Never published before the simulated clock reached the stamp.
-    wall, sim = np.asarray(published, dtype=np.int64).T
-    clock_at_receipt = sim[np.searchsorted(wall, samples.received, side='right') - 1]
-    assert np.all(stamps <= clock_at_receipt)
-    # The writer's (system) clock at publication is no use here: only the sim clock counts.
-    assert len(samples.published) == len(stamps)

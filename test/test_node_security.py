@@ -66,8 +66,9 @@ def key_values(status):
     return {kv.key: kv.value for kv in status.values}
 
 
-@pytest.fixture(scope='module')
+@pytest.fixture
 def setup(tmp_path_factory):
+    # One test uses it: a module-scoped node streamed on through the five tests after it.
     directory = tmp_path_factory.mktemp('security')
     output = directory / 'output'
     domain = domain_id('security')

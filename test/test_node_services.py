@@ -305,6 +305,9 @@ def test_restart_restores_calibration_and_corrupt_state_is_set_aside(setup):
     state = directory / 'state.json'
     restored_state = directory / 'restored.json'
     restored_state.write_text(state.read_text())
+    # The module's node is done (this test is its last): stopped now as at the module's end,
+    # not streaming beside the two nodes started below.
+    setup['node'].stop(signal.SIGKILL)
     corrupt_state = directory / 'corrupt.json'
     corrupt_state.write_text('{"format": "qfa_ros.calibration/1", "references": [{')
     common = {'qos_overrides./imu/data_raw.publisher.depth': 1000, 'output_dir': str(directory),

@@ -20,6 +20,10 @@ packages left out; everything else in the environment stays as it was. A process
 environment is already its own (every start from its own shell, ``make run``, the
 tests) pays one directory listing, no re-execution. Should the environment still be
 foreign after that one re-execution, the program refuses to start in one line.
+
+Every program also keeps to this environment's numba cache (:func:`use_own_numba_cache`):
+``make setup ROS_DISTRO=jazzy`` points ``NUMBA_CACHE_DIR`` into ``.venv-jazzy`` (its
+``.pth``), and a process of that venv hands it down too.
 """
 
 import os
@@ -39,6 +43,12 @@ REEXEC_MARK = 'QFA_ROS_OWN_LIBRARIES'
 
 ROS_CORE_LIBRARY = 'librcutils.so'
 """A library every ROS 2 installation and wheel environment has in its library directory."""
+
+NUMBA_CACHE_ENV = 'NUMBA_CACHE_DIR'
+"""numba's cache directory; unset, each kernel is cached in ``__pycache__`` beside its source."""
+
+OWN_NUMBA_CACHE = 'numba_cache'
+"""The cache directory a venv keeps inside itself (the Makefile's ``NUMBA_CACHE``)."""
 
 ROS_PYTHON_PACKAGES = ('rclpy', 'rcl_interfaces', 'builtin_interfaces', 'std_msgs',
                        'sensor_msgs', 'std_srvs', 'geometry_msgs', 'diagnostic_msgs',
@@ -136,3 +146,38 @@ def use_own_ros_libraries(environ=None, program=None):
         sys.exit(1)
     env[REEXEC_MARK] = '1'
     os.execve(sys.executable, sys.orig_argv, env)
+
+
+def venv_of(path):
+    """Return the venv directory (the one with ``pyvenv.cfg``) ``path`` lies in, or None."""
+    path = Path(os.path.realpath(path))
+    return next((p for p in (path, *path.parents) if (p / 'pyvenv.cfg').is_file()), None)
+
+
+def use_own_numba_cache(environ=None, prefix=None):
+    """
+    Keep another venv's numba cache out of this environment's programs; return the change.
+
+    A ``NUMBA_CACHE_DIR`` inside another venv holds that venv's numba version's index: this
+    numba would find it stale, compile every kernel (~10 CPU-s before the node's first
+    sample, at every start) and overwrite it, so that the other venv's next program
+    compiles too. It is replaced by this venv's own ``numba_cache`` if it has one, else
+    removed (``__pycache__``). A directory outside any venv (the user's) stays. Runs before
+    numba is imported (numba reads the variable once, at import).
+
+    :param environ: The environment to correct (default ``os.environ``).
+    :param prefix: This venv (default ``sys.prefix``).
+    :returns: The directory now used (None: ``__pycache__``), or False if nothing changed.
+    """
+    environ = os.environ if environ is None else environ
+    prefix = Path(os.path.realpath(sys.prefix if prefix is None else prefix))
+    cache = environ.get(NUMBA_CACHE_ENV)
+    venv = venv_of(cache) if cache else None
+    if venv is None or venv == prefix:
+        return False
+    own = prefix / OWN_NUMBA_CACHE
+    if own.is_dir():
+        environ[NUMBA_CACHE_ENV] = str(own)
+        return str(own)
+    del environ[NUMBA_CACHE_ENV]
+    return None
