@@ -259,7 +259,7 @@ class GyroTriad:
         def call(a, b):
             # Every stream's normals for a..b-1, drawn here in the kernel's order (the
             # slow processes' per block starting in it, the white noise's per sample and
-            # axis): numba 0.58-0.60 keeps ~550 bytes at every call that unboxes a
+            # axis): numba 0.58-0.60 keeps ~585 bytes at every call that unboxes a
             # Generator (numba issue 9103), and numpy draws the same numbers.
             starts = len(range(self._slow_left, b - a, self._block))
             shocks = self._flicker.standard_normal((starts if flicker_on else 0, 3,

@@ -2,7 +2,7 @@
 
 The noise of the axis comes as the standard normals its stream drew for the chunk
 (:func:`axis_draws` of them, read in the kernel's order), not as the
-``numpy.random.Generator`` itself: numba 0.58-0.60 (Ubuntu 24.04's) keeps ~550 bytes at
+``numpy.random.Generator`` itself: numba 0.58-0.60 (Ubuntu 24.04's) keeps ~585 bytes at
 every call that unboxes a Generator (numba issue 9103), ~100 MiB an hour of a streaming
 node. Drawn by numpy in the kernel's order, the numbers are the ones the Generator would
 have given inside the loop, so a run split into chunks still draws what one long run
