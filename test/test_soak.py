@@ -17,6 +17,7 @@ import signal
 import struct
 import sys
 import tempfile
+import threading
 import time
 import tracemalloc
 import types
@@ -204,6 +205,48 @@ def test_pacer_drops_what_it_reaches_more_than_a_second_late():
     assert pacer.dropped == len(stale)
     assert pacer.published == 20
 
+
+
+def test_pause_returns_after_the_recording_hook():
+    """
+    Once ``pause()`` returns, a message published before it has reached the recording hook.
+
+    A deactivation pauses, flushes the recording's queue and splits the file: a message
+    published before the pause but handed to the hook after the flush began the next active
+    period's file (seen once in CI, Jazzy: a sample stamped 113 ms before its activation).
+    Here the hook waits for the pause to return: it never may.
+    """
+    pause_returned = threading.Event()
+    hook_saw_pause_returned = []
+
+    def on_published(*_):
+        hook_saw_pause_returned.append(pause_returned.wait(0.5))
+
+    class _BlockingPublisher(_Publisher):
+        def __init__(self):
+            super().__init__()
+            self.publishing = threading.Event()
+            self.release = threading.Event()
+
+        def publish(self, data):
+            self.publishing.set()
+            assert self.release.wait(60.0)
+            super().publish(data)
+
+    publisher = _BlockingPublisher()
+    pacer = Pacer(_SystemClockNode(), on_published=on_published)
+    pacer.put([(time.time_ns(), publisher, 'sensor_msgs/msg/Imu', b'x')])
+    pacer.start()
+    try:
+        assert publisher.publishing.wait(60.0)
+        pausing = threading.Thread(target=lambda: (pacer.pause(), pause_returned.set()))
+        pausing.start()
+        publisher.release.set()
+        pausing.join(60.0)
+    finally:
+        pacer.stop()
+    assert pause_returned.is_set()
+    assert publisher.published == [b'x'] and hook_saw_pause_returned == [False]
 
 # --- seconds of the live node -------------------------------------------------------------
 

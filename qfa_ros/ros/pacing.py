@@ -193,7 +193,8 @@ class Pacer:
 
     :param node: The node (its clock: system time, or ``/clock`` with ``use_sim_time``).
     :param on_published: Called on the pacer thread with ``(publisher, msgtype, data,
-        time_ns)`` after each publication (the recording hook), or None.
+        time_ns)`` after each publication (the recording hook; before a :meth:`pause`
+        returns, so it must not block), or None.
     :param on_empty: Called on the pacer thread when it has published everything it was
         given (it asks the sensor thread for more), or None.
     :param on_started: Called once on the pacer thread after the first messages it was
@@ -212,8 +213,8 @@ class Pacer:
         self._generation = 0
         self._stop = False
         # _gate protects _paused and _publish_from_ns (nothing stamped earlier is
-        # published); held around each publication, so that once pause() returns nothing
-        # more is published.
+        # published); held around each publication and its recording hook, so that once
+        # pause() returns nothing more is published and all that was is handed over.
         self._gate = threading.Lock()
         self._paused = False
         self._publish_from_ns = 0
@@ -265,6 +266,8 @@ class Pacer:
     def pause(self):
         """
         Publish nothing more; return once no publication is under way.
+
+        Every message published before it returns has been given to ``on_published``.
 
         The queue is kept: each message is dropped when it comes due while paused, and one
         due after :meth:`resume` is published then (a quick reactivation loses none).
@@ -340,6 +343,12 @@ class Pacer:
                 dropped = self._paused or stamp < self._publish_from_ns
                 if not dropped:
                     publisher.publish(data)
+                    if on_published is not None:
+                        # Under the gate: once pause() returns, every message published
+                        # is in the recording's queue, and a deactivation's split puts it
+                        # in its period's file (else the next period's file could begin
+                        # with it: test_pause_returns_after_the_recording_hook).
+                        on_published(publisher, msgtype, data, now)
             if dropped:
                 # Due while paused (a managed node inactive): neither sent nor recorded.
                 self.unpublished += 1
@@ -354,8 +363,6 @@ class Pacer:
                 self.late += 1
             if delay > self.max_delay_ns:
                 self.max_delay_ns = delay
-            if on_published is not None:
-                on_published(publisher, msgtype, data, now)
 
     def _wait_until(self, clock, stamp, generation, simulated):
         """
