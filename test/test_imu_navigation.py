@@ -97,6 +97,27 @@ def test_a_body_at_a_pole_sees_the_vertical_earth_rate_and_polar_gravity(latitud
         earth.check_location(90.001, 0.0, 0.0)
 
 
+
+def test_a_body_at_rest_has_one_pose_at_every_instant_and_callers_may_write_it():
+    # The node's truth asks a static input for its force and pose ten times a second: a
+    # constant motion computes them once and hands out copies.
+    static = tr.static(48.0, 11.0, 520.0, roll=0.3, pitch=-0.7, yaw=1.2)
+    t = np.linspace(0.0, 3600.0, 1001)
+    once, many = static.kinematics(np.array([17.0])), static.kinematics(t)
+    for key, value in once.items():
+        assert np.array_equal(many[key], np.repeat(value, len(t), axis=0)), key
+    pose_once, pose_many = static.local_pose(17.0), static.local_pose(t)
+    for value, values in zip(pose_once, pose_many):
+        assert np.array_equal(values, np.repeat(value, len(t), axis=0))
+    assert_allclose(pose_once[0], [[0.0, 0.0, 0.0]], rtol=0, atol=1e-9)
+    assert_allclose(pose_once[2:], np.zeros((2, 1, 3)), rtol=0, atol=0)
+    force, rate = static.rest_values()
+    assert np.array_equal(many['specific_force'][-1], force)
+    many['specific_force'][:] = 0.0
+    pose_many[1][:] = 0.0
+    assert np.array_equal(static.evaluate(t)[-1], force)
+    assert np.array_equal(static.local_pose(t)[1], np.repeat(pose_once[1], len(t), axis=0))
+
 def test_trajectory_kinematics_are_consistent_with_the_pose():
     # Finite differences of the pose reproduce the analytic velocity and body rate.
     drive = tr.vehicle_drive()

@@ -120,6 +120,8 @@ class Trajectory:
         self._still = bool(np.all(c[:-1] == 0.0)) and np.allclose(c[-1, 0], c[-1, -1])
         self._constant = self._still and bool(np.all(c[-1] == c[-1, 0]))
         self._rest_cache = None
+        # The kinematics and local pose of a constant motion, the same at every instant.
+        self._constant_cache = {}
         self._means = None
 
     @property
@@ -169,6 +171,21 @@ class Trajectory:
         yaw), ``dcm`` (C_b^n), ``velocity`` (ENU [m/s]), ``specific_force`` (body
         [m/s^2]), ``angular_rate`` (w_ib^b [rad/s]), ``body_rate`` (w_nb^b [rad/s]).
         """
+        if self._constant:
+            # The same at every instant: computed once (the truth publisher asks ten times
+            # a second), repeated over ``t``.
+            return self._repeat_constant('kinematics', self._kinematics, len(t))
+        return self._kinematics(t)
+
+    def _repeat_constant(self, name, compute, n):
+        if name not in self._constant_cache:
+            self._constant_cache[name] = compute(np.array([self.start]))
+        value = self._constant_cache[name]
+        if isinstance(value, dict):
+            return {key: np.repeat(a, n, axis=0) for key, a in value.items()}
+        return tuple(np.repeat(a, n, axis=0) for a in value)  # copies: callers may write
+
+    def _kinematics(self, t):
         p, dp, ddp = self._channels(t)
         lat, lon, h = p[:, 0], p[:, 1], p[:, 2]
         dlat, dlon, dh = dp[:, 0], dp[:, 1], dp[:, 2]
@@ -243,7 +260,13 @@ class Trajectory:
         orientation (x, y, z, w) of the body in that plane; velocity [m/s] in body
         axes; body rate w_nb^b [rad/s] in body axes.
         """
-        k = self.kinematics(np.atleast_1d(t))
+        t = np.atleast_1d(t)
+        if self._constant:
+            return self._repeat_constant('local_pose', self._local_pose, len(t))
+        return self._local_pose(t)
+
+    def _local_pose(self, t):
+        k = self.kinematics(t)
         origin = self._channels(np.array([self.start]))[0][0]
         c_e_n0 = ecef_to_enu_matrix(origin[0], origin[1])
         delta = geodetic_to_ecef(k['latitude'], k['longitude'], k['height']) \
