@@ -103,7 +103,7 @@ def report():
     os.kill(os.getpid(), 2)
 
 
-def probed_create_node(secured):
+def probed_create_node(secured, managed=False):
     import qfa_ros.ros.node as node_module
     import qfa_ros.ros.pacing as pacing
     import qfa_ros.ros.stream as stream
@@ -144,7 +144,7 @@ def probed_create_node(secured):
         publish_hand(self, *args)
 
     pacing.Pacer._publish_hand = probed_publish_hand
-    result = create_node(secured)
+    result = create_node(secured, managed)
     mark('node created')
     return result
 
