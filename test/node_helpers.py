@@ -28,6 +28,10 @@ from qfa_ros.ros.parameter_table import PARAMETERS
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES_FILE = ROOT / 'config' / 'fastdds_discovery.xml'
 NODE = 'qfa_node'
+QUERY_RESEND_S = 10.0
+"""A query (state, transitions, parameters) unanswered this long is sent again [s]: its
+response may have been dropped (:meth:`Client.call`); a node held up on a busy machine
+answers both."""
 
 # The test process is a long-running participant too: the discovery profile (under the
 # name this distribution's Fast DDS reads) and the localhost-only discovery apply to it as
@@ -301,11 +305,27 @@ class Client:
         self.spin_until(client.service_is_ready, timeout, f'service {name}')
         return client.call_async(request)
 
-    def call(self, srv_type, name, request, timeout=60.0):
-        """Call a service and return the response."""
-        future = self.call_async(srv_type, name, request, timeout)
-        self.spin_until(future.done, timeout, f'response of {name}')
-        return future.result()
+    def call(self, srv_type, name, request, timeout=60.0, resend_s=None):
+        """
+        Call a service and return the response.
+
+        With ``resend_s`` (a query, safe to repeat) the request goes again after that long
+        without an answer, until ``timeout``: Fast DDS drops a response to a client whose
+        reply reader the server has not discovered yet (the node logs "failed to send
+        response (timeout)"; seen once in CI on Jazzy, the first query after a start).
+        """
+        deadline = time.monotonic() + timeout
+        while True:
+            future = self.call_async(srv_type, name, request, timeout)
+            wait = max(0.0, deadline - time.monotonic())
+            try:
+                self.spin_until(future.done, wait if resend_s is None else min(resend_s, wait),
+                                f'response of {name}')
+                return future.result()
+            except TimeoutError:
+                self.client(srv_type, name).remove_pending_request(future)
+                if resend_s is None or time.monotonic() >= deadline:
+                    raise
 
     def set_parameters(self, values, timeout=30.0):
         """Set parameters of the node under test; return the results (one per parameter)."""
@@ -318,7 +338,7 @@ class Client:
     def get_parameters(self, names, timeout=30.0):
         request = GetParameters.Request(names=list(names))
         response = self.call(GetParameters, f'/{self.target}/get_parameters', request,
-                             timeout)
+                             timeout, resend_s=QUERY_RESEND_S)
         return [parameter_value_to_python(value) for value in response.values]
 
 
@@ -345,13 +365,13 @@ class Lifecycle:
     def state(self):
         """Return the label of the node's present state."""
         return self.client.call(GetState, f'/{self.client.target}/get_state',
-                                GetState.Request()).current_state.label
+                                GetState.Request(), resend_s=QUERY_RESEND_S).current_state.label
 
     def available(self):
         """Return the labels of the transitions available now."""
         response = self.client.call(GetAvailableTransitions,
                                     f'/{self.client.target}/get_available_transitions',
-                                    GetAvailableTransitions.Request())
+                                    GetAvailableTransitions.Request(), resend_s=QUERY_RESEND_S)
         return {item.transition.label for item in response.available_transitions}
 
 
