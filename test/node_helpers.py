@@ -420,3 +420,20 @@ def mean_accel(client, collector, count, timeout=30.0, settle_s=0.0):
                       progress=lambda: (collector.latest_ns, len(collector.samples)))
     samples = collector.samples[:count]
     return tuple(sum(s[k] for s in samples) / count for k in (1, 2, 3))
+
+
+def counted_after(items, after_ns, stamp=lambda item: item):
+    """
+    Return a callable: how many of the growing list ``items`` are stamped at or after ``after_ns``.
+
+    Each item is looked at once. A predicate that counted the whole list at every spin
+    (once a message) cost a starved test process more than the stream it was counting.
+    """
+    looked = [0, 0]  # items looked at, of them stamped at or after after_ns
+
+    def count():
+        for item in items[looked[0]:]:
+            looked[1] += stamp(item) >= after_ns
+        looked[0] = len(items)
+        return looked[1]
+    return count

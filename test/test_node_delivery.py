@@ -10,7 +10,7 @@ import time
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from node_helpers import Client, domain_id, NodeProcess
+from node_helpers import Client, counted_after, domain_id, NodeProcess
 import numpy as np
 import pytest
 from rclpy.qos import HistoryPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
@@ -258,7 +258,8 @@ def test_a_short_stall_is_caught_up_as_a_stream_not_a_burst(setup):
     everything.clear()
     signalled = stall(node, client, owed=30)
     resumed = time.time_ns()
-    client.spin_until(lambda: sum(s >= resumed for s in everything.stamps) > 20, 30,
+    after_stall = counted_after(everything.stamps, resumed)
+    client.spin_until(lambda: after_stall() > 20, 30,
                       'samples after the stall')
     stamps = np.asarray(everything.stamps, dtype=np.int64)
     published = np.asarray(everything.published, dtype=np.int64)
@@ -299,6 +300,7 @@ def test_a_stall_that_skips_samples_is_a_warning(setup):
     stamps = np.asarray(everything.stamps, dtype=np.int64)
     assert np.all(np.diff(stamps) % PERIOD_NS == 0) and np.all(np.diff(stamps) > 0)
     after = time.time_ns()
-    client.spin_until(lambda: sum(s >= after for s in everything.stamps) > 100, 30,
+    counted = counted_after(everything.stamps, after)
+    client.spin_until(lambda: counted() > 100, 30,
                       'samples after the stall')
     assert np.all(np.diff([s for s in everything.stamps if s >= after]) == PERIOD_NS)

@@ -5,7 +5,7 @@ import math
 import signal
 import time
 
-from node_helpers import Client, domain_id, NodeProcess
+from node_helpers import Client, counted_after, domain_id, NodeProcess
 import numpy as np
 from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
@@ -24,7 +24,8 @@ def mean_rate(client, rates, count):
     """Return the mean angular velocity of ``count`` samples stamped from now on."""
     rates.clear()
     after = time.time_ns() + 200_000_000  # past the node's 0.1 s computed lead
-    client.spin_until(lambda: sum(s >= after for s, _ in rates) >= count, 60,
+    counted = counted_after(rates, after, stamp=lambda row: row[0])
+    client.spin_until(lambda: counted() >= count, 60,
                       f'{count} gyro samples')
     fresh = [r for s, r in rates if s >= after][:count]
     return np.mean(fresh, axis=0)
