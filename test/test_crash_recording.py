@@ -191,13 +191,17 @@ def test_killed_recordings_and_a_killed_trace_are_recovered_by_the_next_start_an
     bag, received, kill_ns = kills['second']
     parts = unfinished_traces(traces)
     assert parts, 'the kill came after the trace was finished'
+    # Killed between the writer's link of the finished trace and its unlink of the part (a
+    # 2 ms slice of a starved node can end there): complete, recovery only removes the part.
+    published = [part for part in parts if part.with_suffix('').exists()
+                 and os.path.samefile(part, part.with_suffix(''))]
     report = _qfa_report_recover(output)
     assert report.startswith(f'{bag}: recovered '), report
     _assert_within_bound(bag, received, kill_ns, 'killed during a trace, recovered by '
                          'qfa-report recover')
     assert not unfinished_recordings(recordings, 'qfa_node') and not unfinished_traces(traces)
     trace, = traces.glob('qfa_reference_*.mcap')
-    assert f'{trace}: recovered ' in report, report
+    assert published or f'{trace}: recovered ' in report, report
     topics = set(read_bag(trace).counts)
     # What the kill left of the trace: the topics it writes first (a chunk each).
     order = ['/qfa/trace/settings', '/qfa/trace/forward/points', '/qfa/trace/forward/residuals',
