@@ -280,7 +280,7 @@ def test_make_test_runs_pytest_and_ci_runs_make_test(tmp_path):
     dry = subprocess.run(['make', '-n', '--no-print-directory', '-o', '.venv/.qfa-installed',
                           'test'], cwd=ROOT, env=make_environment(), capture_output=True,
                          text=True, check=True, timeout=60)
-    assert dry.stdout.split() == ['.venv/bin/python', '-m', 'pytest']
+    assert dry.stdout.split() == ['PYTHONDONTWRITEBYTECODE=', '.venv/bin/python', '-m', 'pytest']
     fake_make = tmp_path / 'make'
     fake_make.write_text('#!/bin/sh\necho "$QFA_TEST_BOTH_DISTRIBUTIONS $*" >> "$FAKE_LOG"\n')
     fake_make.chmod(0o755)

@@ -248,6 +248,41 @@ def test_pause_returns_after_the_recording_hook():
     assert pause_returned.is_set()
     assert publisher.published == [b'x'] and hook_saw_pause_returned == [False]
 
+
+def test_a_resumption_publishes_every_message_stamped_from_the_instant_it_returns():
+    """
+    A message due while ``resume()`` waits to take effect is published, not dropped as paused.
+
+    An activation read the clock, then resumed the pacer: held up in between (the GIL, a
+    busy core), the first sample stamped after that reading came due while still paused
+    and went missing from its period (a Jazzy suite run: the managed node's third period
+    began a sample late). Here the clock is read, then the reader held up for 50 ms while
+    a message stamped 10 ms on comes due.
+    """
+    publisher = _Publisher()
+    pacer = Pacer(_SystemClockNode())
+    pacer.pause()
+    pacer.start()
+    stamp = []
+
+    def held_up_clock():
+        now = time.time_ns()
+        stamp.append(now + 10_000_000)
+        pacer.put([(stamp[0], publisher, 'sensor_msgs/msg/Imu', b'due')])
+        time.sleep(0.05)
+        return now
+
+    try:
+        from_ns = pacer.resume(held_up_clock)
+        deadline = time.monotonic() + 60.0
+        while not publisher.published and pacer.unpublished == 0 \
+                and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        pacer.stop()
+    assert stamp[0] >= from_ns
+    assert publisher.published == [b'due'] and pacer.unpublished == 0
+
 # --- seconds of the live node -------------------------------------------------------------
 
 RATE = 250.0

@@ -275,11 +275,19 @@ class Pacer:
         with self._gate:
             self._paused = True
 
-    def resume(self, from_ns):
-        """Publish again, each message stamped at or after ``from_ns`` [ns]."""
+    def resume(self, now_ns):
+        """
+        Publish again, each message stamped at or after the present; return it [ns].
+
+        :param now_ns: The node clock [ns] (a callable), read under the gate: a message
+            that came due while the caller waited for it was still dropped as paused, so
+            the present is only known once no publication can be under way.
+        """
         with self._gate:
+            from_ns = now_ns()
             self._paused = False
             self._publish_from_ns = from_ns
+        return from_ns
 
     @property
     def pending(self):

@@ -191,9 +191,9 @@ class SampleStream:
         published from the pacer's queue, the sensor thread computes on from there.
         """
         with self._publishing_lock:
-            now = max(0, self._now_ns())
-            self.publish_from_ns = now
-            self.pacer.resume(now)
+            # The present as the pacer resumes, not before: a sample due between the two
+            # was dropped as paused (a Jazzy suite run: the first sample of a period missing).
+            self.publish_from_ns = self.pacer.resume(lambda: max(0, self._now_ns()))
         self._wake.set()
 
     def _started_publishing(self):
