@@ -75,8 +75,11 @@ run: $(NODE_STAMP)
 sim: $(NODE_STAMP)
 	$(VENV)/bin/qfa-sim static --duration $(DURATION)
 
+# pytest keeps the test modules it rewrote for its assertions in __pycache__, unless the
+# environment forbids writing bytecode: then every worker rewrites all of them on every run
+# (~3 s of its collection), and the Jazzy run after the Kilted one (the same pytest) too.
 test: $(STAMP)
-	$(PY) -m pytest $(TESTS)
+	PYTHONDONTWRITEBYTECODE= $(PY) -m pytest $(TESTS)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
