@@ -6,8 +6,8 @@ Run: ``QFA_TEST_DOMAINS=<low>-<high> .venv/bin/python bench/planted_defects.py [
 the suite's number, the one every defect must fail). Copies the working
 tree (without its venvs and git directory) to a scratch directory once; for each defect,
 puts the pristine file back, applies the defect there (never in the product) and runs
-``test/test_node_fuzz.py`` on the copy (``-n 0``, ``QFA_FUZZ_CASES=N``; the nodes started
-with ``python -m`` from the copy, ``PYTHONPATH`` the copy), then records whether it failed,
+``test/test_node_fuzz.py`` on the copy (``-n 0``, ``QFA_FUZZ_CASES=N``; ``PYTHONPATH`` the
+copy, so the nodes run the copy's code, forked or started), then records whether it failed,
 the invariant that caught it (its assertion message), after how many cases, and the time.
 A control run of the pristine copy comes first: a defect counts only if the same test on
 the same copy passes without it. Writes the section ``## Planted defects`` of the results

@@ -9,11 +9,13 @@ import sys
 import time
 
 from lifecycle_msgs.srv import ChangeState, GetAvailableTransitions, GetState
+import node_fork
 import numpy as np
 from rcl_interfaces.srv import GetParameters, SetParameters
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -53,6 +55,10 @@ their expectation; test_node_params.py checks that the table agrees."""
 
 VENVS = {'kilted': ROOT / '.venv', 'jazzy': ROOT / '.venv-jazzy'}
 """The venv of each distribution (the Makefile's ``ROS_DISTRO``)."""
+
+FRESH_INTERPRETERS = os.environ.get('QFA_TEST_FRESH_NODES', '') not in ('', '0')
+"""Start every node as its command (``QFA_TEST_FRESH_NODES=1``), none forked
+(:mod:`node_fork`): the suite as it was before the fork server, to compare."""
 
 BOTH_DISTRIBUTIONS_ENV = 'QFA_TEST_BOTH_DISTRIBUTIONS'
 """Set (by .ci/run): a test that needs the other distribution's venv fails without it."""
@@ -183,6 +189,10 @@ class NodeProcess:
     :param command: The command that starts it, before ``--ros-args`` (default:
         ``PYTHON -m qfa_ros.cli.node``, or the lifecycle node's ``main`` when ``managed``).
     :param env: Its environment (default: :func:`node_environment`).
+
+    With neither ``command``, ``python`` nor ``env``, the node is forked from a warmed
+    fork server (:mod:`node_fork`) and runs the same ``main`` as the command would; with
+    any of them (or ``QFA_TEST_FRESH_NODES=1``), the command starts it.
     """
 
     def __init__(self, domain, directory, parameters=None, name=NODE, managed=False,
@@ -199,12 +209,17 @@ class NodeProcess:
         self._log = open(self.log_path, 'w')
         program = ['-c', 'import sys; from qfa_ros.cli.node import lifecycle_main; '
                    'sys.exit(lifecycle_main())'] if managed else ['-m', 'qfa_ros.cli.node']
+        arguments = ['--ros-args', '-r', f'__node:={name}', '--params-file',
+                     str(self.params_file)]
+        if command is None and python is None and env is None and not FRESH_INTERPRETERS:
+            self.process = node_fork.ForkedProcess(
+                ['qfa_node', *arguments], node_environment(domain), ROOT, self.log_path,
+                managed)
+            return
         command = command or [python or sys.executable, *program]
         self.process = subprocess.Popen(
-            [*command, '--ros-args', '-r', f'__node:={name}',
-             '--params-file', str(self.params_file)],
-            env=env or node_environment(domain, python), stdout=self._log,
-            stderr=subprocess.STDOUT, cwd=ROOT)
+            [*command, *arguments], env=env or node_environment(domain, python),
+            stdout=self._log, stderr=subprocess.STDOUT, cwd=ROOT)
 
     @property
     def pid(self):
@@ -241,15 +256,26 @@ class Client:
     """
     A test-side rclpy node in its own context on ``domain``.
 
+    It spins rclpy's events executor (C++, one thread, as the single-threaded one):
+    reading a 1 kHz ``imu/data_raw`` into :class:`ImuCollector` costs this process 0.29
+    of a core with it, 0.67 with the ``SingleThreadedExecutor``, which builds its wait set
+    in Python for every message (both distributions alike). It does not pass a message's
+    info (a callback of two arguments): ``single=True`` spins the single-threaded one
+    (``QFA_TEST_EXECUTOR=single``: every client).
+
     :param domain: ROS domain id.
     :param target: Name of the node under test.
+    :param single: Spin the ``SingleThreadedExecutor``.
     """
 
-    def __init__(self, domain, target=NODE):
+    def __init__(self, domain, target=NODE, single=False):
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)
         self.node = Node('qfa_test_client', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
+        if single or os.environ.get('QFA_TEST_EXECUTOR') == 'single':
+            self.executor = SingleThreadedExecutor(context=self.context)
+        else:
+            self.executor = EventsExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.target = target
         self.clients = {}

@@ -69,7 +69,7 @@ def setup(tmp_path_factory):
     directory = tmp_path_factory.mktemp('delivery')
     domain = domain_id('delivery')
     # The subscribers exist before the node: they see its very first samples.
-    client = Client(domain)
+    client = Client(domain, single=True)  # Stamps reads the message info
     sensor_data = Stamps(client, qos_profile_sensor_data)
     everything = Stamps(client, QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
                                            reliability=ReliabilityPolicy.RELIABLE))
@@ -92,7 +92,7 @@ def stream_status(diagnostics):
 # Before the tests of the shared node (``setup``), which then streams only while they run.
 def test_a_simulated_clock_paces_the_stream(tmp_path):
     domain = domain_id('delivery sim')
-    client = Client(domain)
+    client = Client(domain, single=True)  # Stamps reads the message info
     samples = Stamps(client, QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
                                         reliability=ReliabilityPolicy.RELIABLE))
     clock_publisher = client.node.create_publisher(Clock, '/clock', 10)
