@@ -190,9 +190,10 @@ class NodeProcess:
         ``PYTHON -m qfa_ros.cli.node``, or the lifecycle node's ``main`` when ``managed``).
     :param env: Its environment (default: :func:`node_environment`).
 
-    With neither ``command``, ``python`` nor ``env``, the node is forked from a warmed
-    fork server (:mod:`node_fork`) and runs the same ``main`` as the command would; with
-    any of them (or ``QFA_TEST_FRESH_NODES=1``), the command starts it.
+    In a test (pytest sets ``PYTEST_CURRENT_TEST``) with neither ``command``, ``python``
+    nor ``env``, the node is forked from a warmed fork server (:mod:`node_fork`) and runs
+    the same ``main`` as the command would; otherwise (a bench: what it measures is the
+    node as its users start it; ``QFA_TEST_FRESH_NODES=1``) the command starts it.
     """
 
     def __init__(self, domain, directory, parameters=None, name=NODE, managed=False,
@@ -211,7 +212,8 @@ class NodeProcess:
                    'sys.exit(lifecycle_main())'] if managed else ['-m', 'qfa_ros.cli.node']
         arguments = ['--ros-args', '-r', f'__node:={name}', '--params-file',
                      str(self.params_file)]
-        if command is None and python is None and env is None and not FRESH_INTERPRETERS:
+        if (command is None and python is None and env is None and not FRESH_INTERPRETERS
+                and 'PYTEST_CURRENT_TEST' in os.environ):
             self.process = node_fork.ForkedProcess(
                 ['qfa_node', *arguments], node_environment(domain), ROOT, self.log_path,
                 managed)
