@@ -131,6 +131,33 @@ def _stop_during_a_trace(node, traces, recordings, rng):
     return run_stopped(node.process, stopped_ns, lambda: trace_reached() and recording_part())
 
 
+TRACE_ATTEMPTS = 5
+"""Reference captures a test may start to kill one while its trace is written."""
+
+
+def _stop_during_some_trace(client, node, traces, recordings, rng):
+    """
+    Start reference captures until one is stopped while its trace is written.
+
+    A slice of :func:`_stop_during_a_trace` that oversleeps (a busy machine) can let the
+    node finish the trace; then the node goes on and the next capture is tried.
+
+    :returns: ``(when it was last stopped [ns], the trace being written)``.
+    """
+    for _ in range(TRACE_ATTEMPTS):
+        before = set(traces.glob('*.mcap'))
+        future = client.call_async(Trigger, '/qfa_node/capture_reference', Trigger.Request())
+        stopped_ns = _stop_during_a_trace(node, traces, recordings, rng)
+        part, = unfinished_traces(traces) or [None]
+        if part is not None:
+            return stopped_ns, part.with_suffix('')
+        assert len(set(traces.glob('*.mcap')) - before) == 1, 'a capture without its trace'
+        os.kill(node.pid, signal.SIGCONT)
+        client.spin_until(future.done, 120, 'the finished capture')
+        assert future.result().success, future.result().message
+    raise AssertionError(f'each of {TRACE_ATTEMPTS} traces was finished before the kill')
+
+
 def test_killed_recordings_and_a_killed_trace_are_recovered_by_the_next_start_and_qfa_report(
         tmp_path):
     """
@@ -172,8 +199,8 @@ def test_killed_recordings_and_a_killed_trace_are_recovered_by_the_next_start_an
                     time.sleep(WITNESS_BEHIND_S)
                     kill_ns = stop_mid_file(node.process, recordings)
                 else:
-                    client.call_async(Trigger, '/qfa_node/capture_reference', Trigger.Request())
-                    kill_ns = _stop_during_a_trace(node, traces, recordings, rng)
+                    kill_ns, killed_trace = _stop_during_some_trace(client, node, traces,
+                                                                    recordings, rng)
                 _kill(node)
                 if run == 'second':
                     assert witness.previous, "none of the first node's samples came late"
@@ -190,7 +217,8 @@ def test_killed_recordings_and_a_killed_trace_are_recovered_by_the_next_start_an
 
     bag, received, kill_ns = kills['second']
     parts = unfinished_traces(traces)
-    assert parts, 'the kill came after the trace was finished'
+    assert parts and killed_trace.with_suffix('.mcap.part') in parts, \
+        'the kill came after the trace was finished'
     # Killed between the writer's link of the finished trace and its unlink of the part (a
     # 2 ms slice of a starved node can end there): complete, recovery only removes the part.
     published = [part for part in parts if part.with_suffix('').exists()
@@ -200,7 +228,7 @@ def test_killed_recordings_and_a_killed_trace_are_recovered_by_the_next_start_an
     _assert_within_bound(bag, received, kill_ns, 'killed during a trace, recovered by '
                          'qfa-report recover')
     assert not unfinished_recordings(recordings, 'qfa_node') and not unfinished_traces(traces)
-    trace, = traces.glob('qfa_reference_*.mcap')
+    trace = killed_trace
     assert published or f'{trace}: recovered ' in report, report
     topics = set(read_bag(trace).counts)
     # What the kill left of the trace: the topics it writes first (a chunk each).
