@@ -4,7 +4,7 @@ Start node processes by fork from a warmed server instead of a fresh interpreter
 A node started as ``python -m qfa_ros.cli.node`` spends ~1.2-2 CPU-s before its first
 sample, most of it the same in every start: the interpreter, rclpy and the node's
 modules imported, numba's one-time set-up at the first kernel call. The suite starts
-about forty nodes. :func:`start` forks each from a :mod:`multiprocessing` fork server
+about forty nodes. :class:`ForkedProcess` forks each from a :mod:`multiprocessing` fork server
 (one per test process) that did that work once when it started: importing this module
 imports the node and calls a kernel, and nothing else (no rclpy context, no DDS
 participant, no thread), so the fork is safe. The child then runs the node's own
@@ -14,9 +14,11 @@ as with ``subprocess``.
 
 What is about the start itself (``ros2 run``, ``make run``, launch files, the other
 distribution's venv, an environment of the test's own, ``--version``) starts the real
-command: :class:`node_helpers.NodeProcess` forks only with its defaults.
+command: :class:`node_helpers.NodeProcess` forks only with its defaults, and only under
+pytest (a bench measures the node as its users start it).
 """
 
+import functools
 import multiprocessing
 from multiprocessing import forkserver
 import os
@@ -24,6 +26,7 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
+from unittest import mock
 
 SERVER_ENV = 'QFA_TEST_NODE_FORK_SERVER'
 """Set for the fork server's start only: its import of this module does the warm-up."""
@@ -45,29 +48,19 @@ if os.environ.pop(SERVER_ENV, None):
     warm_up()
 
 HERE = Path(__file__).resolve().parent
-_CONTEXT = []
 
 
+@functools.cache
 def context():
     """Return the fork-server context, its server started with this module preloaded."""
-    if not _CONTEXT:
-        forkserver.set_forkserver_preload([__name__])
-        # The server process imports this module by name and the node from this tree
-        # (Python 3.11's fork server does not take the parent's sys.path).
-        saved = os.environ.get('PYTHONPATH')
-        os.environ['PYTHONPATH'] = os.pathsep.join(
-            filter(None, [str(HERE), str(HERE.parent), saved]))
-        os.environ[SERVER_ENV] = '1'
-        try:
-            forkserver.ensure_running()
-        finally:
-            del os.environ[SERVER_ENV]
-            if saved is None:
-                del os.environ['PYTHONPATH']
-            else:
-                os.environ['PYTHONPATH'] = saved
-        _CONTEXT.append(multiprocessing.get_context('forkserver'))
-    return _CONTEXT[0]
+    forkserver.set_forkserver_preload([__name__])
+    # The server process imports this module by name and the node from this tree
+    # (Python 3.11's fork server does not take the parent's sys.path).
+    path = os.pathsep.join(filter(None, [str(HERE), str(HERE.parent),
+                                         os.environ.get('PYTHONPATH')]))
+    with mock.patch.dict(os.environ, {'PYTHONPATH': path, SERVER_ENV: '1'}):
+        forkserver.ensure_running()
+    return multiprocessing.get_context('forkserver')
 
 
 def run_node(argv, env, cwd, log_path, managed):
@@ -96,10 +89,6 @@ class ForkedProcess:
         self._process.start()
         self.pid = self._process.pid
 
-    @property
-    def returncode(self):
-        return self._process.exitcode
-
     def poll(self):
         return self._process.exitcode
 
@@ -115,9 +104,6 @@ class ForkedProcess:
                 os.kill(self.pid, signum)
             except ProcessLookupError:  # ended meanwhile
                 pass
-
-    def terminate(self):
-        self.send_signal(signal.SIGTERM)
 
     def kill(self):
         self.send_signal(signal.SIGKILL)

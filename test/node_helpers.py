@@ -208,8 +208,6 @@ class NodeProcess:
             {name: {'ros__parameters': dict(parameters or {})}}))
         self.log_path = self.params_file.with_suffix('.log')
         self._log = open(self.log_path, 'w')
-        program = ['-c', 'import sys; from qfa_ros.cli.node import lifecycle_main; '
-                   'sys.exit(lifecycle_main())'] if managed else ['-m', 'qfa_ros.cli.node']
         arguments = ['--ros-args', '-r', f'__node:={name}', '--params-file',
                      str(self.params_file)]
         if (command is None and python is None and env is None and not FRESH_INTERPRETERS
@@ -218,6 +216,8 @@ class NodeProcess:
                 ['qfa_node', *arguments], node_environment(domain), ROOT, self.log_path,
                 managed)
             return
+        program = ['-c', 'import sys; from qfa_ros.cli.node import lifecycle_main; '
+                   'sys.exit(lifecycle_main())'] if managed else ['-m', 'qfa_ros.cli.node']
         command = command or [python or sys.executable, *program]
         self.process = subprocess.Popen(
             [*command, *arguments], env=env or node_environment(domain, python),
