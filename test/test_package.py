@@ -5,6 +5,7 @@ import configparser
 from glob import glob
 import importlib
 import importlib.util
+import itertools
 import os
 from pathlib import Path
 import shutil
@@ -151,15 +152,18 @@ if [ "$1" = -c ]; then exit "$FAKE_RCLPY"; fi
 if [ "$1 $2" = "-m venv" ]; then
   shift 2; [ "$1" = --system-site-packages ] && shift
   mkdir -p "$1/bin" "$1/lib/qfa_ros"; cp "$0" "$1/bin/python"
+  printf '#!/bin/sh\necho "uv $*" >> "$FAKE_LOG"\nexit "$FAKE_UV"\n' > "$1/bin/uv"
+  chmod +x "$1/bin/uv"
 fi
 exit 0
 """
-"""A python that logs its arguments, answers ``import rclpy`` with $FAKE_RCLPY, makes venvs."""
+"""A python that logs its arguments, answers ``import rclpy`` with $FAKE_RCLPY, makes venvs
+with a ``uv`` that logs its arguments and exits with $FAKE_UV."""
 
 
-def make_target(tmp_path, target, rclpy_status, distro=None):
+def make_target(tmp_path, target, rclpy_status, distro=None, uv_status=0):
     """Run ``make TARGET`` on a copy of the project with a fake python; return its calls."""
-    project = tmp_path / f'project{rclpy_status}{distro or ""}'
+    project = tmp_path / f'project{rclpy_status}{distro or ""}{uv_status}'
     if not project.exists():
         project.mkdir()
         for name in ('Makefile', 'setup.py', 'requirements'):
@@ -176,7 +180,8 @@ def make_target(tmp_path, target, rclpy_status, distro=None):
         env['ROS_DISTRO'] = distro
     subprocess.run(['make', '-s', target, f'PYTHON={python}'], cwd=project, check=True,
                    capture_output=True, timeout=60,
-                   env={**env, 'FAKE_LOG': str(log), 'FAKE_RCLPY': str(rclpy_status)})
+                   env={**env, 'FAKE_LOG': str(log), 'FAKE_RCLPY': str(rclpy_status),
+                        'FAKE_UV': str(uv_status)})
     return log.read_text().splitlines() if log.exists() else []
 
 
@@ -184,20 +189,31 @@ def make_environment():
     """
     Return this environment without a parent make's variables (CI runs us under make).
 
-    Nor ``ROS_DISTRO``, which a sourced ROS 2 exports and the Makefile reads.
+    Nor ``ROS_DISTRO``, which a sourced ROS 2 exports and the Makefile reads, nor the
+    ``TESTS`` of a ``make test TESTS=...`` that runs this file.
     """
     return {k: v for k, v in os.environ.items()
-            if k not in ('MAKEFLAGS', 'MAKELEVEL', 'MFLAGS', 'ROS_DISTRO')}
+            if k not in ('MAKEFLAGS', 'MAKELEVEL', 'MFLAGS', 'ROS_DISTRO', 'TESTS')}
 
 
-def requirement_files(calls):
-    """Return the ``-r`` files of every ``pip install`` among ``calls``."""
+def requirement_files(calls, installer='-m pip install'):
+    """Return the ``-r`` files of every call of ``installer`` among ``calls``."""
     files = set()
     for call in calls:
         words = call.split()
-        if call.startswith('-m pip install'):
+        if call.startswith(installer):
             files |= {words[i + 1] for i, word in enumerate(words) if word == '-r'}
     return files
+
+
+def installed_files(calls, venv, uv_status):
+    """Return the requirement files installed by uv (into ``venv``) or, where uv failed, pip."""
+    if uv_status:
+        return requirement_files(calls)
+    assert not requirement_files(calls), calls
+    assert all(f'--python {venv}/bin/python ' in call
+               for call in calls if call.startswith('uv pip install')), calls
+    return requirement_files(calls, 'uv pip install')
 
 
 WHEEL_SETS = {None: ('.venv', 'requirements/base.txt', 'requirements/ros.txt',
@@ -211,20 +227,23 @@ WHEEL_SETS = {None: ('.venv', 'requirements/base.txt', 'requirements/ros.txt',
 
 def test_make_run_installs_the_node_only_and_make_setup_the_rest(tmp_path):
     for distro, (venv, libraries, wheels, tools) in WHEEL_SETS.items():
-        for rclpy_status, system, ros in ((1, False, True), (0, True, False)):
+        # uv installs the requirements; where it fails, pip installs the same ones.
+        for (rclpy_status, system, ros), uv_status in itertools.product(
+                ((1, False, True), (0, True, False)), (0, 1)):
             # What `make run` needs: the libraries, and the distribution's ROS 2 wheels only
             # without a system rclpy.
-            calls = make_target(tmp_path, f'{venv}/.qfa-node', rclpy_status, distro)
+            calls = make_target(tmp_path, f'{venv}/.qfa-node', rclpy_status, distro, uv_status)
             venv_call = next(call for call in calls if call.startswith('-m venv'))
             assert ('--system-site-packages' in venv_call.split()) == system, calls
             assert venv_call.split()[-1] == venv, calls
-            assert requirement_files(calls) == {libraries} | ({wheels} if ros else set()), \
-                calls
+            assert installed_files(calls, venv, uv_status) == \
+                {libraries} | ({wheels} if ros else set()), calls
             assert any(call.startswith('-m pip install') and call.endswith('-e .')
                        for call in calls), calls
             # `make setup` afterwards adds the tools and the test packages, and redoes nothing.
-            calls = make_target(tmp_path, 'setup', rclpy_status, distro)
-            assert requirement_files(calls) == {tools, 'requirements/test.txt'}, calls
+            calls = make_target(tmp_path, 'setup', rclpy_status, distro, uv_status)
+            assert installed_files(calls, venv, uv_status) == {tools, 'requirements/test.txt'}, \
+                calls
             assert not any(call.startswith('-m venv') for call in calls), calls
     # `make run` and `make sim` wait for the node's set-up only, `make test` for all of it.
     for distro, (venv, *_) in WHEEL_SETS.items():
