@@ -66,9 +66,12 @@ $(NODE_STAMP): $(ROS_WHEELS) $(LIBRARIES) setup.py
 	for script in $(VENV)/lib/qfa_ros/*; do [ -e "$$script" ] && ln -sf "../lib/qfa_ros/$${script##*/}" $(VENV)/bin/; done; \
 	touch $@
 
-# Everything: the fleet and figure tools, the test and documentation tools besides.
+# Everything: the fleet and figure tools, the test and documentation tools besides; and the
+# suite's trajectory kernels into numba's cache (23 CPU-s on a fresh clone, which the first
+# test session would otherwise spend at its start while its workers wait).
 $(STAMP): $(NODE_STAMP) $(TOOLS) requirements/test.txt
 	@$(INSTALL) -r $(TOOLS) -r requirements/test.txt
+	@$(PY) test/kernel_warmup.py trajectory $(VENV)/.qfa-kernels
 	@touch $@
 
 # The emulated sensor on DDS until Ctrl-C (the node finds config/fastdds_discovery.xml).
