@@ -7,9 +7,10 @@ by side at the start of the session; each test process waits for them before its
 test (:func:`wait_for_warmup`), so that on a fresh checkout the kernels are compiled
 once, not by each pytest-xdist worker and each node or ``qfa-sim`` subprocess that
 happened to start before another had written the cache (the trajectory kernels alone
-take ~14 CPU-s; ``make setup``, and so ``make test``, runs the ``trajectory`` part once
-after installing, so that a fresh clone's first session finds them). Nothing here is a test: a failed warm-up only means the tests compile
-the kernels themselves, and fail there if a kernel is broken.
+take ~14 CPU-s). ``make setup``, and so ``make test``, runs the ``trajectory`` part once
+after installing, so that a fresh clone's first session finds them compiled. Nothing here
+is a test: a failed warm-up only means the tests compile the kernels themselves, and fail
+there if a kernel is broken.
 
 Parts, about equal in compile time, together the 22 host-CPU signatures the suite
 compiles (listed from the cache index after a full run):
