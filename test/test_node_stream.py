@@ -26,6 +26,13 @@ from qfa_ros.model.noise import flicker_component_variance, NoiseConfig
 RATE = 1000.0
 LATITUDE = math.radians(45.0)  # the default latitude_deg
 G = float(normal_gravity(LATITUDE))
+STREAM_S = 7.0
+"""Seconds of stream the first test judges (10 until issue 44; no sample lost over 60 s
+windows and a 600 s soak: ``bench/node_rate.py``, bench/results/node_rate.md). Its 70
+on-board temperature readings (0.02 degC rms, white) hold their mean to 25 degC within
+0.01 (4.2 sigma: a 0.02 degC offset fails it but in 1e-5 of runs) and their scatter to the
+advertised variance within 30 % (3.5 standard errors); a correct node fails the two in
+about 4e-4 of runs (at 10 s: 3e-5)."""
 BIAS_UG = (20.0, -30.0, 50.0)  # integral: typed as integers below
 # Configured IEEE 1293 bias plus the thermal zero bias at the constant 25 degC ambient.
 # What the node's drawn unit (seed 1) outputs level and rolled 90 degrees at 25 degC.
@@ -68,8 +75,9 @@ def test_stream_delivers_every_sample_evenly_spaced(setup):
     # Diagnostics come from the start, samples once the model is warm: count from here.
     temperatures.clear()
     diagnostics.clear()
-    # 10 s of stream by its stamps: a busy machine may deliver them slower than that.
-    client.spin_until(lambda: len(imu.samples) >= 10 * RATE, 60, '10 s of samples',
+    # STREAM_S of stream by its stamps: a busy machine may deliver them slower than that.
+    client.spin_until(lambda: len(imu.samples) >= STREAM_S * RATE, 60,
+                      f'{STREAM_S:g} s of samples',
                       progress=lambda: len(imu.samples))
     stamps = np.array([s[0] for s in imu.samples], dtype=np.int64)
     accel = np.array([s[1:] for s in imu.samples])
@@ -95,7 +103,7 @@ def test_stream_delivers_every_sample_evenly_spaced(setup):
     assert accel[:, 0].var() == pytest.approx(covariance[0, 0], rel=0.3)
 
     mean = accel.mean(axis=0)
-    # The bias-instability process barely averages over 10 s: three of its stationary
+    # The bias-instability process barely averages over seconds: three of its stationary
     # standard deviations on top of the white noise of the mean.
     noise = NoiseConfig()
     bias_std = math.sqrt(flicker_component_variance(noise) * len(noise.correlation_times))
@@ -186,9 +194,10 @@ def test_sigterm_closes_the_recording_cleanly(setup):
     assert files, setup['node'].log()
     with AnyReader(files) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-        assert counts['/imu/data_raw'] > 10000
-        assert counts['/imu/temperature'] > 100
-        assert counts['/diagnostics'] >= 10
+        # The node's whole run: more than the STREAM_S the first test took.
+        assert counts['/imu/data_raw'] > STREAM_S * RATE
+        assert counts['/imu/temperature'] > STREAM_S * 10
+        assert counts['/diagnostics'] >= STREAM_S
         # The truth an INS developer replays the recording against (truth.rate_hz 10 Hz).
         assert counts['/truth/imu_errors'] > 50 and counts['/truth/odometry'] > 50
         assert counts['/truth/origin'] >= 1  # and again at each new input (orientation)
