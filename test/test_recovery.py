@@ -88,21 +88,30 @@ def test_every_cut_of_a_killed_recording_recovers_every_complete_chunk(tmp_path,
             *rng.integers(30, size, 2)]
     for index, cut in enumerate(sorted({int(c) for c in cuts if c <= size})):
         for zeros in (False, True):
+            if zeros and cut == size:
+                continue  # nothing left to zero: the same bytes as the plain cut
             bag = tmp_path / f'{index}_{zeros}' / killed.name
             shutil.copytree(killed, bag)
             copy = bag / part.name
             data = copy.read_bytes()
             copy.write_bytes(data[:cut] + (bytes(size - cut) if zeros else b''))
-            expected = before + (_part_stamps(copy) if cut >= 8 else [])
+            if not zeros:
+                expected = before + (_part_stamps(copy) if cut >= 8 else [])
 
             result, = recover(bag)
             assert result.status == 'recovered', result.describe()
             assert not list(bag.glob('*.part')), result.describe()
-            contents = read_bag(bag)
-            assert contents.imu_stamps.tolist() == expected, (cut, zeros)
-            assert contents.files == 4
             assert not needs_recovery(bag)
             digests = _digests(bag)
+            if zeros:
+                # Zeros where the pages never landed recover to the very bag the plain cut
+                # of the same length does (read back in full just before).
+                assert digests == plain, (cut, zeros)
+            else:
+                contents = read_bag(bag)
+                assert contents.imu_stamps.tolist() == expected, (cut, zeros)
+                assert contents.files == 4
+                plain = digests
             again, = recover(bag)
             assert again.status == 'nothing to recover'
             assert _digests(bag) == digests, 'a second recovery changed something'
@@ -160,7 +169,7 @@ def test_a_recovery_killed_half_way_is_finished_by_the_next(tmp_path, killed):
 
 
 def test_a_recovery_killed_at_random_instants_is_finished_by_the_next(tmp_path):
-    killed = killed_recording(tmp_path, 30000)  # one .part of 30 s at 1 kHz
+    killed = killed_recording(tmp_path, 10000)  # one .part of 10 s at 1 kHz
     part, = killed.glob('*.part')
     reference = tmp_path / 'reference' / killed.name
     shutil.copytree(killed, reference)
@@ -170,15 +179,17 @@ def test_a_recovery_killed_at_random_instants_is_finished_by_the_next(tmp_path):
     finished = (reference / part.name[:-len('.part')]).read_bytes()
     rng = np.random.default_rng(11)
     final = part.name[:-len('.part')]
-    # Three kills at random instants, and one the moment the final name appears: a file
-    # published before it is complete would be caught there.
-    for attempt in range(4):
+    # Two kills at random instants, and one the moment the final name appears: a file
+    # published before it is complete would be caught there. The kills at fixed states
+    # (a tail of the finished file, a complete part, linked, a metadata leftover) are in
+    # test_a_recovery_killed_half_way_is_finished_by_the_next.
+    for attempt in range(3):
         bag = tmp_path / str(attempt) / killed.name
         shutil.copytree(killed, bag)
         process = subprocess.Popen([sys.executable, '-c', RECOVER_SCRIPT, str(bag)],
                                    cwd=ROOT, stdout=subprocess.PIPE, text=True)
         assert process.stdout.readline() == 'ready\n'
-        if attempt < 3:
+        if attempt < 2:
             time.sleep(rng.uniform(0.0, 1.0) * duration)
         else:
             assert stop_when(process, (bag / final).exists, 60, poll_s=0.0)
@@ -187,7 +198,7 @@ def test_a_recovery_killed_at_random_instants_is_finished_by_the_next(tmp_path):
         recover(bag)
         assert (bag / final).read_bytes() == finished, attempt
         assert not needs_recovery(bag)
-    assert len(read_bag(reference).imu_stamps) == 30000
+    assert len(read_bag(reference).imu_stamps) == 10000
 
 
 MAGIC = b'\x89MCAP0\r\n'
