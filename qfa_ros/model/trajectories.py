@@ -137,12 +137,13 @@ def vehicle_drive(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, yaw=math.p
     t = np.arange(0.0, bounds[-1] + dt / 2, dt)
     commands = np.zeros((len(t), 3))
     previous = np.zeros(3)
-    for (start, row) in zip(bounds[:-1], script):
+    # Each row's commands hold from its start until the next row's start (which takes over).
+    firsts = np.searchsorted(t, bounds[:-1])
+    for first, last, start, row in zip(firsts, list(firsts[1:]) + [len(t)], bounds, script):
         target = row[1:] * np.array([1.0, DEGREE, DEGREE])
-        s = np.clip((t - start) / ramp_s, 0.0, 1.0)
+        s = np.clip((t[first:last] - start) / ramp_s, 0.0, 1.0)
         blend = s * s * (3 - 2 * s)
-        active = t >= start
-        commands[active] = previous + (target - previous) * blend[active, None]
+        commands[first:last] = previous + (target - previous) * blend[:, None]
         previous = target
     # Integrate (trapezoid) speed, heading and climb angle, then position.
     def integrate(rate, initial):
