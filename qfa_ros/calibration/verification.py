@@ -22,7 +22,7 @@ from qfa_ros.model.units import STANDARD_GRAVITY
 
 @dataclass
 class VerificationResult:
-    """
+    r"""
     Compensated output over a verification chamber cycle, per fixture position.
 
     Attributes
@@ -31,7 +31,7 @@ class VerificationResult:
         Per position (:data:`POSITIONS`) and axis: peak to peak over temperature bins of
         the mean (output - fixture input) [m/s^2].
     scale_residual : float64[3]
-        Per axis: largest |scale-factor error| of the +-g pairs, binned by
+        Per axis: largest \|scale-factor error| of the +-g pairs, binned by
         temperature [1].
     bins_c : float64[k]
         Centres of the temperature bins (on-board reading) [degC].
@@ -140,7 +140,7 @@ class AttitudeVerification:
 
     @property
     def scale_max(self):
-        """Largest |scale-factor error| over the temperatures per axis [1]."""
+        r"""Largest \|scale-factor error| over the temperatures per axis [1]."""
         return np.abs(self.scale_error).max(axis=0)
 
 

@@ -55,12 +55,12 @@ ESTIMATE_LABELS = {
 
 
 def residual_metrics(table):
-    """
+    r"""
     Return the residual scale-factor error after self-calibration over every row and axis.
 
-    Keys ``error before mean ppm`` (mean |error| before), ``residual mean ppm``, its
+    Keys ``error before mean ppm`` (mean \|error| before), ``residual mean ppm``, its
     standard error ``residual mean se ppm``, ``residual p95 ppm``, ``residual max ppm``
-    (all of |error| after) and ``sensor time s`` (mean schedule duration).
+    (all of \|error| after) and ``sensor time s`` (mean schedule duration).
     """
     after = np.abs(_columns(table, 'sf_after_ppm'))
     before = np.abs(_columns(table, 'sf_before_ppm'))
@@ -79,7 +79,7 @@ SCALE_LIMIT_PPM = 20.0
 
 
 def self_calibration_claim(table):
-    """Return mean, p95, p99 and max of |residual| after self-calibration [ppm] (all axes)."""
+    r"""Return mean, p95, p99 and max of \|residual| after self-calibration [ppm] (all axes)."""
     after = np.abs(_columns(table, 'sf_after_ppm'))
     return {'mean': float(after.mean()), 'p95': float(np.percentile(after, 95)),
             'p99': float(np.percentile(after, 99)), 'max': float(after.max()),
@@ -87,12 +87,12 @@ def self_calibration_claim(table):
 
 
 def temperature_rows(table):
-    """
+    r"""
     Return the temperature study's distribution rows per quantity and axis.
 
     Each row: ``(quantity, axis, median, p95, max, yield %)``: the worst attitude's
     zero-drift p2p [ug] (yield: <= :data:`ZERO_DRIFT_LIMIT_UG`), the scale factor's p2p
-    and largest |error| over the temperatures [ppm] (yield: <= :data:`SCALE_LIMIT_PPM`).
+    and largest \|error| over the temperatures [ppm] (yield: <= :data:`SCALE_LIMIT_PPM`).
     """
     rows = []
     for label, stem, limit in (('zero-drift p2p, worst attitude [ug]', 'zd_max_ug',

@@ -101,7 +101,7 @@ a body at rest are regular at +-90 deg. What divides by ``cos(latitude)`` is mot
 longitude: :data:`MOVING_LATITUDE_LIMIT_DEG`.
 """
 MOVING_LATITUDE_LIMIT_DEG = 89.9
-"""Largest |latitude| [deg] of a path integrated from its east velocity (a drive).
+r"""Largest \|latitude| [deg] of a path integrated from its east velocity (a drive).
 
 The longitude rate ``v_E / ((R_E + h) cos(latitude))`` diverges at a pole, and a path
 through one leaves its meridian: within 0.1 deg (11 km) of a pole a drive is refused.

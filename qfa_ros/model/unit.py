@@ -11,33 +11,33 @@ unit; two seeds, two units.
 Spreads (``DESIGN.md`` table, QA-2000-class datasheets, seed 1) and, where no public
 figure exists, this project's estimate (marked *estimate*):
 
-=============================  ===========================================  ============
-quantity                       draw                                         source
-=============================  ===========================================  ============
-turn-on bias at 25 degC         normal, sigma 1.3 mg, clipped to +-3.9 mg     datasheet < 4 mg
-thermal bias slope              max |db/dT| over -40..70 degC uniform in      datasheet
-                                [0.2, 0.8] x 30 ug/degC                       < 30 ug/degC
-thermal bias shape              two exponentials of V_temp plus linear,       estimate
+=============================  =============================================  ============
+quantity                       draw                                           source
+=============================  =============================================  ============
+turn-on bias at 25 degC         normal, sigma 1.3 mg, clipped to +-3.9 mg       datasheet < 4 mg
+thermal bias slope              max \|db/dT| over -40..70 degC uniform in       datasheet
+                                [0.2, 0.8] x 30 ug/degC                         < 30 ug/degC
+thermal bias shape              two exponentials of V_temp plus linear,         estimate
                                 quadratic and cubic terms (mixed weights)
-scale-factor slope              max |de/dT| uniform in [0.2, 0.8] x 180       datasheet
-                                ppm/degC; quadratic and cubic terms            < 180 ppm/degC
-scale factor at 25 degC         normal, sigma 300 ppm, clipped to +-1000 ppm  estimate
-bias aging                      uniform in +-100 ug/year                      seed 1; < 160 ug
-scale-factor aging              uniform in +-100 ppm/year (magnet, ``b``)     seed 1; < 310 ppm
-K2                              magnitude uniform in [10, 30] ug/g^2,         datasheet
+scale-factor slope              max \|de/dT| uniform in [0.2, 0.8] x 180        datasheet
+                                ppm/degC; quadratic and cubic terms              < 180 ppm/degC
+scale factor at 25 degC         normal, sigma 300 ppm, clipped to +-1000 ppm    estimate
+bias aging                      uniform in +-100 ug/year                        seed 1; < 160 ug
+scale-factor aging              uniform in +-100 ppm/year (magnet, ``b``)       seed 1; < 310 ppm
+K2                              magnitude uniform in [10, 30] ug/g^2,           datasheet
                                 random sign
-misalignment (off-diagonal)     normal, sigma 0.3 mrad, clipped to +-1 mrad   estimate
-bias hysteresis                 uniform in [0, 3] ug (heating vs cooling)     estimate
-temperature-probe lag           uniform in [0.5, 2] s (sensor chip bonded     estimate
+misalignment (off-diagonal)     normal, sigma 0.3 mrad, clipped to +-1 mrad     estimate
+bias hysteresis                 uniform in [0, 3] ug (heating vs cooling)       estimate
+temperature-probe lag           uniform in [0.5, 2] s (sensor chip bonded       estimate
                                 to the accelerometer block)
-I_ref temperature coefficient   normal, mean 30, sigma 10 ppm/degC, clipped   estimate
+I_ref temperature coefficient   normal, mean 30, sigma 10 ppm/degC, clipped     estimate
                                 to [0, 60] (a precision reference and sense
                                 resistor; the ``paper`` profile's 30 is the
                                 type's mean)
-forward-chain coefficients      normal around the ``paper`` profile's type     estimate
+forward-chain coefficients      normal around the ``paper`` profile's type       estimate
 (DA1 reference, ``k_tz``,       figures 20, 7, 6 ppm/degC, sigma 7, 3, 3,
 ``k_amp``)                      clipped to +-3 sigma
-=============================  ===========================================  ============
+=============================  =============================================  ============
 
 The component coefficients act only where the error profile switches the source on
 (:meth:`Unit.install_error_profile`: the profile says which sources act, the unit how
