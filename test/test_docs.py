@@ -49,9 +49,10 @@ def test_docs_site_builds_with_warnings_as_errors(tmp_path):
     block in an unknown language: each fails it. Sphinx's ``dummy`` builder reads and
     resolves every page as ``html`` does (every warning of those phases) and writes
     nothing; writing the html pages (their search index, theme and writer) is ~4 of its
-    ~21 CPU-s. Its only warning the docs can meet, the highlighting of code blocks, is
-    done here as the html writer does it; the writer's others are about constructs the
-    docs do not use (rubric heading levels, ``:scale:`` without a size, figure numbers).
+    ~21 CPU-s (~28 since the API page's 1101 objects are rendered). Its only warning the
+    docs can meet, the highlighting of code blocks, is done here as the html writer does
+    it; the writer's others are about constructs the docs do not use (rubric heading
+    levels, ``:scale:`` without a size, figure numbers).
     """
     pytest.importorskip('pyarrow', reason='the API reference imports the fleet studies, '
                         'which need pyarrow (numpy 2): not on the library floor')
