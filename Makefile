@@ -29,10 +29,11 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip install -q --disable-pip-version-check
 # The pinned requirements go in through uv (pip-installed into the venv first): the same
 # packages as pip's, set up in 29 s against pip's 110 s (the four files, one venv:
-# bench/results/suite_time.md). Where uv cannot be installed or fails, pip does it.
+# bench/results/suite_time.md). Where uv cannot be installed or fails, pip does it. uv is
+# installed once, by the node's set-up; `make setup` finds it.
 UV := uv==0.13.8
-INSTALL := install() { { $(PIP) $(UV) && $(VENV)/bin/uv pip install -q --python $(PY) \
-  --compile-bytecode "$$@"; } || $(PIP) "$$@"; }; install
+INSTALL := install() { { { [ -x $(VENV)/bin/uv ] || $(PIP) $(UV); } && $(VENV)/bin/uv pip \
+  install -q --python $(PY) --compile-bytecode "$$@"; } || $(PIP) "$$@"; }; install
 STAMP := $(VENV)/.qfa-installed
 NODE_STAMP := $(VENV)/.qfa-node
 DURATION ?= 10
