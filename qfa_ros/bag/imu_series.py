@@ -19,15 +19,20 @@ def read_imu(path, topic='/imu/data_raw'):
     """
     parts = []
     batch = []
-    log_times = []
+    log_times = []  # the batch's, as int64 arrays: a list of Python ints costs 36 bytes each
+
+    def decode_batch():
+        parts.append((*decode_imu(batch), np.array(log_times, dtype=np.int64)))
+        batch.clear()
+        log_times.clear()
+
     with open(path, 'rb') as stream:
         for _, _, message in make_reader(stream).iter_messages(topics=[topic],
                                                                log_time_order=False):
             batch.append(message.data)
             log_times.append(message.log_time)
             if len(batch) == BATCH:
-                parts.append(decode_imu(batch))
-                batch = []
-    parts.append(decode_imu(batch))
-    order = np.argsort(np.array(log_times, dtype=np.int64), kind='stable')
+                decode_batch()
+    decode_batch()
+    order = np.argsort(np.concatenate([p[3] for p in parts]), kind='stable')
     return tuple(np.concatenate([p[k] for p in parts])[order] for k in range(3))
