@@ -170,11 +170,14 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
             elif own_client:
                 # One single-threaded process per core: the model holds the GIL per task.
                 # Port 0: a second study beside a running one must not fight over the port.
+                # CRITICAL: a study's failures reach this process through its futures;
+                # what the cluster logs as ERROR is its own chatter, e.g. a worker's
+                # heartbeat racing the scheduler's close at a Ctrl-C (a traceback).
                 with workers_shielded_from_sigint():
                     cluster = LocalCluster(n_workers=workers or os.cpu_count(),
                                            threads_per_worker=1, processes=True,
                                            dashboard_address=':0',
-                                           silence_logs=logging.ERROR)
+                                           silence_logs=logging.CRITICAL)
                 client = Client(cluster)
             futures = [client.submit(batch_table, study, start, stop, pure=False,
                                      key=f'qfa-fleet-{study.digest()}-{start}-{stop}')
