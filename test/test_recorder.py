@@ -648,8 +648,10 @@ def test_bad_input_is_refused(tmp_path, call, error, match):
 # --- flight recorder -----------------------------------------------------------------------
 
 @pytest.mark.parametrize('seed, limits, count', [
-    # 6000 bytes: 46 files, two split where a topic's registration fills the file.
-    (4, {'max_bytes': 6000}, 200),
+    # 6000 bytes: 15 files, two split where a topic's registration fills the file (seed 4
+    # needs 150 messages for that: each split rewrites metadata.yaml, the cost grows with
+    # the square of the file count).
+    (5, {'max_bytes': 6000}, 60),
     (3, {'max_duration_ns': 250_000_000}, 400),
     (4, {'max_duration_ns': 250_000_000}, 400),
     (3, {'max_bytes': 20000, 'max_duration_ns': 400_000_000}, 400),
@@ -721,7 +723,7 @@ def test_flight_recorder_split_finishes_the_file_now_and_goes_on_in_the_next(tmp
 
 
 @pytest.mark.parametrize('limits, count', [
-    ({'max_bytes': 6000}, 300),  # 46 files
+    ({'max_bytes': 6000}, 150),  # 25 files, 12 runs split between two files
     ({'max_duration_ns': 250_000_000}, 500),
     ({'max_bytes': 20000, 'max_duration_ns': 400_000_000}, 500),
 ])
@@ -895,11 +897,12 @@ def schedule_runs():
     runs['feedback'] = [run_schedule(triad, feedback_schedule(triad, state, feedback))]
     runs['self_calibrate'] = list(run_schedule(
         triad, self_calibrate(triad, state, forward, feedback)))
-    # a 30 s body time constant keeps the chamber program's soaks short
+    # a 5 s body time constant keeps the chamber program's soaks short: 210 one-second
+    # blocks, 30 points (30 s and 120 s: 504 blocks, twice the time)
     hot = QfaTriad(TriadConfig(thermal=ThermalConfig(ambient_profile='constant',
-                                                     sensor_tau_s=30.0)), rng=3)
+                                                     sensor_tau_s=5.0)), rng=3)
     runs['temperature'] = [run_schedule(hot, temperature_schedule(
-        hot, CalibrationState(), TemperatureSettings(period_s=120.0, bins=20)))]
+        hot, CalibrationState(), TemperatureSettings(period_s=100.0, bins=20)))]
     return runs
 
 
