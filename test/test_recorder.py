@@ -142,9 +142,9 @@ def _read_all(path):
 
 # --- round trip ----------------------------------------------------------------------------
 
-@pytest.mark.parametrize('compression', ['zstd', 'lz4', None])
-@pytest.mark.parametrize('seed', [1, 2])
+@pytest.mark.parametrize('seed, compression', [(1, 'zstd'), (2, 'lz4'), (2, None)])
 def test_round_trip_every_type_through_rosbags(tmp_path, compression, seed):
+    """Each compression once; the two seeds' messages once compressed, once not."""
     rng = np.random.default_rng(seed)
     path = tmp_path / 'trip.mcap'
     written = []
