@@ -346,30 +346,41 @@ CRASH_SCRIPT = textwrap.dedent("""
 """)
 
 
-@pytest.mark.parametrize('cut_bytes', [0, 1, 200])
-def test_crash_leaves_part_readable_up_to_last_chunk(tmp_path, cut_bytes):
-    earlier = tmp_path / 'earlier.mcap'
+@pytest.fixture(scope='module')
+def crashed(tmp_path_factory):
+    """Return a directory: a finished bag, then a .part of a process that died mid-file.
+
+    One crash for the cuts below (each works on a copy): ``{'directory', 'earlier_digest'}``.
+    """
+    directory = tmp_path_factory.mktemp('crashed')
+    earlier = directory / 'earlier.mcap'
     with McapBagWriter(earlier) as bag:
         bag.add_topic('/count', 'std_msgs/msg/String')
         bag.write('/count', {'data': 'before the crash'}, 1)
     earlier_digest = hashlib.sha256(earlier.read_bytes()).hexdigest()
-
-    path = tmp_path / 'crashed.mcap'
-    result = subprocess.run([sys.executable, '-c', CRASH_SCRIPT, str(path), '500'], cwd=REPO,
-                            timeout=60)
+    result = subprocess.run([sys.executable, '-c', CRASH_SCRIPT,
+                             str(directory / 'crashed.mcap'), '500'], cwd=REPO, timeout=60)
     assert result.returncode == 3
-    part = tmp_path / 'crashed.mcap.part'
-    assert part.exists() and not path.exists()
-    if cut_bytes:  # a write torn inside the last chunk
-        with open(part, 'r+b') as stream:
-            stream.truncate(part.stat().st_size - cut_bytes)
+    return {'directory': directory, 'earlier_digest': earlier_digest}
+
+
+@pytest.mark.parametrize('cut_bytes', [0, 1, 200])
+def test_crash_leaves_part_readable_up_to_last_chunk(tmp_path, crashed, cut_bytes):
+    earlier = crashed['directory'] / 'earlier.mcap'
+    path = crashed['directory'] / 'crashed.mcap'
+    source = crashed['directory'] / 'crashed.mcap.part'
+    assert source.exists() and not path.exists()
+    part = tmp_path / source.name
+    data = source.read_bytes()
+    # a write torn inside the last chunk
+    part.write_bytes(data[:len(data) - cut_bytes])
 
     # The plain mcap streaming reader, stopping at the first bad record.
     recovered = [message.data for _, message in part_messages(part)]
     assert 50 < len(recovered) < 500  # the chunk in progress is lost, complete ones are not
     assert recovered == [_string_cdr(f'message {i:06d} ' + 'x' * 40)
                          for i in range(len(recovered))]
-    assert hashlib.sha256(earlier.read_bytes()).hexdigest() == earlier_digest
+    assert hashlib.sha256(earlier.read_bytes()).hexdigest() == crashed['earlier_digest']
     assert [m[3].data for m in _read_all(earlier)] == ['before the crash']
     with pytest.raises(FileExistsError):
         McapBagWriter(path)  # the stale .part is kept for recovery, not overwritten
