@@ -110,12 +110,13 @@ def fresh(client, stream, count, settle_s=0.3):
     start = time.time_ns() + int(settle_s * 1e9)
     # Counted as they come, each row looked at once: the predicate runs at every message,
     # and converting the whole stream each time cost the test process 2 CPU-s.
-    looked, counted = [0], [0]
+    looked = counted = 0
 
     def enough():
-        counted[0] += sum(1 for row in stream.rows[looked[0]:] if row[0] >= start)
-        looked[0] = len(stream.rows)
-        return counted[0] >= count
+        nonlocal looked, counted
+        counted += sum(1 for row in stream.rows[looked:] if row[0] >= start)
+        looked = len(stream.rows)
+        return counted >= count
 
     client.spin_until(enough, 60, f'{count} samples', progress=stream.latest_ns)
     return stream.since(start)[:count].astype(float)
