@@ -204,7 +204,6 @@ class McapBagWriter:
         self._custom_data = {str(k): str(v) for k, v in (storage_metadata or {}).items()}
         self._extra_metadata = {}
         self._ros_distro = str(ros_distro)
-        self._compression_name = None if compression in (None, 'none') else compression
         self._topics = {}
         self._schema_ids = {}
         self._first_time_ns = None
@@ -332,13 +331,16 @@ class McapBagWriter:
             qos_yaml = offered_qos_yaml(qos)
             definition = definition_of(msgtype)
             new_schema = msgtype not in self._schema_ids
-            schema_id = self._schema_id(msgtype, definition)
+            if new_schema:
+                self._schema_ids[msgtype] = self._guarded(
+                    self._writer.register_schema, msgtype, SchemaEncoding.ROS2,
+                    definition.encode())
             type_hash = type_hash_of(msgtype)
             channel_id = self._guarded(
                 self._writer.register_channel,
                 topic=topic,
                 message_encoding=MessageEncoding.CDR,
-                schema_id=schema_id,
+                schema_id=self._schema_ids[msgtype],
                 metadata={'offered_qos_profiles': qos_yaml, 'topic_type_hash': type_hash},
             )
             self._topics[topic] = _Topic(channel_id, msgtype, qos_yaml, type_hash)
@@ -349,13 +351,6 @@ class McapBagWriter:
             self._account(records)
             self._finish_overhead += records + 2 * len(qos_yaml) + len(type_hash) + 300
             return channel_id
-
-    def _schema_id(self, msgtype, definition):
-        if msgtype not in self._schema_ids:
-            self._schema_ids[msgtype] = self._guarded(
-                self._writer.register_schema, msgtype, SchemaEncoding.ROS2, definition.encode()
-            )
-        return self._schema_ids[msgtype]
 
     def write(self, topic, message, log_time_ns, publish_time_ns=None):
         """Serialize a message given as a (nested) mapping and write it.
