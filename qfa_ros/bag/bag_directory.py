@@ -10,7 +10,7 @@ import datetime
 
 from qfa_ros.bag.files import METADATA_FILE, write_text_atomically
 from qfa_ros.bag.qos import dump_yaml
-from qfa_ros.bag.writer import BAG_METADATA_VERSION, ROS_DISTRO
+from qfa_ros.bag.writer import bag_metadata_head, file_entry, ROS_DISTRO
 
 __all__ = [
     'default_bag_name',
@@ -100,7 +100,7 @@ class BagMetadata:
                     else max(self._end, start + duration)
             # Indented as PyYAML indents a block sequence under a key of a mapping.
             self._rendered['relative_file_paths'].append(_indent(dump_yaml([entry['path']])))
-            self._rendered['files'].append(_indent(dump_yaml([_file_entry(*self._files[-1])])))
+            self._rendered['files'].append(_indent(dump_yaml([file_entry(*self._files[-1])])))
         for item in file_metadata['topics_with_message_count']:
             name = item['topic_metadata']['name']
             if name in self._topics:
@@ -112,14 +112,8 @@ class BagMetadata:
     def _head(self):
         start = self._start or 0
         return {
-            'version': BAG_METADATA_VERSION,
-            'storage_identifier': 'mcap',
-            'duration': {'nanoseconds': (self._end or 0) - start},
-            'starting_time': {'nanoseconds_since_epoch': start},
-            'message_count': self._message_count,
-            'topics_with_message_count': [dict(item) for item in self._topics.values()],
-            'compression_format': '',
-            'compression_mode': '',
+            **bag_metadata_head(start, (self._end or 0) - start, self._message_count,
+                                [dict(item) for item in self._topics.values()]),
             'custom_data': dict(self._custom_data) if self._custom_data else None,
             'ros_distro': self._ros_distro,
         }
@@ -127,7 +121,7 @@ class BagMetadata:
     def as_dict(self):
         """Return the rosbag2 ``BagMetadata`` mapping."""
         return {**self._head(), 'relative_file_paths': self.file_names,
-                'files': [_file_entry(*item) for item in self._files]}
+                'files': [file_entry(*item) for item in self._files]}
 
     def _parts(self):
         """Return ``metadata.yaml``'s text in parts: the head rendered now, each file's lines."""
@@ -149,12 +143,6 @@ class BagMetadata:
 
 def _indent(text):
     return ''.join(f'  {line}\n' for line in text.split('\n'))
-
-
-def _file_entry(path, start, duration, message_count):
-    """Return a ``files`` entry of rosbag2's ``BagMetadata``."""
-    return {'path': path, 'starting_time': {'nanoseconds_since_epoch': start},
-            'duration': {'nanoseconds': duration}, 'message_count': message_count}
 
 
 def write_bag_metadata(directory, metadata):

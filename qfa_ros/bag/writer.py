@@ -62,8 +62,10 @@ from qfa_ros.bag.types import (
 from qfa_ros.model.files import fsync_directory
 
 __all__ = [
+    'bag_metadata_head',
     'DEFAULT_CHUNK_SIZE',
     'file_bag_metadata',
+    'file_entry',
     'McapBagWriter',
 ]
 
@@ -109,12 +111,7 @@ def file_bag_metadata(name, topics, first_time_ns, last_time_ns, custom_data=Non
     duration = 0 if first_time_ns is None else last_time_ns - start
     message_count = sum(topic[4] for topic in topics)
     return {
-        'version': BAG_METADATA_VERSION,
-        'storage_identifier': 'mcap',
-        'duration': {'nanoseconds': duration},
-        'starting_time': {'nanoseconds_since_epoch': start},
-        'message_count': message_count,
-        'topics_with_message_count': [
+        **bag_metadata_head(start, duration, message_count, [
             {
                 'topic_metadata': {
                     'name': topic,
@@ -126,20 +123,33 @@ def file_bag_metadata(name, topics, first_time_ns, last_time_ns, custom_data=Non
                 'message_count': count,
             }
             for topic, msgtype, qos_yaml, type_hash, count in topics
-        ],
-        # Chunk compression is storage-internal; rosbag2 leaves these empty for it.
-        'compression_format': '',
-        'compression_mode': '',
+        ]),
         'relative_file_paths': [name],
-        'files': [{
-            'path': name,
-            'starting_time': {'nanoseconds_since_epoch': start},
-            'duration': {'nanoseconds': duration},
-            'message_count': message_count,
-        }],
+        'files': [file_entry(name, start, duration, message_count)],
         'custom_data': dict(custom_data) if custom_data else None,
         'ros_distro': ros_distro,
     }
+
+
+def bag_metadata_head(start, duration, message_count, topics):
+    """Return what begins rosbag2's ``BagMetadata`` mapping: counts, time span [ns], topics."""
+    return {
+        'version': BAG_METADATA_VERSION,
+        'storage_identifier': 'mcap',
+        'duration': {'nanoseconds': duration},
+        'starting_time': {'nanoseconds_since_epoch': start},
+        'message_count': message_count,
+        'topics_with_message_count': topics,
+        # Chunk compression is storage-internal; rosbag2 leaves these empty for it.
+        'compression_format': '',
+        'compression_mode': '',
+    }
+
+
+def file_entry(path, start, duration, message_count):
+    """Return a ``files`` entry of rosbag2's ``BagMetadata`` (times [ns])."""
+    return {'path': path, 'starting_time': {'nanoseconds_since_epoch': start},
+            'duration': {'nanoseconds': duration}, 'message_count': message_count}
 
 
 @dataclasses.dataclass
