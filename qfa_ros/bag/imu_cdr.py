@@ -58,12 +58,10 @@ class ImuEncoder:
         body = bytearray(ENCAPSULATION)
         body += struct.pack('<iII', 0, 0, len(name) + 1) + name + b'\x00'
         body += bytes(orientation - string_end)
-        body += struct.pack('<4d', 0.0, 0.0, 0.0, 1.0)
-        body += struct.pack('<9d', *UNKNOWN_COVARIANCE)
-        body += struct.pack('<3d', 0.0, 0.0, 0.0)
-        body += struct.pack('<9d', *rate_covariance)
-        body += struct.pack('<3d', 0.0, 0.0, 0.0)
-        body += struct.pack('<9d', *covariance)
+        # orientation (identity), orientation_covariance, angular_velocity,
+        # angular_velocity_covariance, linear_acceleration, linear_acceleration_covariance.
+        body += np.array([0.0, 0.0, 0.0, 1.0, *UNKNOWN_COVARIANCE, 0.0, 0.0, 0.0,
+                          *rate_covariance, 0.0, 0.0, 0.0, *covariance], dtype='<f8').tobytes()
         self.template = np.frombuffer(bytes(body), dtype=np.uint8)
         self.size = len(body)
 
