@@ -46,10 +46,8 @@ _FLOAT64_EXACT_INT = 2**53
 def _value_text(value):
     if isinstance(value, str):
         return value
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, np.ndarray):
-        value = value.tolist()
+    if isinstance(value, (np.generic, np.ndarray)):
+        value = value.tolist()  # a numpy scalar's is its Python value
     if isinstance(value, tuple):
         value = list(value)
     try:
