@@ -54,6 +54,8 @@ RECORD_HEAD = struct.Struct('<BQ')
 MESSAGE_INDEX_HEAD = struct.Struct('<HI')
 MESSAGE_HEAD = struct.Struct('<HIQ')
 """channel id, sequence, log time: the start of a Message record's body."""
+_RECORDS = {Opcode.METADATA: Metadata, Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel}
+"""The records outside chunks the scan reads with mcap's parser."""
 
 
 class RecoveryStoppedError(Exception):
@@ -164,12 +166,13 @@ def _decompress(chunk):
 def _search_definitions(scan, data):
     """Take the schema and channel records of a chunk's data."""
     for _, opcode, body in _record_parts(data):
-        if opcode == Opcode.SCHEMA:
-            schema = _read_body(Schema, body)
-            scan.schemas.setdefault(schema.id, schema)
-        elif opcode == Opcode.CHANNEL:
-            channel = _read_body(Channel, body)
-            scan.channels.setdefault(channel.id, channel)
+        if opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+            _take_definition(scan, opcode, _read_body(_RECORDS[opcode], body))
+
+
+def _take_definition(scan, opcode, record):
+    """Keep the first schema or channel record of its id."""
+    (scan.schemas if opcode == Opcode.SCHEMA else scan.channels).setdefault(record.id, record)
 
 
 def _rebuild_indexes(group, position):
@@ -301,8 +304,7 @@ def scan_part(stream, should_stop=None):
         elif opcode == Opcode.METADATA:
             scan.trailing_metadata.append((start, 9 + len(body), record))
         else:  # a schema or channel outside chunks
-            (scan.schemas if opcode == Opcode.SCHEMA else scan.channels).setdefault(
-                record.id, record)
+            _take_definition(scan, opcode, record)
             scan.data_end = position
     if group is not None:
         # Cut by the kill: the chunk is whole (checked), its message indexes perhaps not.
@@ -325,13 +327,7 @@ def _parse(opcode, body, in_group):
         if length % 16 or MESSAGE_INDEX_HEAD.size + length != len(body):
             raise NotRecoverableError('a malformed message index')
         return channel_id, length // 16
-    if opcode == Opcode.METADATA:
-        return _read_body(Metadata, body)
-    if opcode == Opcode.SCHEMA:
-        return _read_body(Schema, body)
-    if opcode == Opcode.CHANNEL:
-        return _read_body(Channel, body)
-    return None
+    return _read_body(_RECORDS[opcode], body) if opcode in _RECORDS else None
 
 
 def find_missing_definitions(scan, stream):
