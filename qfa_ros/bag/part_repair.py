@@ -32,7 +32,6 @@ import errno
 import os
 from pathlib import Path
 import stat
-import struct
 import zlib
 
 from mcap.data_stream import RecordBuilder
@@ -186,13 +185,13 @@ def _tail(scan, name):
     for offset in offsets:
         offset.write(builder)
     summary = builder.end()
+    footer = Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
+                    summary_crc=0)
+    footer.write(builder)
     # The summary CRC covers the summary and the footer up to the CRC (as Writer.finish).
-    crc = zlib.crc32(struct.pack('<BQQQ', Opcode.FOOTER, 8 + 8 + 4, summary_start,
-                                 summary_offset_start), zlib.crc32(summary))
-    out += summary
-    Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
-           summary_crc=crc).write(builder)
-    out += builder.end() + MAGIC
+    footer.summary_crc = zlib.crc32(builder.end()[:-4], zlib.crc32(summary))
+    footer.write(builder)
+    out += summary + builder.end() + MAGIC
     return bytes(out), metadata
 
 
