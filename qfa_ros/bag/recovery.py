@@ -18,6 +18,7 @@ entries, only the recorder's and the trace writer's names, no symlink followed.
 
 import dataclasses
 import errno
+import itertools
 import os
 from pathlib import Path
 import re
@@ -80,28 +81,19 @@ class Recovery:
 
 def _entries(directory):
     """Return at most :data:`MAX_ENTRIES` ``os.DirEntry`` of ``directory``."""
-    entries = []
     with os.scandir(directory) as iterator:
-        for entry in iterator:
-            entries.append(entry)
-            if len(entries) >= MAX_ENTRIES:
-                break
-    return entries
+        return list(itertools.islice(iterator, MAX_ENTRIES))
 
 
 def _split_files(directory, entries):
-    """Return ``{index: (finished name or None, part name or None)}`` of a bag's files."""
+    """Return ``{index: [finished name or None, part name or None]}`` of a bag's files."""
     pattern = re.compile(rf'^{re.escape(directory.name)}_(\d+)\.mcap(\.part)?$')
     files = {}
     for entry in entries:
         match = pattern.match(entry.name)
         if match and entry.is_file(follow_symlinks=False):
-            finished, part = files.get(int(match.group(1)), (None, None))
-            if match.group(2):
-                part = entry.name
-            else:
-                finished = entry.name
-            files[int(match.group(1))] = (finished, part)
+            files.setdefault(int(match.group(1)), [None, None])[bool(match.group(2))] = \
+                entry.name
     return files
 
 
@@ -206,8 +198,8 @@ def recover_trace(part, should_stop=None):
 
     part = Path(part)
     recovered = recover_part(part, should_stop)
-    status = {'recovered': 'recovered', 'failed': 'failed', 'in use': 'in use'}.get(
-        recovered.status, 'nothing to recover')
+    status = recovered.status if recovered.status in ('recovered', 'failed', 'in use') \
+        else 'nothing to recover'
     return Recovery(final_path(part), 'trace', status, [recovered])
 
 
