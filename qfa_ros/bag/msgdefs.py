@@ -53,9 +53,9 @@ _STORE_LOCK = threading.Lock()  # writers on several threads may meet a type fir
 
 
 def short_name(msgtype):
-    """Return ``pkg/Name`` for ``pkg/msg/Name`` (how rosbag2 names a dependency)."""
-    package, _, name = msgtype.split('/')
-    return f'{package}/{name}'
+    """Return ``pkg/Name`` for ``pkg/msg/Name`` (how rosbag2 names a dependency), or pkg/Name."""
+    parts = msgtype.split('/')
+    return f'{parts[0]}/{parts[-1]}'
 
 
 @functools.cache

@@ -166,7 +166,7 @@ class _Encoder:
         if typename in self._builders:
             return self._builders[typename]
         cls = self._store.types[typename]
-        short = _short_type(typename)
+        short = msgdefs.short_name(typename)
         defaults = self._defaults.get(short, {})
         fields = [(name, *self._field(desc, defaults.get(name)))
                   for name, desc in self._store.fielddefs[typename][1]]
@@ -251,11 +251,11 @@ def _definition_defaults(root_type, definition):
     takes its default (``geometry_msgs/Quaternion`` is the identity, ``w`` = 1).
     """
     tables = {}
-    current = _short_type(root_type)
+    current = msgdefs.short_name(root_type)
     for section in re.split(r'^={3,}$', definition, flags=re.MULTILINE):
         lines = section.strip().splitlines()
         if lines and lines[0].startswith('MSG:'):
-            current = _short_type(lines[0].split()[1])
+            current = msgdefs.short_name(lines[0].split()[1])
             lines = lines[1:]
         defaults = {}
         for raw_line in lines:
@@ -272,11 +272,6 @@ def _literal(text):
         return ast.literal_eval(re.sub(r'\b(true|false)\b', lambda m: m[0].title(), text))
     except (ValueError, SyntaxError):
         return text  # an unquoted string
-
-
-def _short_type(msgtype):
-    parts = msgtype.split('/')
-    return f'{parts[0]}/{parts[-1]}'
 
 
 def check_cdr(data, topic):
