@@ -44,8 +44,6 @@ class BagTopic:
 
 def _parse_offers(value):
     """Return rosbag2 ``offered_qos_profiles`` (YAML text or already a list) as a list."""
-    if value is None or value == '':
-        return []
     if isinstance(value, str):
         try:
             value = yaml.safe_load(value)
