@@ -185,10 +185,12 @@ class TraceWriter:
             raise ValueError(f'invalid trace topic name {name!r}')
         return f'{self.namespace}/{name}'
 
-    def _status_array(self, name, mapping, time_ns, level, summary):
+    def _write_status(self, name, mapping, time_ns, level, summary):
+        topic = self.topic(name)
+        self._bag.add_topic(topic, 'diagnostic_msgs/msg/DiagnosticArray', QOS_LATCHED)
         if not isinstance(mapping, Mapping):
             raise TypeError(f'{name} must be a mapping, got {type(mapping).__name__}')
-        return {
+        self._bag.write(topic, {
             'header': {'stamp': stamp(time_ns), 'frame_id': ''},
             'status': [{
                 'level': int(level),
@@ -197,13 +199,7 @@ class TraceWriter:
                 'hardware_id': self.source,
                 'values': encode_key_values(mapping),
             }],
-        }
-
-    def _write_status(self, name, mapping, time_ns, level, summary):
-        topic = self.topic(name)
-        self._bag.add_topic(topic, 'diagnostic_msgs/msg/DiagnosticArray', QOS_LATCHED)
-        self._bag.write(topic, self._status_array(name, mapping, time_ns, level, summary),
-                        time_ns)
+        }, time_ns)
         self._bag.flush()
 
     def write_settings(self, settings, time_ns, *, summary='settings'):
