@@ -102,12 +102,9 @@ class BagMetadata:
             self._rendered['relative_file_paths'].append(_indent(dump_yaml([entry['path']])))
             self._rendered['files'].append(_indent(dump_yaml([file_entry(*self._files[-1])])))
         for item in file_metadata['topics_with_message_count']:
-            name = item['topic_metadata']['name']
-            if name in self._topics:
-                self._topics[name]['message_count'] += item['message_count']
-            else:
-                self._topics[name] = {'topic_metadata': dict(item['topic_metadata']),
-                                      'message_count': item['message_count']}
+            self._topics.setdefault(item['topic_metadata']['name'], {
+                'topic_metadata': dict(item['topic_metadata']), 'message_count': 0,
+            })['message_count'] += item['message_count']
 
     def _head(self):
         start = self._start or 0
