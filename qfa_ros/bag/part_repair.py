@@ -289,10 +289,8 @@ def recover_part(part, should_stop=None):
             scan = scan_part(stream, should_stop)
             find_missing_definitions(scan, stream)
         tail, result.metadata = _tail(scan, final.name)
-        if scan.prefix is not None:
-            tail = scan.prefix + tail
-        os.ftruncate(descriptor, scan.data_end - len(scan.prefix or b''))
-        _write_all(descriptor, tail, scan.data_end - len(scan.prefix or b''))
+        os.ftruncate(descriptor, scan.data_end - len(scan.prefix))
+        _write_all(descriptor, scan.prefix + tail, scan.data_end - len(scan.prefix))
         os.fsync(descriptor)
         publish_part(part, final, overwrite=False)
         fsync_directory(part.parent)

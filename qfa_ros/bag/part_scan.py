@@ -98,7 +98,7 @@ class PartScan:
     stopped: str = 'end of file'
     unsearched: list = dataclasses.field(default_factory=list)
     """Chunk offsets not yet searched for schema and channel records."""
-    prefix: bytes = None
+    prefix: bytes = b''
     """A new start of the file (magic and header) when it was cut inside its own."""
 
 
