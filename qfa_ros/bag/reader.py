@@ -117,12 +117,9 @@ class BagSource:
         missing = [str(file) for file in files if not file.exists()]
         if missing or not files:
             raise BagError(f'{directory}: bag files missing: {", ".join(missing) or "none"}')
-        topics = {}
-        for entry in info.get('topics_with_message_count') or []:
-            meta = entry.get('topic_metadata') or {}
-            if 'name' in meta:
-                topics[meta['name']] = meta
-        return files, topics
+        metas = [entry.get('topic_metadata') or {}
+                 for entry in info.get('topics_with_message_count') or []]
+        return files, {meta['name']: meta for meta in metas if 'name' in meta}
 
     def _channels(self, file):
         """Yield ``(channel, schema name)`` of every channel in ``file``."""
