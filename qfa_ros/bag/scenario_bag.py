@@ -49,8 +49,7 @@ class ScenarioBag:
         variance = published_acceleration_variance(config)
         rate_covariance = None if rate_variance is None else \
             list(np.diag(np.broadcast_to(rate_variance, 3)).ravel())
-        self._imu = ImuEncoder(frame_id, [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0,
-                                          variance], rate_covariance)
+        self._imu = ImuEncoder(frame_id, np.diag(np.full(3, variance)).ravel(), rate_covariance)
         self.truth_frame_id = truth_frame_id
         if truth_frame_id is not None:
             self.bag.add_topic(TRUTH_TOPIC, 'nav_msgs/msg/Odometry', QOS_TRUTH)
