@@ -59,15 +59,14 @@ def canonical_type(msgtype):
     return '/'.join(parts)
 
 
-_DEFINITIONS = {}  # registered by register_message_definition
-_HASHES = {}
+_REGISTERED = {}  # msgtype: (definition, type hash), by register_message_definition
 _ENCODERS = {}
-_CACHE_LOCK = threading.Lock()  # protects _DEFINITIONS, _HASHES and _ENCODERS
+_CACHE_LOCK = threading.Lock()  # protects _REGISTERED and _ENCODERS
 
 
 def supported_types():
     """Return the message types this module can write, sorted."""
-    return sorted(set(msgdefs.RECORDED_TYPES) | set(_DEFINITIONS))
+    return sorted(set(msgdefs.RECORDED_TYPES) | set(_REGISTERED))
 
 
 def register_message_definition(msgtype, definition, type_hash=''):
@@ -85,16 +84,14 @@ def register_message_definition(msgtype, definition, type_hash=''):
     """
     msgtype = canonical_type(msgtype)
     with _CACHE_LOCK:
-        _DEFINITIONS[msgtype] = definition
-        _HASHES[msgtype] = type_hash
+        _REGISTERED[msgtype] = (definition, type_hash)
         _ENCODERS.pop(msgtype, None)
 
 
 def definition_of(msgtype):
     """Return the full ``ros2msg`` definition of a supported type."""
-    registered = _DEFINITIONS.get(msgtype)
-    if registered is not None:
-        return registered
+    if msgtype in _REGISTERED:
+        return _REGISTERED[msgtype][0]
     if msgtype in msgdefs.RECORDED_TYPES:
         return msgdefs.definition(msgtype)
     raise ValueError(
@@ -285,8 +282,8 @@ def check_cdr(data, topic):
 
 def type_hash_of(msgtype):
     """Return the RIHS01 type hash of a supported type, or '' when unknown."""
-    if msgtype in _HASHES:
-        return _HASHES[msgtype]
+    if msgtype in _REGISTERED:
+        return _REGISTERED[msgtype][1]
     return msgdefs.type_hash(msgtype) if msgtype in msgdefs.RECORDED_TYPES else ''
 
 
