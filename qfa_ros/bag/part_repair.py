@@ -25,7 +25,6 @@ record larger than :data:`MAX_RECORD_BYTES` nor a chunk larger decompressed; mes
 name counts, sizes and why a scan stopped, never what the file contains.
 """
 
-import collections
 import dataclasses
 import datetime
 import errno
@@ -324,9 +323,9 @@ def finished_file_metadata(path):
                 from None
     if summary is None or summary.statistics is None:
         raise NotRecoverableError('it has no summary statistics')
+    statistics = summary.statistics
     scan = PartScan(schemas=summary.schemas, channels=summary.channels,
-                    counts=collections.Counter(summary.statistics.channel_message_counts))
-    if summary.statistics.message_count:
-        scan.first_ns = summary.statistics.message_start_time
-        scan.last_ns = summary.statistics.message_end_time
-    return file_bag_metadata(Path(path).name, _topics(scan), scan.first_ns, scan.last_ns)
+                    counts=statistics.channel_message_counts)
+    span = (statistics.message_start_time, statistics.message_end_time) \
+        if statistics.message_count else (None, None)
+    return file_bag_metadata(Path(path).name, _topics(scan), *span)
