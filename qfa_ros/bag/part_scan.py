@@ -99,7 +99,7 @@ class PartScan:
     unsearched: list = dataclasses.field(default_factory=list)
     """Chunk offsets not yet searched for schema and channel records."""
     prefix: bytes = b''
-    """A new start of the file (magic and header) when it was cut inside its own."""
+    """A new start of the file (magic and header) when it was cut inside its own; else empty."""
 
 
 def _whole_header(body):
