@@ -108,21 +108,6 @@ def startup_failure(stage, error, secured):
     return status
 
 
-def init_rclpy(args, secured):
-    """
-    Initialise rclpy; return None, or the exit status after a one-line report.
-
-    Every start-up error of the middleware (``RCLError``: arguments, parameters file,
-    DDS Security, ...) ends here or in :func:`create_node`, never in a traceback.
-    """
-    try:
-        # Our own handlers (main) only set a flag: a signal never interrupts a write.
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    except rclpy_implementation.RCLError as error:
-        return startup_failure('rclpy.init', error, secured)
-    return None
-
-
 class ProcessTuning:
     """
     The interpreter settings of a process that runs one node; its sensor thread applies them.
@@ -221,9 +206,13 @@ def main(args=None, managed=False):
     secured, problem = require_security()
     if problem:
         return startup_failure('checking the environment', problem, secured)
-    status = init_rclpy(args, secured)
-    if status is not None:
-        return status
+    try:
+        # Every start-up error of the middleware (RCLError: arguments, parameters file, DDS
+        # Security, ...) ends here or in create_node, never in a traceback. Our own
+        # handlers (StopSignals) only set a flag: a signal never interrupts a write.
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except rclpy_implementation.RCLError as error:
+        return startup_failure('rclpy.init', error, secured)
     # After rclpy.init: the stop signals are ours from here on.
     signals = StopSignals()
     node, status = create_node(secured, managed)

@@ -25,7 +25,6 @@ def main(argv=None):
     if args[:1] == ['recover']:
         from qfa_ros.cli.recover import main as recover
         return recover(args[1:])
-    argv = args
     parser = argparse.ArgumentParser(
         prog='qfa-report',
         description='Plot qfa_ros estimation traces and qfa-sim scenario bags as PNG figures '
@@ -38,7 +37,7 @@ def main(argv=None):
                              'files given together are combined')
     parser.add_argument('--out', metavar='DIR',
                         help='output directory (default: <first BAG name>_report)')
-    args = parser.parse_args(argv)
+    args = parser.parse_args(args)
     missing = [bag for bag in args.bags if not Path(bag).exists()]
     if missing:
         print(f'qfa-report: no such file: {", ".join(missing)}', file=sys.stderr)

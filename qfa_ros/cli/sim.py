@@ -52,14 +52,14 @@ Defined here, not in the bag layer, so that ``qfa-sim static`` does not load the
 writer it does not use.
 """
 
-def scenario_bag(args, config, rate_variance=None):
-    """Return a :class:`ScenarioBag` for ``--out``, or a null context without it."""
+def scenario_bag(args, config, **options):
+    """Return a :class:`ScenarioBag` of ``options`` for ``--out``; a null context without it."""
     if args.out is None:
         return contextlib.nullcontext()
     # Imported where used, as the calibration modules below: a scenario loads only what
     # it runs (the MCAP writer and scipy.optimize cost start-up time).
     from qfa_ros.bag.scenario_bag import ScenarioBag
-    return ScenarioBag(args.out, config, rate_variance=rate_variance)
+    return ScenarioBag(args.out, config, **options)
 
 
 def static_sensor():
@@ -117,7 +117,7 @@ def run_static(args, out=None):
     temperature = 0.0
     done = 0
     rate_variance = None if triad.gyro is None else triad.gyro.variance()
-    with scenario_bag(args, config, rate_variance) as bag, \
+    with scenario_bag(args, config, rate_variance=rate_variance) as bag, \
             tqdm(total=args.duration, unit='s', desc='qfa-sim static', disable=None,
                  leave=False) as progress:
         if bag:
@@ -193,12 +193,8 @@ def run_trajectory(args, out=None):
     accel_error = np.zeros(3)
     gyro_error = np.zeros(3)
     done = 0
-    bag = None
-    if args.out is not None:
-        from qfa_ros.bag.scenario_bag import ScenarioBag
-        bag = ScenarioBag(args.out, config,
-                          rate_variance=triad.gyro.variance(), truth_frame_id='enu_origin')
-    with bag if bag else contextlib.nullcontext():
+    with scenario_bag(args, config, rate_variance=triad.gyro.variance(),
+                      truth_frame_id='enu_origin') as bag:
         if bag:
             bag.write_phase(motion.name, args.start_ns)
             origin = motion.kinematics(np.array([motion.start]))
@@ -425,8 +421,8 @@ def parse_start_time(text):
         raise argparse.ArgumentTypeError(f'not an ISO 8601 time: {text!r}') from None
     if moment.tzinfo is None:
         moment = moment.replace(tzinfo=datetime.timezone.utc)
-    delta = moment - datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
-    return (delta.days * 86_400 + delta.seconds) * 1_000_000_000 + delta.microseconds * 1000
+    epoch = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
+    return (moment - epoch) // datetime.timedelta(microseconds=1) * 1000
 
 
 @stops_quietly('qfa-sim')

@@ -110,13 +110,10 @@ def temperature_rows(table):
 
 def temperature_failures(table):
     """Return the rows (dicts) of units outside the acceptance on any axis."""
-    failures = []
-    for row in table.to_pylist():
-        if any(row[f'zd_max_ug_{a}'] > ZERO_DRIFT_LIMIT_UG
-               or row[f'sf_p2p_ppm_{a}'] > SCALE_LIMIT_PPM
-               or row[f'sf_max_ppm_{a}'] > SCALE_LIMIT_PPM for a in AXES):
-            failures.append(row)
-    return failures
+    return [row for row in table.to_pylist()
+            if any(row[f'zd_max_ug_{a}'] > ZERO_DRIFT_LIMIT_UG
+                   or row[f'sf_p2p_ppm_{a}'] > SCALE_LIMIT_PPM
+                   or row[f'sf_max_ppm_{a}'] > SCALE_LIMIT_PPM for a in AXES)]
 
 
 def format_temperature_summary(table):
@@ -191,8 +188,7 @@ def draw_figures(table, out_dir, name='study'):
             if beyond:
                 panel.annotate(f'{beyond} axis value(s) beyond {top:g}\nin the last bin',
                                xy=(0.97, 0.45), xycoords='axes fraction', ha='right')
-            panel.set_xlabel(label)
-            panel.set_ylabel('units')
+            panel.set(xlabel=label, ylabel='units')
             panel.legend()
         figure.suptitle(f'{name}: temperature calibration, eight attitudes')
         written.append(_save(figure, out_dir / 'fleet_temperature_histogram.png', plt))
@@ -202,9 +198,8 @@ def draw_figures(table, out_dir, name='study'):
     bins = np.linspace(-max(np.abs(before).max(), 1), max(np.abs(before).max(), 1), 60)
     axes.hist(before, bins=bins, alpha=0.6, label='before self-calibration')
     axes.hist(after, bins=bins, alpha=0.6, label='after self-calibration')
-    axes.set_xlabel('scale-factor error [ppm]')
-    axes.set_ylabel('unit-axis-calibrations')
-    axes.set_title(f'{name}: residual scale-factor error')
+    axes.set(xlabel='scale-factor error [ppm]', ylabel='unit-axis-calibrations',
+             title=f'{name}: residual scale-factor error')
     axes.legend()
     written.append(_save(figure, out_dir / 'fleet_residual_histogram.png', plt))
 
@@ -220,9 +215,8 @@ def draw_figures(table, out_dir, name='study'):
         p95 = [np.percentile(values[calibration == k], 95) for k in steps]
         line, = axes.plot(t, median, marker='o', label=f'{label}: median')
         axes.plot(t, p95, linestyle='--', color=line.get_color(), label=f'{label}: p95')
-    axes.set_xlabel('time since reference capture [days]')
-    axes.set_ylabel('|scale-factor error| [ppm]')
-    axes.set_title(f'{name}: residual versus time')
+    axes.set(xlabel='time since reference capture [days]', ylabel='|scale-factor error| [ppm]',
+             title=f'{name}: residual versus time')
     axes.legend()
     written.append(_save(figure, out_dir / 'fleet_residual_vs_time.png', plt))
 
@@ -233,9 +227,8 @@ def draw_figures(table, out_dir, name='study'):
         panel.plot(truth, estimate, '.', markersize=2)
         low, high = min(truth.min(), estimate.min()), max(truth.max(), estimate.max())
         panel.plot([low, high], [low, high], 'k-', linewidth=0.8)
-        panel.set_xlabel('true drift [ppm]')
-        panel.set_ylabel('estimated drift [ppm]')
-        panel.set_title(f'{kind} gain')
+        panel.set(xlabel='true drift [ppm]', ylabel='estimated drift [ppm]',
+                  title=f'{kind} gain')
     figure.suptitle(f'{name}: estimated versus true')
     written.append(_save(figure, out_dir / 'fleet_estimate_vs_truth.png', plt))
     return written

@@ -116,13 +116,10 @@ def simulate_unit(study, index):
         _profile(environment).apply(triad)
     schedule = study.schedule_settings()
     aging = study.aging
-    rates = []
-    for _ in AXES:
-        rates.append({
-            **split_drift(rng, aging.draw(rng, aging.forward_ppm_per_year), OBSERVABLE_FORWARD),
-            **split_drift(rng, aging.draw(rng, aging.feedback_ppm_per_year),
-                          OBSERVABLE_FEEDBACK),
-            TORQUER_COMPONENT: aging.draw(rng, aging.torquer_ppm_per_year)})
+    rates = [{
+        **split_drift(rng, aging.draw(rng, aging.forward_ppm_per_year), OBSERVABLE_FORWARD),
+        **split_drift(rng, aging.draw(rng, aging.feedback_ppm_per_year), OBSERVABLE_FEEDBACK),
+        TORQUER_COMPONENT: aging.draw(rng, aging.torquer_ppm_per_year)} for _ in AXES]
 
     state = CalibrationState()
     if schedule.feedback.temperature_correction:
@@ -181,7 +178,4 @@ def simulate_unit(study, index):
 def simulate_batch(study, start, stop):
     """Return the rows of units ``start`` to ``stop - 1`` in unit order."""
     simulate = simulate_temperature_unit if study.kind == 'temperature' else simulate_unit
-    rows = []
-    for index in range(start, stop):
-        rows.extend(simulate(study, index))
-    return rows
+    return [row for index in range(start, stop) for row in simulate(study, index)]

@@ -98,17 +98,13 @@ class TraceRun:
         """Return the result value whose key is ``suffix`` or ends with ``.suffix``."""
         if suffix in self.result:
             return self.result[suffix]
-        for key, value in self.result.items():
-            if key.endswith('.' + suffix):
-                return value
-        return default
+        return next((value for key, value in self.result.items()
+                     if key.endswith('.' + suffix)), default)
 
     def table_with(self, *columns):
         """Return the first table having all ``columns`` (None if none has)."""
-        for table in self.tables.values():
-            if all(column in table for column in columns):
-                return table
-        return None
+        return next((table for table in self.tables.values()
+                     if all(column in table for column in columns)), None)
 
     @property
     def captured(self):
@@ -214,13 +210,8 @@ def _run_name(namespace, statuses):
 
 
 def _expand(paths):
-    files = []
-    for path in map(Path, paths):
-        if path.is_dir():
-            files.extend(sorted(path.glob('*.mcap')))
-        else:
-            files.append(path)
-    return files
+    return [file for path in map(Path, paths)
+            for file in (sorted(path.glob('*.mcap')) if path.is_dir() else [path])]
 
 
 # --- figures ------------------------------------------------------------------------------
@@ -279,10 +270,8 @@ def _run_color(index, is_reference, reference):
 
 def _label(plot, title=None, xlabel=None, ylabel=None, **legend):
     """Title, label, legend (``legend`` its keywords) and grid one panel."""
-    for setter, text in ((plot.set_title, title), (plot.set_xlabel, xlabel),
-                         (plot.set_ylabel, ylabel)):
-        if text is not None:
-            setter(text)
+    plot.set(**{key: text for key, text in (('title', title), ('xlabel', xlabel),
+                                             ('ylabel', ylabel)) if text is not None})
     plot.legend(**{'fontsize': 8, **legend})
     plot.grid(alpha=0.3)
 
@@ -414,10 +403,8 @@ def static_output_figure(contents, axis='z'):
     times, values = bag.imu_time_ns, bag.imu_accel[:, column]
     phases = bag.phases or [(int(times[0]), 'all')]
     bounds = [start for start, _ in phases[1:]] + [max(int(times[-1]) + 1, phases[-1][0])]
-    segments = []
-    for (start, name), end in zip(phases, bounds):
-        inside = (times >= start) & (times < end)
-        segments.append((name, start, end, inside))
+    segments = [(name, start, end, (times >= start) & (times < end))
+                for (start, name), end in zip(phases, bounds)]
     baseline_name = 'reference' if any(name == 'reference' and inside.any()
                                        for name, _, _, inside in segments) else None
     baseline = next((values[inside].mean() for name, _, _, inside in segments
