@@ -33,7 +33,7 @@ import math
 from numba import njit
 import numpy as np
 
-from qfa_ros.model import streams
+from qfa_ros.model import checks, streams
 from qfa_ros.model.noise import flicker_component_variance
 from qfa_ros.model.units import ARCSEC, DEG_PER_HOUR, DEG_PER_ROOT_HOUR, PPM, STANDARD_GRAVITY
 
@@ -99,19 +99,13 @@ class GyroConfig:
         for name in ('arw', 'bias_instability', 'rate_random_walk', 'turn_on_bias',
                      'scale_factor', 'scale_factor_asymmetry', 'misalignment',
                      'g_sensitivity', 'bias_tc', 'scale_factor_tc', 'quantization'):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise ValueError(f'gyro {name} must be finite and >= 0, got {value!r}')
+            checks.non_negative(f'gyro {name}', getattr(self, name), (int, float))
         if not math.isfinite(self.reference_c):
             raise ValueError(f'gyro reference_c must be finite, got {self.reference_c!r}')
         if not math.isfinite(self.range) or self.range <= 0:
             raise ValueError(f'gyro range must be positive, got {self.range!r}')
-        if not self.correlation_times or any(
-                not math.isfinite(t) or t <= 0 for t in self.correlation_times):
-            raise ValueError('gyro correlation_times must be positive and finite')
-        bias = np.asarray(self.bias, dtype=float)
-        if bias.shape != (3,) or not np.all(np.isfinite(bias)):
-            raise ValueError(f'gyro bias must be 3 finite numbers, got {self.bias!r}')
+        checks.positive_times('gyro correlation_times', self.correlation_times)
+        checks.finite_vector('gyro bias', self.bias)
 
     @classmethod
     def ideal(cls):

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from qfa_ros.model import streams
+from qfa_ros.model import checks, streams
 from qfa_ros.model.units import MICRO_G
 
 
@@ -52,12 +52,8 @@ class NoiseConfig:
 
     def __post_init__(self):
         for name in ('noise_density', 'bias_instability', 'adc_noise', 'random_walk'):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value < 0:
-                raise ValueError(f'{name} must be finite and >= 0, got {value!r}')
-        if not self.correlation_times or any(
-                not math.isfinite(t) or t <= 0 for t in self.correlation_times):
-            raise ValueError('correlation_times must be positive and finite')
+            checks.non_negative(name, getattr(self, name))
+        checks.positive_times('correlation_times', self.correlation_times)
 
     @classmethod
     def off(cls):
