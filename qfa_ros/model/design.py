@@ -1,6 +1,6 @@
 """Controller design and the linearized loop of one QFA axis (discrete time, exact ZOH)."""
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -62,10 +62,7 @@ class ControllerDesign:
         """Return the same controller with k(D(z)) = ``gain`` (quantized to Q32)."""
         if not math.isfinite(gain) or gain <= 0:
             raise ValueError(f'controller gain must be positive and finite, got {gain!r}')
-        word = int(round(gain * 2 ** GAIN_FRAC_BITS))
-        return ControllerDesign(word, self.lead_a1, self.lead_b0, self.lead_b1,
-                                self.integrator_gain, self.crossover_hz,
-                                self.integrator_ratio, self.lead_pole_ratio)
+        return replace(self, gain_word=int(round(gain * 2 ** GAIN_FRAC_BITS)))
 
     def transfer(self, z):
         """Evaluate D(z) at complex points ``z`` (quantized coefficients)."""
