@@ -1,6 +1,6 @@
 """Controller design and the linearized loop of one QFA axis (discrete time, exact ZOH)."""
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -62,10 +62,7 @@ class ControllerDesign:
         """Return the same controller with k(D(z)) = ``gain`` (quantized to Q32)."""
         if not math.isfinite(gain) or gain <= 0:
             raise ValueError(f'controller gain must be positive and finite, got {gain!r}')
-        word = int(round(gain * 2 ** GAIN_FRAC_BITS))
-        return ControllerDesign(word, self.lead_a1, self.lead_b0, self.lead_b1,
-                                self.integrator_gain, self.crossover_hz,
-                                self.integrator_ratio, self.lead_pole_ratio)
+        return replace(self, gain_word=int(round(gain * 2 ** GAIN_FRAC_BITS)))
 
     def transfer(self, z):
         """Evaluate D(z) at complex points ``z`` (quantized coefficients)."""
@@ -180,17 +177,19 @@ class LinearLoop:
     def _z(self, freq_hz):
         return np.exp(2j * np.pi * np.asarray(freq_hz, dtype=float) * self.loop_period)
 
+    def _loop(self, z):
+        # L(z) = k_fb P(z) D(z) z^-1 at points z of the unit circle.
+        return self.gains.feedback_gain * self._plant(z) * self.controller.transfer(z) / z
+
     def loop_gain(self, freq_hz):
         """Return L(e^{jwTs}) at ``freq_hz`` (dimensionless)."""
-        z = self._z(freq_hz)
-        return self.gains.feedback_gain * self._plant(z) * self.controller.transfer(z) / z
+        return self._loop(self._z(freq_hz))
 
     def closed_loop(self, freq_hz, decimation=1):
         """Return the output/input response [(m/s^2)/(m/s^2)] at ``freq_hz``."""
         z = self._z(freq_hz)
-        loop = self.gains.feedback_gain * self._plant(z) * self.controller.transfer(z) / z
         response = self.hw.pendulosity * self._plant(z) * self.controller.transfer(z) \
-            / (1.0 + loop)
+            / (1.0 + self._loop(z))
         scale = nominal_gains(self.hw).feedback_gain / self.hw.pendulosity
         averaging = sum(z ** -k for k in range(decimation)) / decimation
         return response * scale * averaging
@@ -199,9 +198,8 @@ class LinearLoop:
         """Return the published output per ADC code, ``s_nom D A / (1 + L)`` [(m/s^2)/count]."""
         z = self._z(freq_hz)
         averaging = sum(z ** -k for k in range(decimation)) / decimation
-        loop = self.gains.feedback_gain * self._plant(z) * self.controller.transfer(z) / z
         scale = nominal_gains(self.hw).feedback_gain / self.hw.pendulosity
-        return scale * self.controller.transfer(z) * averaging / (1.0 + loop)
+        return scale * self.controller.transfer(z) * averaging / (1.0 + self._loop(z))
 
     def noise_shares(self, decimation=1, points=2 ** 16):
         r"""

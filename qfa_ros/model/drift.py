@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 
+from qfa_ros.model import checks
 from qfa_ros.model.hardware import DRIFT_COMPONENTS
 from qfa_ros.model.units import PPM
 
@@ -94,9 +95,7 @@ class DriftModel:
 
     def set_bias_aging(self, per_year):
         """Set the zero-bias aging per axis [m/s^2 per year of aged sensor time]."""
-        values = np.asarray(per_year, dtype=float)
-        if values.shape != (self.n_axes,) or not np.all(np.isfinite(values)):
-            raise ValueError(f'per_year must be {self.n_axes} finite numbers, got {per_year!r}')
+        values = checks.finite_vector('per_year', per_year, self.n_axes)
         self._fold_aging()
         self.bias_rate = values / SECONDS_PER_YEAR
 

@@ -32,6 +32,7 @@ paper's 90 %; the correlation sets the trial-to-trial scatter.
 import dataclasses
 from dataclasses import dataclass, field
 
+from qfa_ros.model.gyro import ERROR_TERMS
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.units import PPM
 
@@ -176,11 +177,7 @@ def ideal_config(config):
     """
     gyro = config.gyro
     if gyro is not None:
-        gyro = gyro.with_errors(arw=0.0, bias_instability=0.0, rate_random_walk=0.0,
-                                turn_on_bias=0.0, scale_factor=0.0,
-                                scale_factor_asymmetry=0.0, misalignment=0.0,
-                                g_sensitivity=0.0, bias_tc=0.0, scale_factor_tc=0.0,
-                                quantization=0.0, bias=ZERO3)
+        gyro = gyro.with_errors(bias=ZERO3, **dict.fromkeys(ERROR_TERMS, 0.0))
     noise = dataclasses.replace(config.noise, noise_density=0.0, bias_instability=0.0,
                                 adc_noise=0.0)
     return dataclasses.replace(config, noise=noise, bias=ZERO3, k2=ZERO3,

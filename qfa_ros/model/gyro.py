@@ -27,15 +27,20 @@ bias instability (an emulated Kalibr ``imu.yaml``) steps every sample (``m = 1``
 configured 1-sigma spreads.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 from numba import njit
 import numpy as np
 
-from qfa_ros.model import streams
+from qfa_ros.model import checks, streams
 from qfa_ros.model.noise import flicker_component_variance
 from qfa_ros.model.units import ARCSEC, DEG_PER_HOUR, DEG_PER_ROOT_HOUR, PPM, STANDARD_GRAVITY
+
+ERROR_TERMS = ('arw', 'bias_instability', 'rate_random_walk', 'turn_on_bias', 'scale_factor',
+               'scale_factor_asymmetry', 'misalignment', 'g_sensitivity', 'bias_tc',
+               'scale_factor_tc', 'quantization')
+"""The :class:`GyroConfig` error terms: each finite and >= 0, all 0 in :meth:`GyroConfig.ideal`."""
 
 
 @dataclass(frozen=True)
@@ -96,35 +101,23 @@ class GyroConfig:
     bias: tuple = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
-        for name in ('arw', 'bias_instability', 'rate_random_walk', 'turn_on_bias',
-                     'scale_factor', 'scale_factor_asymmetry', 'misalignment',
-                     'g_sensitivity', 'bias_tc', 'scale_factor_tc', 'quantization'):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise ValueError(f'gyro {name} must be finite and >= 0, got {value!r}')
+        for name in ERROR_TERMS:
+            checks.non_negative(f'gyro {name}', getattr(self, name), (int, float))
         if not math.isfinite(self.reference_c):
             raise ValueError(f'gyro reference_c must be finite, got {self.reference_c!r}')
         if not math.isfinite(self.range) or self.range <= 0:
             raise ValueError(f'gyro range must be positive, got {self.range!r}')
-        if not self.correlation_times or any(
-                not math.isfinite(t) or t <= 0 for t in self.correlation_times):
-            raise ValueError('gyro correlation_times must be positive and finite')
-        bias = np.asarray(self.bias, dtype=float)
-        if bias.shape != (3,) or not np.all(np.isfinite(bias)):
-            raise ValueError(f'gyro bias must be 3 finite numbers, got {self.bias!r}')
+        checks.positive_times('gyro correlation_times', self.correlation_times)
+        checks.finite_vector('gyro bias', self.bias)
 
     @classmethod
     def ideal(cls):
         """Return a gyro with every error switched off (range kept)."""
-        return cls(arw=0.0, bias_instability=0.0, rate_random_walk=0.0, turn_on_bias=0.0,
-                   scale_factor=0.0, scale_factor_asymmetry=0.0, misalignment=0.0,
-                   g_sensitivity=0.0, bias_tc=0.0, scale_factor_tc=0.0, quantization=0.0)
+        return cls(**dict.fromkeys(ERROR_TERMS, 0.0))
 
     def with_errors(self, **changes):
         """Return a copy with ``changes`` applied (validated)."""
-        values = {name: getattr(self, name) for name in self.__dataclass_fields__}
-        values.update(changes)
-        return GyroConfig(**values)
+        return replace(self, **changes)
 
 
 @dataclass(frozen=True)

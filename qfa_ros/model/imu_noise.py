@@ -62,7 +62,7 @@ from qfa_ros.model.design import designed_loop
 from qfa_ros.model.noise import (
     ADC_QUANTIZATION_VARIANCE,
     flicker_component_variance,
-    gauss_markov_allan_variance,
+    model_allan_deviation,
 )
 from qfa_ros.model.units import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G
 
@@ -246,25 +246,6 @@ def fit_uncertainty(taus, counts):
     taus, counts = np.asarray(taus, dtype=float), np.asarray(counts, dtype=float)
     scatter = 1.0 / np.sqrt(2.0 * np.maximum(counts - 1.0, 1.0))
     return float(np.average(scatter, weights=taus))
-
-
-def model_allan_deviation(noise_density, bias_instability, correlation_times, taus,
-                          rate_random_walk=0.0, quantization=0.0):
-    """
-    Return the Allan deviation of white noise, a Gauss-Markov sum and a random walk.
-
-    ``sigma^2 = 3 Q^2 / tau^2 + N^2 / tau + sum_j AVAR_GM(tau; q^2, T_j) + K^2 tau / 3``
-    with ``q^2`` the component variance that puts the flicker floor at
-    ``bias_instability`` (:func:`qfa_ros.model.noise.flicker_component_variance`), ``Q``
-    the angle (or velocity) quantization.
-    """
-    taus = np.asarray(taus, dtype=float)
-    variance = flicker_component_variance(SimpleNamespace(
-        bias_instability=bias_instability, correlation_times=tuple(correlation_times)))
-    flicker = sum(gauss_markov_allan_variance(taus, variance, t) for t in correlation_times) \
-        if variance else 0.0
-    return np.sqrt(3.0 * quantization ** 2 / taus ** 2 + noise_density ** 2 / taus + flicker
-                   + rate_random_walk ** 2 * taus / 3.0)
 
 
 def model_fit_figures(config, max_tau=MAX_TAU):

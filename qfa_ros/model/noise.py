@@ -2,10 +2,11 @@
 
 from dataclasses import dataclass
 import math
+from types import SimpleNamespace
 
 import numpy as np
 
-from qfa_ros.model import streams
+from qfa_ros.model import checks, streams
 from qfa_ros.model.units import MICRO_G
 
 
@@ -52,12 +53,8 @@ class NoiseConfig:
 
     def __post_init__(self):
         for name in ('noise_density', 'bias_instability', 'adc_noise', 'random_walk'):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value < 0:
-                raise ValueError(f'{name} must be finite and >= 0, got {value!r}')
-        if not self.correlation_times or any(
-                not math.isfinite(t) or t <= 0 for t in self.correlation_times):
-            raise ValueError('correlation_times must be positive and finite')
+            checks.non_negative(name, getattr(self, name))
+        checks.positive_times('correlation_times', self.correlation_times)
 
     @classmethod
     def off(cls):
@@ -205,8 +202,24 @@ def allan_deviation_model(config, tau):
 
     ``sigma^2(tau) = N^2 / tau + sum_j AVAR_GM(tau; q^2, T_j) + K^2 tau / 3``.
     """
-    variance = flicker_component_variance(config)
-    flicker = sum(gauss_markov_allan_variance(tau, variance, t)
-                  for t in config.correlation_times) if variance else 0.0
-    return float(np.sqrt(config.noise_density ** 2 / tau + flicker
-                         + config.random_walk ** 2 * tau / 3.0))
+    return float(model_allan_deviation(config.noise_density, config.bias_instability,
+                                       config.correlation_times, tau, config.random_walk))
+
+
+def model_allan_deviation(noise_density, bias_instability, correlation_times, taus,
+                          rate_random_walk=0.0, quantization=0.0):
+    """
+    Return the Allan deviation of white noise, a Gauss-Markov sum and a random walk.
+
+    ``sigma^2 = 3 Q^2 / tau^2 + N^2 / tau + sum_j AVAR_GM(tau; q^2, T_j) + K^2 tau / 3``
+    with ``q^2`` the component variance that puts the flicker floor at
+    ``bias_instability`` (:func:`flicker_component_variance`), ``Q`` the angle (or
+    velocity) quantization.
+    """
+    taus = np.asarray(taus, dtype=float)
+    variance = flicker_component_variance(SimpleNamespace(
+        bias_instability=bias_instability, correlation_times=tuple(correlation_times)))
+    flicker = sum(gauss_markov_allan_variance(taus, variance, t) for t in correlation_times) \
+        if variance else 0.0
+    return np.sqrt(3.0 * quantization ** 2 / taus ** 2 + noise_density ** 2 / taus + flicker
+                   + rate_random_walk ** 2 * taus / 3.0)

@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 
+from qfa_ros.model import checks
 from qfa_ros.model.units import STANDARD_GRAVITY
 
 
@@ -27,7 +28,7 @@ class StaticProfile:
     specific_force: tuple = (0.0, 0.0, STANDARD_GRAVITY)
 
     def __post_init__(self):
-        _check_vector('specific_force', self.specific_force)
+        checks.finite_vector('specific_force', self.specific_force)
 
     @classmethod
     def level(cls):
@@ -58,7 +59,7 @@ class StepProfile:
         if any(b <= a for a, b in zip(self.times, self.times[1:])):
             raise ValueError('times must increase strictly')
         for level in self.levels:
-            _check_vector('levels', level)
+            checks.finite_vector('levels', level)
 
     def evaluate(self, t):
         """Return f(t) as an (n, 3) array for times ``t`` [s]."""
@@ -79,8 +80,8 @@ class SineProfile:
     def __post_init__(self):
         if not math.isfinite(self.frequency_hz) or self.frequency_hz <= 0:
             raise ValueError(f'frequency_hz must be positive, got {self.frequency_hz!r}')
-        _check_vector('amplitude', self.amplitude)
-        _check_vector('offset', self.offset)
+        checks.finite_vector('amplitude', self.amplitude)
+        checks.finite_vector('offset', self.offset)
 
     def evaluate(self, t):
         """Return f(t) as an (n, 3) array for times ``t`` [s]."""
@@ -94,9 +95,3 @@ def tumble_profile(dwell_s=10.0):
     levels = ((0, 0, g), (0, 0, -g), (g, 0, 0), (-g, 0, 0), (0, g, 0), (0, -g, 0))
     times = tuple(k * dwell_s for k in range(len(levels)))
     return StepProfile(times=times, levels=tuple(tuple(map(float, v)) for v in levels))
-
-
-def _check_vector(name, value):
-    vector = np.asarray(value, dtype=float)
-    if vector.shape != (3,) or not np.all(np.isfinite(vector)):
-        raise ValueError(f'{name} must be 3 finite numbers, got {value!r}')

@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from qfa_ros.model import streams
+from qfa_ros.model import checks, streams
 from qfa_ros.model.units import MILLI_G, PPM
 
 AMBIENT_PROFILES = ('constant', 'ramp', 'cycle', 'room')
@@ -28,23 +28,6 @@ DEFAULT_BIAS_ALPHA = ((0.08 * MILLI_G, 0.90 * MILLI_G),
 
 DEFAULT_BIAS_BETA = ((2.0, -0.6), (1.5, -1.2), (2.4, -0.3))
 """Default double-exponential betas per axis [1/V]."""
-
-
-def _finite(name, value):
-    try:
-        value = float(value)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f'{name} must be a finite number, got {value!r}') from error
-    if not math.isfinite(value):
-        raise ValueError(f'{name} must be finite, got {value!r}')
-    return value
-
-
-def _positive(name, value, allow_zero=False):
-    value = _finite(name, value)
-    if value < 0 or (value == 0 and not allow_zero):
-        raise ValueError(f'{name} must be {">= 0" if allow_zero else "> 0"}, got {value!r}')
-    return value
 
 
 def _per_axis(name, value, columns=None):
@@ -149,44 +132,38 @@ class ThermalConfig:
     sf_offset_ppm: tuple = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
-        if self.ambient_profile not in AMBIENT_PROFILES:
-            raise ValueError(f'ambient_profile must be one of {AMBIENT_PROFILES}, '
-                             f'got {self.ambient_profile!r}')
-        if self.cycle_shape not in CYCLE_SHAPES:
-            raise ValueError(f'cycle_shape must be one of {CYCLE_SHAPES}, '
-                             f'got {self.cycle_shape!r}')
-        if self.bias_model not in BIAS_MODELS:
-            raise ValueError(f'bias_model must be one of {BIAS_MODELS}, '
-                             f'got {self.bias_model!r}')
+        for name, choices in (('ambient_profile', AMBIENT_PROFILES),
+                              ('cycle_shape', CYCLE_SHAPES), ('bias_model', BIAS_MODELS)):
+            if getattr(self, name) not in choices:
+                raise ValueError(f'{name} must be one of {choices}, '
+                                 f'got {getattr(self, name)!r}')
         for name in ('ambient_c', 'ramp_rate_c_per_s', 'cycle_low_c', 'cycle_high_c',
                      'tsensor_v0', 'tsensor_t0_c'):
-            _finite(name, getattr(self, name))
+            checks.finite(name, getattr(self, name))
         for name in ('cycle_period_s', 'room_correlation_s', 'sensor_tau_s',
                      'tsensor_k_v_per_c', 'adc_vref_v', 'hysteresis_c'):
-            _positive(name, getattr(self, name))
+            checks.positive(name, getattr(self, name))
         for name in ('room_amplitude_c', 'probe_tau_s', 'tsensor_noise_v'):
-            _positive(name, getattr(self, name), allow_zero=True)
+            checks.positive(name, getattr(self, name), allow_zero=True)
         if self.cycle_low_c >= self.cycle_high_c:
             raise ValueError('cycle_low_c must be < cycle_high_c')
-        dwell = _finite('cycle_dwell_fraction', self.cycle_dwell_fraction)
+        dwell = checks.finite('cycle_dwell_fraction', self.cycle_dwell_fraction)
         if not 0 <= dwell < 1:
             raise ValueError(f'cycle_dwell_fraction must be in [0, 1), got {dwell!r}')
         limits = np.asarray(self.ramp_limits_c, dtype=float)
         if limits.shape != (2,) or not np.all(np.isfinite(limits)) or limits[0] > limits[1]:
             raise ValueError(f'ramp_limits_c must be (low, high), got {self.ramp_limits_c!r}')
         if self.initial_sensor_c is not None:
-            _finite('initial_sensor_c', self.initial_sensor_c)
+            checks.finite('initial_sensor_c', self.initial_sensor_c)
         if (isinstance(self.adc_bits, bool) or not isinstance(self.adc_bits, int)
                 or not 8 <= self.adc_bits <= 24):
             raise ValueError(f'adc_bits must be an integer in [8, 24], got {self.adc_bits!r}')
         _per_axis('bias_alpha', self.bias_alpha, 2)
         _per_axis('bias_beta', self.bias_beta, 2)
         _per_axis('bias_poly', self.bias_poly, -1)
-        _per_axis('hysteresis_m_s2', self.hysteresis_m_s2)
-        _per_axis('sf_tc_ppm_per_c', self.sf_tc_ppm_per_c)
-        _per_axis('sf_tc2_ppm_per_c2', self.sf_tc2_ppm_per_c2)
-        _per_axis('sf_tc3_ppm_per_c3', self.sf_tc3_ppm_per_c3)
-        _per_axis('sf_offset_ppm', self.sf_offset_ppm)
+        for name in ('hysteresis_m_s2', 'sf_tc_ppm_per_c', 'sf_tc2_ppm_per_c2',
+                     'sf_tc3_ppm_per_c3', 'sf_offset_ppm'):
+            _per_axis(name, getattr(self, name))
 
     @property
     def adc_lsb_v(self):
@@ -415,7 +392,7 @@ class ThermalModel:
         """Advance ``n`` samples of period ``dt`` [s] and return a :class:`ThermalChunk`."""
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
             raise ValueError(f'n must be an integer >= 0, got {n!r}')
-        dt = _positive('dt', dt)
+        dt = checks.positive('dt', dt)
         n = int(n)
         cfg = self.config
         if dt != self._dt:

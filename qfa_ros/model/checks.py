@@ -1,0 +1,50 @@
+"""Checks of a caller's numbers shared by the model's configurations.
+
+Each raises ``ValueError`` naming the parameter. They differ in what they accept on
+purpose (a string ``float()`` reads, a bool, a numpy scalar): each keeps the set of inputs
+its callers refused before they shared it.
+"""
+
+import math
+
+import numpy as np
+
+
+def finite(name, value):
+    """Return ``value`` as a float: anything ``float()`` reads, if finite."""
+    try:
+        value = float(value)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f'{name} must be a finite number, got {value!r}') from error
+    if not math.isfinite(value):
+        raise ValueError(f'{name} must be finite, got {value!r}')
+    return value
+
+
+def positive(name, value, allow_zero=False):
+    """Return ``value`` as a float (as :func:`finite`), if > 0 (``allow_zero``: >= 0)."""
+    value = finite(name, value)
+    if value < 0 or (value == 0 and not allow_zero):
+        raise ValueError(f'{name} must be {">= 0" if allow_zero else "> 0"}, got {value!r}')
+    return value
+
+
+def non_negative(name, value, types=None):
+    """Refuse a non-finite or negative number (given ``types``, also one not of them)."""
+    if (types is not None and not isinstance(value, types)) or not math.isfinite(value) \
+            or value < 0:
+        raise ValueError(f'{name} must be finite and >= 0, got {value!r}')
+
+
+def positive_times(name, values):
+    """Refuse an empty sequence of times or one with a time not finite and > 0."""
+    if not values or any(not math.isfinite(t) or t <= 0 for t in values):
+        raise ValueError(f'{name} must be positive and finite')
+
+
+def finite_vector(name, value, size=3):
+    """Return ``value`` as a float array of ``size`` finite numbers."""
+    vector = np.asarray(value, dtype=float)
+    if vector.shape != (size,) or not np.all(np.isfinite(vector)):
+        raise ValueError(f'{name} must be {size} finite numbers, got {value!r}')
+    return vector
