@@ -23,6 +23,7 @@ tumble records and the fit of those records (with the reading's lag behind the p
 mass estimated from the same records) share the block format and the settings.
 """
 
+from contextlib import contextmanager
 import dataclasses
 from dataclasses import asdict, dataclass
 import math
@@ -277,13 +278,33 @@ class TemperatureResult:
         return mapping
 
 
+@contextmanager
+def chamber_program(triad, **ambient):
+    """
+    Set ``ambient`` (thermal-model fields) for a chamber program; yield the settings it had.
+
+    However the program ends, the dividing head is removed, those :data:`AMBIENT_FIELDS`
+    settings are restored and temperature compensation is switched back to what it was.
+    """
+    previous = {name: getattr(triad.thermal.config, name) for name in AMBIENT_FIELDS}
+    compensating = triad.temperature_compensation
+    if ambient:
+        triad.thermal.set_ambient(**ambient)
+    try:
+        yield previous
+    finally:
+        triad.fixture = None
+        triad.thermal.set_ambient(**previous)
+        triad.temperature_compensation = compensating
+
+
 def fixture_profile(axis, sign):
     """Return the dividing head at ``axis`` up, ``sign`` as a static input profile."""
     return StaticProfile(tuple(float(v) for v in position_force(axis, sign)))
 
 
 def tumble(triad, settings, blocks):
-    """Run one six-position tumble, appending one record per position (generator)."""
+    """Run a six-position tumble, a record per position (generator); return its reading [degC]."""
     keep_from = min(samples_for(triad, settings.settle_s),
                     samples_for(triad, settings.block_s) // 2)
     for axis, sign in POSITIONS:
@@ -294,10 +315,7 @@ def tumble(triad, settings, blocks):
         # the first settle_s follow the rotation: the loop's transient is not data
         blocks.append((int(out.stamps_ns[-1]), out.v_temp[keep_from:].mean(),
                        position_force(axis, sign), out.accel[keep_from:].mean(axis=0)))
-
-
-def _reading(triad, v_temp):
-    return float(triad.thermal.reading_c(v_temp))
+    return float(triad.thermal.reading_c(np.mean([b[1] for b in blocks[-len(POSITIONS):]])))
 
 
 def temperature_schedule(triad, state, settings=TemperatureSettings(), at_plateau=None):
@@ -324,19 +342,15 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
         raise EstimationError('the sensor has no thermal model (TriadConfig.thermal is None)')
     require_closed(triad)
     start_ns = sensor_time_ns(triad)
-    previous = {name: getattr(triad.thermal.config, name) for name in AMBIENT_FIELDS}
-    was_compensating = triad.temperature_compensation
-    triad.temperature_compensation = False
     blocks, tumbles, extra = [], [], []
     soak_s = 0.0
     ambient = float(triad.thermal.ambient_at(np.array([triad.thermal.time]))[0])
     plateaus = settings.plateaus(ambient)
     hold = settings.period_s / len(plateaus)
     tumble_s = len(POSITIONS) * settings.block_s
-    try:
-        first = len(blocks)
-        yield from tumble(triad, settings, blocks)
-        start_reading = _reading(triad, np.mean([b[1] for b in blocks[first:]]))
+    with chamber_program(triad) as previous:
+        triad.temperature_compensation = False
+        start_reading = yield from tumble(triad, settings, blocks)
         for _ in range(settings.cycles):
             for index, chamber_c in enumerate(plateaus):
                 triad.thermal.set_ambient(ambient_profile='constant', ambient_c=chamber_c)
@@ -344,9 +358,8 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
                 count, last = 0, None
                 while True:
                     tumbles.append(len(blocks))
-                    yield from tumble(triad, settings, blocks)
+                    reading = yield from tumble(triad, settings, blocks)
                     count += 1
-                    reading = _reading(triad, np.mean([b[1] for b in blocks[-len(POSITIONS):]]))
                     stable = last is not None and \
                         abs(reading - last) <= settings.stable_c_per_tumble
                     last = reading
@@ -362,9 +375,7 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
         triad.thermal.set_ambient(**previous)
         if previous['ambient_profile'] == 'constant':
             while True:
-                first = len(blocks)
-                yield from tumble(triad, settings, blocks)
-                reading = _reading(triad, np.mean([b[1] for b in blocks[first:]]))
+                reading = yield from tumble(triad, settings, blocks)
                 if abs(reading - start_reading) <= settings.return_tolerance_c:
                     break
                 soak_s += tumble_s
@@ -373,10 +384,6 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
                         f'the sensor is still {reading - start_reading:+.2f} degC from its '
                         f'starting temperature after a {soak_s:.0f} s soak: raise '
                         'temperature_calibration max_soak_s or let it settle first')
-    finally:
-        triad.fixture = None
-        triad.thermal.set_ambient(**previous)
-        triad.temperature_compensation = was_compensating
     compensation, points, lag = fit_multiposition(blocks, tumbles, settings)
     end_ns = sensor_time_ns(triad)
     if settings.apply:
