@@ -29,6 +29,7 @@ from dataclasses import asdict, dataclass
 import math
 
 import numpy as np
+from numpy.polynomial.chebyshev import chebvander
 
 from qfa_ros.calibration.reference_tc import fit_plateau_steps, plateau_step, plateau_step_time_s
 from qfa_ros.calibration.schedule import (
@@ -264,10 +265,9 @@ class TemperatureResult:
                     'beta2': f.beta2, 'offset': f.offset, 'slope': f.slope, 'rmse': f.rmse,
                     'r_squared': f.r_squared, 'iterations': f.iterations,
                     'converged': f.converged}
-                mapping[f'poly3{suffix}.{axis}'] = {'rmse': cal.poly3.rmse,
-                                                    'r_squared': cal.poly3.r_squared}
-                mapping[f'poly4{suffix}.{axis}'] = {'rmse': cal.poly4.rmse,
-                                                    'r_squared': cal.poly4.r_squared}
+                for name, poly in (('poly3', cal.poly3), ('poly4', cal.poly4)):
+                    mapping[f'{name}{suffix}.{axis}'] = {'rmse': poly.rmse,
+                                                         'r_squared': poly.r_squared}
                 mapping[f'p2p_before_{unit}{suffix}.{axis}'] = cal.p2p_before / scale
                 mapping[f'p2p_after_{unit}{suffix}.{axis}'] = cal.p2p_after / scale
                 mapping[f'cancellation_bits{suffix}.{axis}'] = cal.cancellation_bits
@@ -391,11 +391,8 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
         triad.temperature_compensator = compensation
         triad.temperature_compensation = True
         state.updated_at_ns = end_ns
-    force = np.array([b[2] for b in blocks])
-    output = np.array([b[3] for b in blocks])
-    raw = {'time_ns': np.array([b[0] for b in blocks], dtype=np.int64),
-           'v_temp': np.array([b[1] for b in blocks]),
-           'temperature': triad.thermal.reading_c(np.array([b[1] for b in blocks])),
+    times_ns, v_temp, force, output = (np.array(column) for column in zip(*blocks))
+    raw = {'time_ns': times_ns, 'v_temp': v_temp, 'temperature': triad.thermal.reading_c(v_temp),
            'force': force, 'output': output, 'zero': output - force}
     return TemperatureResult('temperature', asdict(settings), compensation, points, raw,
                              settings.apply, soak_s, start_ns, end_ns, extra, lag)
@@ -421,10 +418,6 @@ def temperature_calibration(triad, state, settings=TemperatureSettings()):
     steps = fit_plateau_steps(result.plateau_extra, state, settings.apply,
                               result.start_ns, result.end_ns)
     return result, steps
-
-
-def _chebyshev(u, degree):
-    return np.polynomial.chebyshev.chebvander(u, degree)
 
 
 MAX_PROBE_LAG_S = 4.0
@@ -460,8 +453,7 @@ def _global_fit(v, force, output):
     rss = 0.0
     for i in range(3):
         others = [j for j in range(3) if j != i]
-        design = np.column_stack([_chebyshev(u, 6),
-                                  _chebyshev(u, 4) * force[:, i:i + 1],
+        design = np.column_stack([chebvander(u, 6), chebvander(u, 4) * force[:, i:i + 1],
                                   force[:, others], force[:, i] ** 2])
         target = output[:, i] - force[:, i]
         coefficients = np.linalg.lstsq(design, target, rcond=None)[0]
@@ -520,22 +512,18 @@ def fit_multiposition(blocks, tumbles, settings):
     """
     if len(tumbles) < 10:
         raise EstimationError(f'only {len(tumbles)} tumbles: lengthen period_s')
-    v = np.array([b[1] for b in blocks])
-    force = np.array([b[2] for b in blocks])
-    output = np.array([b[3] for b in blocks])
-    rate = reading_rate(np.array([b[0] for b in blocks]) * 1e-9, v)
+    times_ns, v, force, output = (np.array(column) for column in zip(*blocks))
+    rate = reading_rate(times_ns * 1e-9, v)
     lag = estimate_probe_lag(v, rate, force, output)
     v = v + lag * rate
     misalignment, k2, _ = _global_fit(v, force, output)
     corrected = output - force @ misalignment.T - k2 * force ** 2
-    v_mean, v_pair, bias, scale, times = [], [], [], [], []
     n = len(POSITIONS)
-    for first in tumbles:
+    v_mean = np.array([v[first:first + n].mean() for first in tumbles])
+    v_pair, bias, scale = (np.empty((len(tumbles), 3)) for _ in range(3))
+    for k, first in enumerate(tumbles):
         rows = slice(first, first + n)
         vv = v[rows]
-        v_mean.append(vv.mean())
-        times.append(blocks[first + n - 1][0])
-        b_row, s_row, p_row = [], [], []
         for i in range(3):
             f = force[rows, i]
             dv = vv - vv.mean()
@@ -545,14 +533,7 @@ def fit_multiposition(blocks, tumbles, settings):
             pair = vv[f != 0].mean()
             design = np.column_stack([np.ones(n), dv, f, (vv - pair) * f])
             c = np.linalg.lstsq(design, corrected[rows, i] - f, rcond=None)[0]
-            b_row.append(c[0])
-            s_row.append(c[2])
-            p_row.append(pair)
-        bias.append(b_row)
-        scale.append(s_row)
-        v_pair.append(p_row)
-    v_mean, v_pair = np.array(v_mean), np.array(v_pair)
-    bias, scale = np.array(bias), np.array(scale)
+            bias[k, i], scale[k, i], v_pair[k, i] = c[0], c[2], pair
     try:
         bias_cal = [calibrate_zero_bias(v_mean, bias[:, i], m_bits=settings.m_bits,
                                         n_bins=settings.bins, baseline=True) for i in range(3)]
@@ -561,7 +542,7 @@ def fit_multiposition(blocks, tumbles, settings):
                                          baseline=True) for i in range(3)]
     except ValueError as error:
         raise EstimationError(f'temperature fit failed: {error}') from error
-    points = {'time_ns': np.array(times, dtype=np.int64), 'v_temp': v_mean}
+    points = {'time_ns': times_ns[np.asarray(tumbles) + n - 1], 'v_temp': v_mean}
     for i, name in enumerate(AXES):
         points[f'bias_{name}'] = bias[:, i]
     for i, name in enumerate(AXES):
