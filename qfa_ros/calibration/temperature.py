@@ -31,6 +31,7 @@ import math
 import numpy as np
 from numpy.polynomial.chebyshev import chebvander
 
+from qfa_ros.calibration.estimation import check_int
 from qfa_ros.calibration.reference_tc import fit_plateau_steps, plateau_step, plateau_step_time_s
 from qfa_ros.calibration.schedule import (
     EstimationError,
@@ -145,9 +146,7 @@ class TemperatureSettings:
             raise ValueError(f'reference_steps must be a bool, got {self.reference_steps!r}')
         for name, low, high in (('cycles', 1, 100), ('bins', 10, 10000), ('m_bits', 8, 30),
                                 ('sf_m_bits', 8, 30)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or not low <= value <= high:
-                raise ValueError(f'{name} must be an integer in [{low}, {high}], got {value!r}')
+            check_int(name, getattr(self, name), low, high)
 
     def max_sensor_time_s(self):
         """
