@@ -24,6 +24,7 @@ from qfa_ros.calibration.tempfit import (
     fit_polynomial,
     PolynomialFit,
 )
+from qfa_ros.model.triad import AXES
 
 
 def _poly_to_dict(poly):
@@ -295,22 +296,20 @@ class ThermalCompensation:
 
     def to_dict(self):
         """Return the JSON-serializable ROM record (``state.temperature``)."""
-        axes = ('x', 'y', 'z')
         return {'format': 'multiposition/1',
-                'bias': {a: c.to_dict() for a, c in zip(axes, self.bias)},
-                'scale': {a: c.to_dict() for a, c in zip(axes, self.scale)},
+                'bias': {a: c.to_dict() for a, c in zip(AXES, self.bias)},
+                'scale': {a: c.to_dict() for a, c in zip(AXES, self.scale)},
                 'misalignment': self.misalignment.tolist(), 'k2': self.k2.tolist()}
 
     @classmethod
     def from_dict(cls, data):
         """Rebuild from :meth:`to_dict` output; ValueError on a malformed record."""
-        axes = ('x', 'y', 'z')
         try:
             if data.get('format') != 'multiposition/1':
                 raise ValueError('temperature record: unknown format (run calibrate_temperature '
                                  'again)')
-            return cls([TemperatureCalibration.from_dict(data['bias'][a]) for a in axes],
-                       [TemperatureCalibration.from_dict(data['scale'][a]) for a in axes],
+            return cls([TemperatureCalibration.from_dict(data['bias'][a]) for a in AXES],
+                       [TemperatureCalibration.from_dict(data['scale'][a]) for a in AXES],
                        data['misalignment'], data['k2'])
         except (KeyError, TypeError, AttributeError) as error:
             raise ValueError(f'invalid temperature record: {error!r}') from error
