@@ -245,13 +245,6 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
 # -- multi-position compensation (bias and scale factor per axis) ------------------------
 
 
-def _matrix(value, name):
-    array = np.asarray(value, dtype=float)
-    if array.shape != (3, 3) or not np.all(np.isfinite(array)):
-        raise ValueError(f'{name} must be a finite 3x3 matrix')
-    return array
-
-
 class ThermalCompensation:
     r"""
     Output compensation of a triad from a multi-position temperature calibration.
@@ -277,7 +270,9 @@ class ThermalCompensation:
             raise ValueError('bias and scale need one calibration per axis')
         self.bias = list(bias)
         self.scale = list(scale)
-        self.misalignment = _matrix(misalignment, 'misalignment')
+        self.misalignment = np.asarray(misalignment, dtype=float)
+        if self.misalignment.shape != (3, 3) or not np.all(np.isfinite(self.misalignment)):
+            raise ValueError('misalignment must be a finite 3x3 matrix')
         self.k2 = np.asarray(k2, dtype=float)
         if self.k2.shape != (3,) or not np.all(np.isfinite(self.k2)):
             raise ValueError('k2 must be 3 finite numbers')
