@@ -258,12 +258,9 @@ class TemperatureResult:
         for suffix, calibrations, unit, scale in (('', c.bias, 'ug', MICRO_G),
                                                   ('_scale', c.scale, 'ppm', PPM)):
             for axis, cal in zip(AXES, calibrations):
-                f = cal.fit
-                mapping[f'fit{suffix}.{axis}'] = {
-                    'alpha1': f.alpha1, 'alpha2': f.alpha2, 'beta1': f.beta1,
-                    'beta2': f.beta2, 'offset': f.offset, 'slope': f.slope, 'rmse': f.rmse,
-                    'r_squared': f.r_squared, 'iterations': f.iterations,
-                    'converged': f.converged}
+                mapping[f'fit{suffix}.{axis}'] = {name: getattr(cal.fit, name) for name in (
+                    'alpha1', 'alpha2', 'beta1', 'beta2', 'offset', 'slope', 'rmse', 'r_squared',
+                    'iterations', 'converged')}
                 for name, poly in (('poly3', cal.poly3), ('poly4', cal.poly4)):
                     mapping[f'{name}{suffix}.{axis}'] = {'rmse': poly.rmse,
                                                          'r_squared': poly.r_squared}
