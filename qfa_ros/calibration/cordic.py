@@ -277,11 +277,10 @@ class CordicExp:
         right = np.clip(-shift, 0, _INT64_BITS)
         limit = np.int64((1 << self.output_bits) - 1)
         overflow = mantissa > (limit >> left)
-        if np.any(overflow):
-            if not saturate:
-                raise ValueError(
-                    f'e^z * 2^{self.m_bits} does not fit the {self.output_bits}-bit output '
-                    f'word for {int(np.count_nonzero(overflow))} input(s)')
+        if np.any(overflow) and not saturate:
+            raise ValueError(
+                f'e^z * 2^{self.m_bits} does not fit the {self.output_bits}-bit output '
+                f'word for {int(np.count_nonzero(overflow))} input(s)')
         result = np.where(shift >= 0, np.where(overflow, 0, mantissa) << left,
                           mantissa >> right)
         return np.where(overflow, limit, result)

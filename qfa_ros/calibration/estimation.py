@@ -53,8 +53,8 @@ class ForwardSettings:
     order: str = 'ascending'
 
     def __post_init__(self):
-        _check_int('points', self.points, 2, 1000)
-        _check_int('step', self.step, 1, 2 ** 14)
+        check_int('points', self.points, 2, 1000)
+        check_int('step', self.step, 1, 2 ** 14)
         check_seconds('settle_s', self.settle_s, allow_zero=True)
         check_seconds('average_s', self.average_s)
         if self.order not in FORWARD_ORDERS:
@@ -112,7 +112,7 @@ class FeedbackSettings:
     bias_instability: float = 3.0 * MICRO_G
 
     def __post_init__(self):
-        _check_int('cycles', self.cycles, 1, 10000)
+        check_int('cycles', self.cycles, 1, 10000)
         check_seconds('settle_s', self.settle_s, allow_zero=True)
         check_seconds('average_s', self.average_s)
         if self.order not in FEEDBACK_ORDERS:
@@ -177,12 +177,8 @@ def _check_ready(kind, settings, port, state, check_settings=True):
     name = 'forward_slope' if kind == 'forward' else 'feedback_step'
     if any(getattr(r, name) is None for r in state.references):
         raise EstimationError(f'no {kind} reference captured: call capture_reference first')
-    if check_settings:
-        _check_reference_settings(kind, settings, port, state)
-
-
-def _check_reference_settings(kind, settings, port, state):
-    """Refuse a ``kind`` estimate whose settings differ from those of its reference."""
+    if not check_settings:
+        return
     stored = state.reference_settings.get(kind)
     if not stored:
         raise EstimationError(
@@ -207,7 +203,8 @@ def _same(a, b):
     return math.isclose(float(a), float(b), rel_tol=1e-9, abs_tol=1e-12)
 
 
-def _check_int(name, value, low, high):
+def check_int(name, value, low, high):
+    """Raise ValueError naming ``name`` unless ``value`` is a whole number in [low, high]."""
     if isinstance(value, bool) or int(value) != value or not low <= value <= high:
         raise ValueError(f'{name} must be an integer in [{low}, {high}], got {value!r}')
 

@@ -92,10 +92,8 @@ class DoubleExpCompensator:
         self.line_words = (_float_word(fit.offset, self.m_bits),
                            _float_word(fit.slope, self.m_bits))
         z_extremes = [(b * v) >> self.m_bits for b in self.beta_q for v in self.v_q_range]
-        needed = 0
-        while not all(-(1 << (needed + self.m_bits)) <= z < (1 << (needed + self.m_bits))
-                      for z in z_extremes):
-            needed += 1
+        # the least N with -2^(N + M) <= z < 2^(N + M) for every z: max(z, ~z) < 2^(N + M)
+        needed = max(0, *(max(z, ~z).bit_length() - self.m_bits for z in z_extremes))
         if n_bits is None:
             n_bits = needed
         elif isinstance(n_bits, int) and not isinstance(n_bits, bool) and n_bits < needed:
@@ -171,8 +169,7 @@ class DoubleExpCompensator:
             total += np.where(shift >= 0, product << left, product >> right)
         for mantissa, shift, factor in self._line_q(v_q):
             if mantissa:
-                product = np.int64(mantissa) * np.asarray(factor, dtype=np.int64)
-                total += product << shift if shift >= 0 else product >> -shift
+                total += _shift(np.int64(mantissa) * np.asarray(factor, dtype=np.int64), shift)
         return total
 
     def evaluate_fixed_scalar(self, v_q):

@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from qfa_ros.calibration.schedule import EstimationError, require_closed, SensorPort
-from qfa_ros.model.earth import EARTH_RATE
+from qfa_ros.model.earth import earth_rate_enu
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G
 
@@ -143,8 +143,7 @@ class GyroBiasResult:
 
 def earth_rate_body(latitude_deg, roll, pitch, yaw):
     """Return the Earth rate in the body axes [rad/s] (ENU, C_b^n = R_z R_y R_x)."""
-    lat = math.radians(latitude_deg)
-    w_n = EARTH_RATE * np.array([0.0, math.cos(lat), math.sin(lat)])
+    w_n = earth_rate_enu(math.radians(latitude_deg))
     cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch),
                               math.sin(pitch), math.cos(yaw), math.sin(yaw))
     r_z = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])

@@ -80,8 +80,17 @@ def fit_reference_tc(readings_c, ratios):
     -------
     tc_ppm, std_error_ppm : float64[3]
         ``d ln(ratio) / dT`` [ppm/degC] and its standard error (NaN with two plateaus).
+
+    Raises
+    ------
+    EstimationError
+        A reading is not finite (no on-board sensor) or they span less than 1 degC.
     """
     t = np.asarray(readings_c, dtype=float)
+    if not np.all(np.isfinite(t)):
+        raise EstimationError('the sensor has no on-board temperature reading')
+    if np.ptp(t) < 1.0:
+        raise EstimationError('the plateaus differ by less than 1 degC on the on-board sensor')
     y = np.log(np.abs(np.asarray(ratios, dtype=float)))
     design = np.column_stack([t - t.mean(), np.ones_like(t)])
     coef, *_ = np.linalg.lstsq(design, y, rcond=None)
@@ -145,12 +154,7 @@ def reference_tc_schedule(sensor, bench, state, settings=ReferenceTcSettings(), 
             readings.append(float(np.mean(temps)))
     finally:
         bench.restore()
-    readings = np.asarray(readings)
-    if not np.all(np.isfinite(readings)):
-        raise EstimationError('the sensor has no on-board temperature reading')
-    if np.ptp(readings) < 1.0:
-        raise EstimationError('the plateaus differ by less than 1 degC on the on-board sensor')
-    ratios = np.asarray(ratios)
+    readings, ratios = np.asarray(readings), np.asarray(ratios)
     tc, se = fit_reference_tc(readings, ratios)
     if apply:
         state.reference_tc_ppm = [float(v) for v in tc]
@@ -222,10 +226,6 @@ def fit_plateau_steps(steps, state, apply=True, start_ns=0, end_ns=0):
         raise EstimationError(f'I_ref steps at {len(steps)} plateaus: at least three are '
                               'needed for a coefficient with a standard error')
     readings = np.array([s['reading_c'] for s in steps], dtype=float)
-    if not np.all(np.isfinite(readings)):
-        raise EstimationError('the sensor has no on-board temperature reading')
-    if np.ptp(readings) < 1.0:
-        raise EstimationError('the plateaus differ by less than 1 degC on the on-board sensor')
     values = np.array([s['step'] for s in steps], dtype=float)
     tc, se = fit_reference_tc(readings, values)
     slope = tc * PPM

@@ -92,9 +92,9 @@ class EstimationResult:
 
     def summary(self):
         """Return a one-line human summary."""
+        axes = ', '.join(f'{a} {e:+.2f}±{s:.2f}' for a, e, s in
+                         zip(AXES, self.estimate_ppm, self.std_error_ppm))
         if self.kind == 'reference_tc':
-            axes = ', '.join(f'{a} {e:+.2f}±{s:.2f}' for a, e, s in
-                             zip(AXES, self.estimate_ppm, self.std_error_ppm))
             action = 'stored' if self.applied else 'not stored'
             return (f'I_ref step temperature coefficient [ppm/degC] {axes}; {action}; '
                     f'{self.duration_s:.2f} s')
@@ -103,8 +103,6 @@ class EstimationResult:
                 else 'N_on - N_off [count]'
             values = ', '.join(f'{a} {m:.6g}' for a, m in zip(AXES, self.measured))
             return f'{self.kind} reference captured: {what} {values}; {self.duration_s:.2f} s'
-        axes = ', '.join(f'{a} {e:+.2f}±{s:.2f}' for a, e, s in
-                         zip(AXES, self.estimate_ppm, self.std_error_ppm))
         word = 'k(D(z))' if self.kind == 'forward' else 'N_VREF'
         if self.applied:
             change = ', '.join(f'{b:.6g}->{a:.6g}' for b, a in

@@ -23,12 +23,15 @@ tumble records and the fit of those records (with the reading's lag behind the p
 mass estimated from the same records) share the block format and the settings.
 """
 
+from contextlib import contextmanager
 import dataclasses
 from dataclasses import asdict, dataclass
 import math
 
 import numpy as np
+from numpy.polynomial.chebyshev import chebvander
 
+from qfa_ros.calibration.estimation import check_int
 from qfa_ros.calibration.reference_tc import fit_plateau_steps, plateau_step, plateau_step_time_s
 from qfa_ros.calibration.schedule import (
     EstimationError,
@@ -143,9 +146,7 @@ class TemperatureSettings:
             raise ValueError(f'reference_steps must be a bool, got {self.reference_steps!r}')
         for name, low, high in (('cycles', 1, 100), ('bins', 10, 10000), ('m_bits', 8, 30),
                                 ('sf_m_bits', 8, 30)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or not low <= value <= high:
-                raise ValueError(f'{name} must be an integer in [{low}, {high}], got {value!r}')
+            check_int(name, getattr(self, name), low, high)
 
     def max_sensor_time_s(self):
         """
@@ -257,16 +258,12 @@ class TemperatureResult:
         for suffix, calibrations, unit, scale in (('', c.bias, 'ug', MICRO_G),
                                                   ('_scale', c.scale, 'ppm', PPM)):
             for axis, cal in zip(AXES, calibrations):
-                f = cal.fit
-                mapping[f'fit{suffix}.{axis}'] = {
-                    'alpha1': f.alpha1, 'alpha2': f.alpha2, 'beta1': f.beta1,
-                    'beta2': f.beta2, 'offset': f.offset, 'slope': f.slope, 'rmse': f.rmse,
-                    'r_squared': f.r_squared, 'iterations': f.iterations,
-                    'converged': f.converged}
-                mapping[f'poly3{suffix}.{axis}'] = {'rmse': cal.poly3.rmse,
-                                                    'r_squared': cal.poly3.r_squared}
-                mapping[f'poly4{suffix}.{axis}'] = {'rmse': cal.poly4.rmse,
-                                                    'r_squared': cal.poly4.r_squared}
+                mapping[f'fit{suffix}.{axis}'] = {name: getattr(cal.fit, name) for name in (
+                    'alpha1', 'alpha2', 'beta1', 'beta2', 'offset', 'slope', 'rmse', 'r_squared',
+                    'iterations', 'converged')}
+                for name, poly in (('poly3', cal.poly3), ('poly4', cal.poly4)):
+                    mapping[f'{name}{suffix}.{axis}'] = {'rmse': poly.rmse,
+                                                         'r_squared': poly.r_squared}
                 mapping[f'p2p_before_{unit}{suffix}.{axis}'] = cal.p2p_before / scale
                 mapping[f'p2p_after_{unit}{suffix}.{axis}'] = cal.p2p_after / scale
                 mapping[f'cancellation_bits{suffix}.{axis}'] = cal.cancellation_bits
@@ -277,13 +274,33 @@ class TemperatureResult:
         return mapping
 
 
+@contextmanager
+def chamber_program(triad, **ambient):
+    """
+    Set ``ambient`` (thermal-model fields) for a chamber program; yield the settings it had.
+
+    However the program ends, the dividing head is removed, those :data:`AMBIENT_FIELDS`
+    settings are restored and temperature compensation is switched back to what it was.
+    """
+    previous = {name: getattr(triad.thermal.config, name) for name in AMBIENT_FIELDS}
+    compensating = triad.temperature_compensation
+    if ambient:
+        triad.thermal.set_ambient(**ambient)
+    try:
+        yield previous
+    finally:
+        triad.fixture = None
+        triad.thermal.set_ambient(**previous)
+        triad.temperature_compensation = compensating
+
+
 def fixture_profile(axis, sign):
     """Return the dividing head at ``axis`` up, ``sign`` as a static input profile."""
     return StaticProfile(tuple(float(v) for v in position_force(axis, sign)))
 
 
 def tumble(triad, settings, blocks):
-    """Run one six-position tumble, appending one record per position (generator)."""
+    """Run a six-position tumble, a record per position (generator); return its reading [degC]."""
     keep_from = min(samples_for(triad, settings.settle_s),
                     samples_for(triad, settings.block_s) // 2)
     for axis, sign in POSITIONS:
@@ -294,10 +311,7 @@ def tumble(triad, settings, blocks):
         # the first settle_s follow the rotation: the loop's transient is not data
         blocks.append((int(out.stamps_ns[-1]), out.v_temp[keep_from:].mean(),
                        position_force(axis, sign), out.accel[keep_from:].mean(axis=0)))
-
-
-def _reading(triad, v_temp):
-    return float(triad.thermal.reading_c(v_temp))
+    return float(triad.thermal.reading_c(np.mean([b[1] for b in blocks[-len(POSITIONS):]])))
 
 
 def temperature_schedule(triad, state, settings=TemperatureSettings(), at_plateau=None):
@@ -324,19 +338,15 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
         raise EstimationError('the sensor has no thermal model (TriadConfig.thermal is None)')
     require_closed(triad)
     start_ns = sensor_time_ns(triad)
-    previous = {name: getattr(triad.thermal.config, name) for name in AMBIENT_FIELDS}
-    was_compensating = triad.temperature_compensation
-    triad.temperature_compensation = False
     blocks, tumbles, extra = [], [], []
     soak_s = 0.0
     ambient = float(triad.thermal.ambient_at(np.array([triad.thermal.time]))[0])
     plateaus = settings.plateaus(ambient)
     hold = settings.period_s / len(plateaus)
     tumble_s = len(POSITIONS) * settings.block_s
-    try:
-        first = len(blocks)
-        yield from tumble(triad, settings, blocks)
-        start_reading = _reading(triad, np.mean([b[1] for b in blocks[first:]]))
+    with chamber_program(triad) as previous:
+        triad.temperature_compensation = False
+        start_reading = yield from tumble(triad, settings, blocks)
         for _ in range(settings.cycles):
             for index, chamber_c in enumerate(plateaus):
                 triad.thermal.set_ambient(ambient_profile='constant', ambient_c=chamber_c)
@@ -344,9 +354,8 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
                 count, last = 0, None
                 while True:
                     tumbles.append(len(blocks))
-                    yield from tumble(triad, settings, blocks)
+                    reading = yield from tumble(triad, settings, blocks)
                     count += 1
-                    reading = _reading(triad, np.mean([b[1] for b in blocks[-len(POSITIONS):]]))
                     stable = last is not None and \
                         abs(reading - last) <= settings.stable_c_per_tumble
                     last = reading
@@ -362,9 +371,7 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
         triad.thermal.set_ambient(**previous)
         if previous['ambient_profile'] == 'constant':
             while True:
-                first = len(blocks)
-                yield from tumble(triad, settings, blocks)
-                reading = _reading(triad, np.mean([b[1] for b in blocks[first:]]))
+                reading = yield from tumble(triad, settings, blocks)
                 if abs(reading - start_reading) <= settings.return_tolerance_c:
                     break
                 soak_s += tumble_s
@@ -373,10 +380,6 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
                         f'the sensor is still {reading - start_reading:+.2f} degC from its '
                         f'starting temperature after a {soak_s:.0f} s soak: raise '
                         'temperature_calibration max_soak_s or let it settle first')
-    finally:
-        triad.fixture = None
-        triad.thermal.set_ambient(**previous)
-        triad.temperature_compensation = was_compensating
     compensation, points, lag = fit_multiposition(blocks, tumbles, settings)
     end_ns = sensor_time_ns(triad)
     if settings.apply:
@@ -384,11 +387,8 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
         triad.temperature_compensator = compensation
         triad.temperature_compensation = True
         state.updated_at_ns = end_ns
-    force = np.array([b[2] for b in blocks])
-    output = np.array([b[3] for b in blocks])
-    raw = {'time_ns': np.array([b[0] for b in blocks], dtype=np.int64),
-           'v_temp': np.array([b[1] for b in blocks]),
-           'temperature': triad.thermal.reading_c(np.array([b[1] for b in blocks])),
+    times_ns, v_temp, force, output = (np.array(column) for column in zip(*blocks))
+    raw = {'time_ns': times_ns, 'v_temp': v_temp, 'temperature': triad.thermal.reading_c(v_temp),
            'force': force, 'output': output, 'zero': output - force}
     return TemperatureResult('temperature', asdict(settings), compensation, points, raw,
                              settings.apply, soak_s, start_ns, end_ns, extra, lag)
@@ -414,10 +414,6 @@ def temperature_calibration(triad, state, settings=TemperatureSettings()):
     steps = fit_plateau_steps(result.plateau_extra, state, settings.apply,
                               result.start_ns, result.end_ns)
     return result, steps
-
-
-def _chebyshev(u, degree):
-    return np.polynomial.chebyshev.chebvander(u, degree)
 
 
 MAX_PROBE_LAG_S = 4.0
@@ -453,8 +449,7 @@ def _global_fit(v, force, output):
     rss = 0.0
     for i in range(3):
         others = [j for j in range(3) if j != i]
-        design = np.column_stack([_chebyshev(u, 6),
-                                  _chebyshev(u, 4) * force[:, i:i + 1],
+        design = np.column_stack([chebvander(u, 6), chebvander(u, 4) * force[:, i:i + 1],
                                   force[:, others], force[:, i] ** 2])
         target = output[:, i] - force[:, i]
         coefficients = np.linalg.lstsq(design, target, rcond=None)[0]
@@ -513,22 +508,18 @@ def fit_multiposition(blocks, tumbles, settings):
     """
     if len(tumbles) < 10:
         raise EstimationError(f'only {len(tumbles)} tumbles: lengthen period_s')
-    v = np.array([b[1] for b in blocks])
-    force = np.array([b[2] for b in blocks])
-    output = np.array([b[3] for b in blocks])
-    rate = reading_rate(np.array([b[0] for b in blocks]) * 1e-9, v)
+    times_ns, v, force, output = (np.array(column) for column in zip(*blocks))
+    rate = reading_rate(times_ns * 1e-9, v)
     lag = estimate_probe_lag(v, rate, force, output)
     v = v + lag * rate
     misalignment, k2, _ = _global_fit(v, force, output)
     corrected = output - force @ misalignment.T - k2 * force ** 2
-    v_mean, v_pair, bias, scale, times = [], [], [], [], []
     n = len(POSITIONS)
-    for first in tumbles:
+    v_mean = np.array([v[first:first + n].mean() for first in tumbles])
+    v_pair, bias, scale = (np.empty((len(tumbles), 3)) for _ in range(3))
+    for k, first in enumerate(tumbles):
         rows = slice(first, first + n)
         vv = v[rows]
-        v_mean.append(vv.mean())
-        times.append(blocks[first + n - 1][0])
-        b_row, s_row, p_row = [], [], []
         for i in range(3):
             f = force[rows, i]
             dv = vv - vv.mean()
@@ -538,14 +529,7 @@ def fit_multiposition(blocks, tumbles, settings):
             pair = vv[f != 0].mean()
             design = np.column_stack([np.ones(n), dv, f, (vv - pair) * f])
             c = np.linalg.lstsq(design, corrected[rows, i] - f, rcond=None)[0]
-            b_row.append(c[0])
-            s_row.append(c[2])
-            p_row.append(pair)
-        bias.append(b_row)
-        scale.append(s_row)
-        v_pair.append(p_row)
-    v_mean, v_pair = np.array(v_mean), np.array(v_pair)
-    bias, scale = np.array(bias), np.array(scale)
+            bias[k, i], scale[k, i], v_pair[k, i] = c[0], c[2], pair
     try:
         bias_cal = [calibrate_zero_bias(v_mean, bias[:, i], m_bits=settings.m_bits,
                                         n_bins=settings.bins, baseline=True) for i in range(3)]
@@ -554,7 +538,7 @@ def fit_multiposition(blocks, tumbles, settings):
                                          baseline=True) for i in range(3)]
     except ValueError as error:
         raise EstimationError(f'temperature fit failed: {error}') from error
-    points = {'time_ns': np.array(times, dtype=np.int64), 'v_temp': v_mean}
+    points = {'time_ns': times_ns[np.asarray(tumbles) + n - 1], 'v_temp': v_mean}
     for i, name in enumerate(AXES):
         points[f'bias_{name}'] = bias[:, i]
     for i, name in enumerate(AXES):

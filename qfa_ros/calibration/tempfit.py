@@ -63,16 +63,9 @@ class _Scaling:
         alpha = np.asarray(alpha_scaled) * self.y_scale * np.exp(-beta * self.center)
         return alpha, beta
 
-    def to_scaled(self, beta):
-        return np.asarray(beta, dtype=float) * self.half_range
-
-
-def _basis(u, s):
-    return np.exp(np.outer(u, s))
-
 
 def _solve_alpha(u, y, s, baseline=False):
-    basis = _basis(u, s)
+    basis = np.exp(np.outer(u, s))
     if baseline:
         basis = np.column_stack([basis, np.ones_like(u), u])
     alpha = np.linalg.lstsq(basis, y, rcond=None)[0]
@@ -173,11 +166,6 @@ def _well_separated(s):
                 and (len(s) < 2 or abs(s[0] - s[1]) >= _MIN_SCALED_SEPARATION))
 
 
-def _sorted_fit(alpha, beta):
-    order = np.argsort(beta)
-    return alpha[order], beta[order]
-
-
 # -- double exponential ---------------------------------------------------------------
 
 
@@ -238,7 +226,8 @@ class DoubleExpFit:
 
 
 def _make_fit(v, y, alpha, beta, iterations, converged, history, line=(0.0, 0.0)):
-    alpha, beta = _sorted_fit(np.asarray(alpha, float), np.asarray(beta, float))
+    order = np.argsort(beta)
+    alpha, beta = np.asarray(alpha, float)[order], np.asarray(beta, float)[order]
     fit = DoubleExpFit(float(alpha[0]), float(alpha[1]), float(beta[0]), float(beta[1]),
                        0.0, 0.0, int(iterations), bool(converged), tuple(history),
                        float(line[0]), float(line[1]))
@@ -252,7 +241,7 @@ def _start_exponents(scaling, beta0, baseline=False, max_cancellation_bits=None)
     beta0 = np.asarray(beta0, dtype=float)
     if beta0.shape != (2,) or not np.all(np.isfinite(beta0)):
         raise ValueError(f'beta0 must be two finite exponents [1/V], got {beta0!r}')
-    return scaling.to_scaled(beta0)
+    return beta0 * scaling.half_range
 
 
 def _single_start(u, y, baseline):

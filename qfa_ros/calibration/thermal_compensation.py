@@ -24,6 +24,7 @@ from qfa_ros.calibration.tempfit import (
     fit_polynomial,
     PolynomialFit,
 )
+from qfa_ros.model.triad import AXES
 
 
 def _poly_to_dict(poly):
@@ -244,13 +245,6 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
 # -- multi-position compensation (bias and scale factor per axis) ------------------------
 
 
-def _matrix(value, name):
-    array = np.asarray(value, dtype=float)
-    if array.shape != (3, 3) or not np.all(np.isfinite(array)):
-        raise ValueError(f'{name} must be a finite 3x3 matrix')
-    return array
-
-
 class ThermalCompensation:
     r"""
     Output compensation of a triad from a multi-position temperature calibration.
@@ -276,7 +270,9 @@ class ThermalCompensation:
             raise ValueError('bias and scale need one calibration per axis')
         self.bias = list(bias)
         self.scale = list(scale)
-        self.misalignment = _matrix(misalignment, 'misalignment')
+        self.misalignment = np.asarray(misalignment, dtype=float)
+        if self.misalignment.shape != (3, 3) or not np.all(np.isfinite(self.misalignment)):
+            raise ValueError('misalignment must be a finite 3x3 matrix')
         self.k2 = np.asarray(k2, dtype=float)
         if self.k2.shape != (3,) or not np.all(np.isfinite(self.k2)):
             raise ValueError('k2 must be 3 finite numbers')
@@ -295,22 +291,20 @@ class ThermalCompensation:
 
     def to_dict(self):
         """Return the JSON-serializable ROM record (``state.temperature``)."""
-        axes = ('x', 'y', 'z')
         return {'format': 'multiposition/1',
-                'bias': {a: c.to_dict() for a, c in zip(axes, self.bias)},
-                'scale': {a: c.to_dict() for a, c in zip(axes, self.scale)},
+                'bias': {a: c.to_dict() for a, c in zip(AXES, self.bias)},
+                'scale': {a: c.to_dict() for a, c in zip(AXES, self.scale)},
                 'misalignment': self.misalignment.tolist(), 'k2': self.k2.tolist()}
 
     @classmethod
     def from_dict(cls, data):
         """Rebuild from :meth:`to_dict` output; ValueError on a malformed record."""
-        axes = ('x', 'y', 'z')
         try:
             if data.get('format') != 'multiposition/1':
                 raise ValueError('temperature record: unknown format (run calibrate_temperature '
                                  'again)')
-            return cls([TemperatureCalibration.from_dict(data['bias'][a]) for a in axes],
-                       [TemperatureCalibration.from_dict(data['scale'][a]) for a in axes],
+            return cls([TemperatureCalibration.from_dict(data['bias'][a]) for a in AXES],
+                       [TemperatureCalibration.from_dict(data['scale'][a]) for a in AXES],
                        data['misalignment'], data['k2'])
         except (KeyError, TypeError, AttributeError) as error:
             raise ValueError(f'invalid temperature record: {error!r}') from error

@@ -15,7 +15,7 @@ import numpy as np
 
 from qfa_ros.calibration.chamber import idle
 from qfa_ros.calibration.schedule import samples_for
-from qfa_ros.calibration.temperature import AMBIENT_FIELDS, fixture_profile, POSITIONS
+from qfa_ros.calibration.temperature import chamber_program, fixture_profile, POSITIONS
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.units import STANDARD_GRAVITY
 
@@ -53,13 +53,11 @@ def verify_cycle(triad, low_c=-40.0, high_c=70.0, period_s=2400.0, shape='sine',
     reading into ``bin_c`` bins. Runs offline (``triad.run``); ``progress`` is called
     with the sensor seconds done, if given.
     """
-    previous = {name: getattr(triad.thermal.config, name) for name in AMBIENT_FIELDS}
-    triad.thermal.set_ambient(ambient_profile='cycle', cycle_low_c=low_c, cycle_high_c=high_c,
-                              cycle_period_s=period_s, cycle_shape=shape)
     n = samples_for(triad, block_s)
     keep = min(samples_for(triad, 0.25), n // 2)
     rows = []
-    try:
+    with chamber_program(triad, ambient_profile='cycle', cycle_low_c=low_c,
+                         cycle_high_c=high_c, cycle_period_s=period_s, cycle_shape=shape):
         done = 0.0
         while done < period_s:
             for axis, sign in POSITIONS[::-1]:
@@ -70,9 +68,6 @@ def verify_cycle(triad, low_c=-40.0, high_c=70.0, period_s=2400.0, shape='sine',
                 done += block_s
                 if progress is not None:
                     progress(block_s)
-    finally:
-        triad.fixture = None
-        triad.thermal.set_ambient(**previous)
     reading = triad.thermal.reading_c(np.array([r[0] for r in rows]))
     edges = np.arange(low_c, high_c + bin_c, bin_c)
     which = np.digitize(reading, edges)
@@ -154,10 +149,9 @@ def verify_attitudes(triad, temperatures_c=(-27.0, 8.0, 41.0, 64.0), attitudes=A
     ``average_s`` averaged; the error is the mean output minus the known input. Offline
     (``triad.run``), compensation as it is; the ambient is restored afterwards.
     """
-    previous = {name: getattr(triad.thermal.config, name) for name in AMBIENT_FIELDS}
     soak_s = 8.0 * triad.thermal.config.sensor_tau_s if soak_s is None else soak_s
     error = np.zeros((len(temperatures_c), len(attitudes), 3))
-    try:
+    with chamber_program(triad):
         for t, chamber_c in enumerate(temperatures_c):
             triad.thermal.set_ambient(ambient_profile='constant', ambient_c=float(chamber_c))
             idle(triad, soak_s)
@@ -166,9 +160,6 @@ def verify_attitudes(triad, temperatures_c=(-27.0, 8.0, 41.0, 64.0), attitudes=A
                 triad.run(samples_for(triad, settle_s))
                 out = triad.run(samples_for(triad, average_s))
                 error[t, a] = (out.accel - out.truth).mean(axis=0)
-    finally:
-        triad.fixture = None
-        triad.thermal.set_ambient(**previous)
     names = [name for name, *_ in attitudes]
     scale = np.full((len(temperatures_c), 3), np.nan)
     for axis, (up, down) in enumerate(SCALE_PAIRS):
