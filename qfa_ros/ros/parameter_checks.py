@@ -190,12 +190,11 @@ def check_all(values, trajectory_file=None, imu_noise=None):
                 f'stream.lead_s ({values["stream.lead_s"]:g})')
     try:
         config = triad_config(values, imu_noise=imu_noise)
-        problem = forward_sweep_problem(forward_settings(values), config.hardware,
-                                        values['drift.forward_ppm'])
+        forward = forward_settings(values)
+        problem = forward_sweep_problem(forward, config.hardware, values['drift.forward_ppm'])
         if problem:
             return problem
-        feedback_settings(values)
-        temperature_settings(values)
+        feedback, chamber = feedback_settings(values), temperature_settings(values)
         input_profile(values, trajectory_file=trajectory_file)
         if not values['output_dir']:
             return 'output_dir must not be empty'
@@ -204,5 +203,4 @@ def check_all(values, trajectory_file=None, imu_noise=None):
     except (ValueError, OSError) as error:
         # OSError: a symlink loop or an unreadable component while resolving a directory.
         return str(error)
-    return budget_problem(values['loop_rate_hz'], forward_settings(values),
-                          feedback_settings(values), temperature_settings(values))
+    return budget_problem(values['loop_rate_hz'], forward, feedback, chamber)
