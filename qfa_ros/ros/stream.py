@@ -490,15 +490,9 @@ class SampleStream:
     def status(self):
         """Return ``(level, message, key values)`` for the ``stream`` diagnostic."""
         triad = self._triad
-        loops = []
-        for axis, loop in enumerate(triad.axes):
-            if loop.open_loop:
-                loops.append('open')
-            elif triad.sample_index < triad.settle_until[axis]:
-                loops.append('settling')
-            else:
-                loops.append('closed')
-        values = [('loop ' + a, s) for a, s in zip(AXES, loops)]
+        values = [('loop ' + a, 'open' if loop.open_loop else 'settling'
+                   if triad.sample_index < triad.settle_until[axis] else 'closed')
+                  for axis, (a, loop) in enumerate(zip(AXES, triad.axes))]
         values += [('I_ref ' + a, 'on' if loop.reference_current_on else 'off')
                    for a, loop in zip(AXES, triad.axes)]
         values += [('saturated samples ' + a, int(n)) for a, n in zip(AXES, self.saturated)]
