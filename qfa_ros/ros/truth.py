@@ -189,12 +189,12 @@ class TruthPublisher:
             marks, self._marks = self._marks, []
             for index, kind, marked_words, marked_truth in marks:
                 if marked_words != self._fingerprint:
-                    messages.append(('event', self._event(
+                    messages.append(('events', self._event(
                         kind or self._last_kind or _changed(self._fingerprint, marked_words),
                         marked_words, marked_truth, index)))
                 self._fingerprint, self._before = marked_words, marked_truth
             if self._fingerprint is not None and words != self._fingerprint:
-                messages.append(('event', self._event(
+                messages.append(('events', self._event(
                     self._last_kind or _changed(self._fingerprint, words), words, truth,
                     grid.next_index - 1)))
             self._fingerprint, self._before = words, truth
@@ -210,7 +210,6 @@ class TruthPublisher:
                         profile, t, stamp_ns, frame_id)))
         # Published outside the lock: the middleware must not hold up the sensor thread.
         for kind, message in messages:
-            kind = 'events' if kind == 'event' else kind
             self._recording.publish(getattr(self, kind), message, TYPES[kind])
             if kind == 'events':
                 self.event_count += 1
