@@ -17,6 +17,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Temperature
 
@@ -73,6 +74,13 @@ def offered_qos(profile):
         liveliness=_LIVELINESS.get(int(profile.liveliness), 'unknown'),
         liveliness_lease_duration_ns=duration(profile.liveliness_lease_duration),
         avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions))
+
+
+def ros_qos(profile):
+    """Return a new ``rclpy.qos.QoSProfile`` of a :class:`~qfa_ros.bag.qos.QosProfile`."""
+    return QoSProfile(history=HistoryPolicy[profile.history.upper()], depth=profile.depth,
+                      reliability=ReliabilityPolicy[profile.reliability.upper()],
+                      durability=DurabilityPolicy[profile.durability.upper()])
 
 
 class SampleStream:
