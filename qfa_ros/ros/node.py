@@ -10,7 +10,6 @@ import threading
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import Bool
@@ -39,7 +38,7 @@ from qfa_ros.ros.runtime_parameters import (
 from qfa_ros.ros.schedules import ScheduleService
 from qfa_ros.ros.services import CalibrationServices
 from qfa_ros.ros.startup_recovery import StartupRecovery
-from qfa_ros.ros.stream import offered_qos, SampleStream
+from qfa_ros.ros.stream import offered_qos, ros_qos, SampleStream
 from qfa_ros.ros.truth import TruthPublisher
 
 ANNOUNCE_AFTER_S = 1.0
@@ -107,19 +106,16 @@ class QfaUnit:
         # REP-2003: a sensor driver offers the system-default (reliable) QoS; a depth of
         # 100 lets a reliable subscriber be briefly late. Users override it the ROS way:
         # qos_overrides./<namespace>/imu/data_raw.publisher.{history,depth,reliability}.
-        stream_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                                reliability=ReliabilityPolicy.RELIABLE)
-        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                             reliability=ReliabilityPolicy.RELIABLE)
+        # A profile each (ros_qos): an override applied to one is not the other's.
+        stream_qos = QosProfile(depth=100)
         imu_publisher = self.create_publisher(
-            Imu, 'imu/data_raw', stream_qos,
+            Imu, 'imu/data_raw', ros_qos(stream_qos),
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
         temperature_publisher = self.create_publisher(
-            Temperature, 'imu/temperature', QoSProfile(
-                history=stream_qos.history, depth=stream_qos.depth,
-                reliability=stream_qos.reliability),
+            Temperature, 'imu/temperature', ros_qos(stream_qos),
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
-        self._calibrated_publisher = self.create_publisher(Bool, '~/is_calibrated', latched)
+        self._calibrated_publisher = self.create_publisher(Bool, '~/is_calibrated',
+                                                           ros_qos(QOS_LATCHED))
 
         # The recording states the QoS the publishers really offer (overrides applied).
         self._recording = StreamRecording(self, values, {

@@ -104,14 +104,19 @@ def check_value(name, value):
         return _check_string(spec, value)
     if isinstance(default, bool):
         return None if isinstance(value, bool) else f'{name} must be true or false'
+    return _check_number(name, value, spec, integer=isinstance(default, int))
+
+
+def _check_number(label, value, spec, integer=False):
+    """Return why ``value`` (``label``: a parameter or an element) is no ``spec`` number."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return f'{name} must be a number'
-    if isinstance(default, float) and not math.isfinite(value):
-        return f'{name} must be finite, got {shown(value)}'
-    if isinstance(default, int) and not isinstance(value, int):
-        return f'{name} must be an integer'
+        return f'{label} must be a number'
+    if not integer and not math.isfinite(value):
+        return f'{label} must be finite, got {shown(value)}'
+    if integer and not isinstance(value, int):
+        return f'{label} must be an integer'
     if spec.low is not None and not spec.low <= value <= spec.high:
-        return f'{name} must be in [{spec.low:g}, {spec.high:g}], got {shown(value)}'
+        return f'{label} must be in [{spec.low:g}, {spec.high:g}], got {shown(value)}'
     return None
 
 
@@ -163,13 +168,9 @@ def _check_array(spec, value):
     if not len(value):
         return f'{name} must not be empty'
     for index, element in enumerate(value):
-        if isinstance(element, bool) or not isinstance(element, (int, float)):
-            return f'{name}[{index}] must be a number'
-        if not math.isfinite(element):
-            return f'{name}[{index}] must be finite, got {shown(element)}'
-        if spec.low is not None and not spec.low <= element <= spec.high:
-            return (f'{name}[{index}] must be in [{spec.low:g}, {spec.high:g}], '
-                    f'got {shown(element)}')
+        reason = _check_number(f'{name}[{index}]', element, spec)
+        if reason:
+            return reason
     return None
 
 
@@ -189,12 +190,11 @@ def check_all(values, trajectory_file=None, imu_noise=None):
                 f'stream.lead_s ({values["stream.lead_s"]:g})')
     try:
         config = triad_config(values, imu_noise=imu_noise)
-        problem = forward_sweep_problem(forward_settings(values), config.hardware,
-                                        values['drift.forward_ppm'])
+        forward = forward_settings(values)
+        problem = forward_sweep_problem(forward, config.hardware, values['drift.forward_ppm'])
         if problem:
             return problem
-        feedback_settings(values)
-        temperature_settings(values)
+        feedback, chamber = feedback_settings(values), temperature_settings(values)
         input_profile(values, trajectory_file=trajectory_file)
         if not values['output_dir']:
             return 'output_dir must not be empty'
@@ -203,5 +203,4 @@ def check_all(values, trajectory_file=None, imu_noise=None):
     except (ValueError, OSError) as error:
         # OSError: a symlink loop or an unreadable component while resolving a directory.
         return str(error)
-    return budget_problem(values['loop_rate_hz'], forward_settings(values),
-                          feedback_settings(values), temperature_settings(values))
+    return budget_problem(values['loop_rate_hz'], forward, feedback, chamber)

@@ -163,11 +163,9 @@ class StreamRecording:
     def close(self):
         """Finish the current file, if any; idempotent."""
         with self.lock:
-            self._close()
-
-    def _close(self):
-        recorder, self.recorder = self.recorder, None
-        if recorder is not None:
+            recorder, self.recorder = self.recorder, None
+            if recorder is None:
+                return
             try:
                 files = recorder.close()
             except (OSError, RecorderError) as error:

@@ -17,6 +17,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Temperature
 
@@ -73,6 +74,13 @@ def offered_qos(profile):
         liveliness=_LIVELINESS.get(int(profile.liveliness), 'unknown'),
         liveliness_lease_duration_ns=duration(profile.liveliness_lease_duration),
         avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions))
+
+
+def ros_qos(profile):
+    """Return a new ``rclpy.qos.QoSProfile`` of a :class:`~qfa_ros.bag.qos.QosProfile`."""
+    return QoSProfile(history=HistoryPolicy[profile.history.upper()], depth=profile.depth,
+                      reliability=ReliabilityPolicy[profile.reliability.upper()],
+                      durability=DurabilityPolicy[profile.durability.upper()])
 
 
 class SampleStream:
@@ -490,15 +498,9 @@ class SampleStream:
     def status(self):
         """Return ``(level, message, key values)`` for the ``stream`` diagnostic."""
         triad = self._triad
-        loops = []
-        for axis, loop in enumerate(triad.axes):
-            if loop.open_loop:
-                loops.append('open')
-            elif triad.sample_index < triad.settle_until[axis]:
-                loops.append('settling')
-            else:
-                loops.append('closed')
-        values = [('loop ' + a, s) for a, s in zip(AXES, loops)]
+        values = [('loop ' + a, 'open' if loop.open_loop else 'settling'
+                   if triad.sample_index < triad.settle_until[axis] else 'closed')
+                  for axis, (a, loop) in enumerate(zip(AXES, triad.axes))]
         values += [('I_ref ' + a, 'on' if loop.reference_current_on else 'off')
                    for a, loop in zip(AXES, triad.axes)]
         values += [('saturated samples ' + a, int(n)) for a, n in zip(AXES, self.saturated)]

@@ -26,7 +26,6 @@ import math
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
 import numpy as np
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
 from qfa_ros.bag.qos import QOS_LATCHED, QOS_TRUTH, QosProfile
@@ -34,6 +33,7 @@ from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.loop_response import CORRECTION_SETTLE_BAND, feedback_step_transient
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G, PPM
+from qfa_ros.ros.stream import ros_qos
 
 TRUTH_FRAME_ID = 'enu_origin'
 """Frame of ``truth/odometry``: the ENU tangent plane at ``truth/origin``."""
@@ -41,6 +41,8 @@ POSE_MODES = ('static', 'trajectory')
 """Input modes with a pose on the Earth (``profile`` scripts a specific force only)."""
 EVENT_DEPTH = 20
 """Calibration events a late subscriber still gets (transient local)."""
+QOS_EVENTS = QosProfile(depth=EVENT_DEPTH, durability='transient_local')
+"""QoS of ``~/calibration_events``, in the node and in the flight recordings."""
 TYPES = {'events': 'diagnostic_msgs/msg/DiagnosticStatus', 'odometry': 'nav_msgs/msg/Odometry',
          'origin': 'sensor_msgs/msg/NavSatFix', 'errors': 'sensor_msgs/msg/Imu'}
 """The message type of each truth publisher, as the flight recorder writes it."""
@@ -99,19 +101,13 @@ class TruthPublisher:
         self._stream = stream
         self.enabled = bool(values['truth.enabled'])
         # One statement of the truth's QoS, shared with the bags (qfa_ros.bag.qos).
-        truth_qos = QoSProfile(depth=QOS_TRUTH.depth,
-                               reliability=ReliabilityPolicy[QOS_TRUTH.reliability.upper()])
-        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                             reliability=ReliabilityPolicy.RELIABLE)
-        self.events = node.create_publisher(
-            DiagnosticStatus, '~/calibration_events',
-            QoSProfile(depth=EVENT_DEPTH, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                       reliability=ReliabilityPolicy.RELIABLE))
+        self.events = node.create_publisher(DiagnosticStatus, '~/calibration_events',
+                                            ros_qos(QOS_EVENTS))
         self.odometry = self.origin = self.errors = None
         if self.enabled:
-            self.odometry = node.create_publisher(Odometry, 'truth/odometry', truth_qos)
-            self.origin = node.create_publisher(NavSatFix, 'truth/origin', latched)
-            self.errors = node.create_publisher(Imu, 'truth/imu_errors', truth_qos)
+            self.odometry = node.create_publisher(Odometry, 'truth/odometry', ros_qos(QOS_TRUTH))
+            self.origin = node.create_publisher(NavSatFix, 'truth/origin', ros_qos(QOS_LATCHED))
+            self.errors = node.create_publisher(Imu, 'truth/imu_errors', ros_qos(QOS_TRUTH))
         self._profile = None
         self._fingerprint = None
         self._before = None
@@ -189,12 +185,12 @@ class TruthPublisher:
             marks, self._marks = self._marks, []
             for index, kind, marked_words, marked_truth in marks:
                 if marked_words != self._fingerprint:
-                    messages.append(('event', self._event(
+                    messages.append(('events', self._event(
                         kind or self._last_kind or _changed(self._fingerprint, marked_words),
                         marked_words, marked_truth, index)))
                 self._fingerprint, self._before = marked_words, marked_truth
             if self._fingerprint is not None and words != self._fingerprint:
-                messages.append(('event', self._event(
+                messages.append(('events', self._event(
                     self._last_kind or _changed(self._fingerprint, words), words, truth,
                     grid.next_index - 1)))
             self._fingerprint, self._before = words, truth
@@ -210,7 +206,6 @@ class TruthPublisher:
                         profile, t, stamp_ns, frame_id)))
         # Published outside the lock: the middleware must not hold up the sensor thread.
         for kind, message in messages:
-            kind = 'events' if kind == 'event' else kind
             self._recording.publish(getattr(self, kind), message, TYPES[kind])
             if kind == 'events':
                 self.event_count += 1
@@ -219,8 +214,7 @@ class TruthPublisher:
 
     def offered_qos(self):
         """Return the QoS (:class:`~qfa_ros.bag.qos.QosProfile`) of each truth topic."""
-        topics = {self.events.topic_name: QosProfile(depth=EVENT_DEPTH,
-                                                     durability='transient_local')}
+        topics = {self.events.topic_name: QOS_EVENTS}
         if self.enabled:
             topics[self.odometry.topic_name] = QOS_TRUTH
             topics[self.errors.topic_name] = QOS_TRUTH
