@@ -275,12 +275,6 @@ class QfaTriad:
                 'at rest'
         return None
 
-    def _motion(self, start, n_samples):
-        # Per-sample mean specific force and angular rate of a trajectory, else None.
-        if not hasattr(self.profile, 'sample_means'):
-            return None, np.zeros((n_samples, 3))
-        return self.profile.sample_means(start, self.sample_period, n_samples)
-
     def run(self, n_samples, specific_force=None, angular_rate=None):
         """
         Advance ``n_samples`` output samples and return a :class:`TriadOutput`.
@@ -431,8 +425,10 @@ class QfaTriad:
                     angular_rate = np.repeat(rest_rate[None, :], n_samples, axis=0)
                 return force, np.repeat(force, n_samples, axis=0), \
                     self._rate(n_samples, angular_rate)
-            force, rate = self._motion(start, n_samples)
-            if force is None:
+            if hasattr(self.profile, 'sample_means'):
+                # A trajectory: its mean specific force and angular rate over each sample.
+                force, rate = self.profile.sample_means(start, self.sample_period, n_samples)
+            else:
                 force = self.profile.evaluate(start + np.arange(n_steps) * self.dt)
         else:
             force = np.asarray(specific_force, dtype=float)
