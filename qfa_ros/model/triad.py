@@ -215,20 +215,17 @@ class QfaTriad:
 
     def set_n_fpga(self, axis, word):
         """Write the modulation amplitude word N_FPGA of ``axis``."""
-        hw = self.config.hardware
-        if int(word) != word or not 0 < word < 2 ** (hw.n_da1_bits - 1):
-            raise ValueError(f'n_fpga must be an integer in (0, 2^{hw.n_da1_bits - 1}), '
-                             f'got {word!r}')
-        self.axes[axis].n_fpga = int(word)
-        self.invalidate()
+        self._set_word(axis, 'n_fpga', word, self.config.hardware.n_da1_bits - 1)
 
     def set_n_vref(self, axis, word):
         """Write the DA0 reference word N_VREF of ``axis`` (eq. 30)."""
-        hw = self.config.hardware
-        if int(word) != word or not 0 < word < 2 ** hw.n_da0_bits:
-            raise ValueError(f'n_vref must be an integer in (0, 2^{hw.n_da0_bits}), '
-                             f'got {word!r}')
-        self.axes[axis].n_vref = int(word)
+        self._set_word(axis, 'n_vref', word, self.config.hardware.n_da0_bits)
+
+    def _set_word(self, axis, name, word, bits):
+        # Write the loop word ``name`` of ``axis``, an integer in (0, 2^bits).
+        if int(word) != word or not 0 < word < 2 ** bits:
+            raise ValueError(f'{name} must be an integer in (0, 2^{bits}), got {word!r}')
+        setattr(self.axes[axis], name, int(word))
         self.invalidate()
 
     def set_controller_gain(self, axis, gain):
