@@ -106,9 +106,7 @@ class QfaTriad:
 
     def __init__(self, config=None, rng=None, profile=None, start_ns=0):
         self.config = TriadConfig() if config is None else config
-        if not isinstance(rng, np.random.Generator):
-            rng = np.random.default_rng(rng)
-        self.rng = rng
+        self.rng = np.random.default_rng(rng)  # a Generator is returned as it is
         self.profile = StaticProfile.level() if profile is None else profile
         self.decimation = self.config.decimation
         self.dt = 1.0 / self.config.loop_rate_hz
@@ -117,7 +115,7 @@ class QfaTriad:
             raise ValueError(f'start_ns must be an integer number of ns, got {start_ns!r}')
         self._grid = SampleGrid(self.config.sample_rate_hz, start_ns=int(start_ns))
         self.noise = NoiseSource(self.config.noise, len(AXES), self.config.loop_rate_hz,
-                                 self.config.sample_rate_hz, rng)
+                                 self.config.sample_rate_hz, self.rng)
         self.axes = [AxisLoop(self.config, self.noise, i) for i in range(len(AXES))]
         self.workers = min(len(AXES), available_cores())
         self.drift = DriftModel(len(AXES))
@@ -125,12 +123,12 @@ class QfaTriad:
         self.thermal = None
         if self.config.thermal is not None:
             self.thermal = ThermalModel(self.config.thermal,
-                                        streams.generator(rng, 'triad.thermal'))
+                                        streams.generator(self.rng, 'triad.thermal'))
         self.gyro = None
         if self.config.gyro is not None:
             # A named child: the accelerometers' streams are the same with or without gyros.
             self.gyro = GyroTriad(self.config.gyro, self.config.sample_rate_hz,
-                                  streams.generator(rng, 'triad.gyro'))
+                                  streams.generator(self.rng, 'triad.gyro'))
         # Gyro bias correction [rad/s] the firmware subtracts from the published rate
         # (a gyro bias schedule estimates it); zero until one ran.
         self.gyro_bias_correction = np.zeros(3)
