@@ -8,6 +8,7 @@ configuration is :class:`~qfa_ros.model.triad_config.TriadConfig`, its output
 
 from fractions import Fraction
 import math
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -343,8 +344,9 @@ class QfaTriad:
         # the thermal terms (the thermal model advances, the loops do not).
         force, truth, rate = self._input(start_index * self.sample_period, n_samples,
                                          specific_force, angular_rate)
-        # Rows per axis: one value for the chunk, one per sample or one per loop step.
-        chunk = _Chunk(n_samples, truth, rate)
+        # The chunk's arrays until _finish; rows per axis: one value for the chunk, one
+        # per sample or one per loop step.
+        chunk = SimpleNamespace(n_samples=n_samples, truth=truth, rate=rate)
         chunk.sensed = self._sensed(force, start_index * self.sample_period)
         if self.thermal is not None:
             terms = self.thermal.run(n_samples, self.sample_period)
@@ -459,17 +461,6 @@ class QfaTriad:
             parts.append(self.run(n))
             total -= n
         return concatenate(parts)
-
-
-class _Chunk:
-    """The arrays of one chunk between :meth:`QfaTriad._prepare` and ``_finish``."""
-
-    def __init__(self, n_samples, truth, rate):
-        self.n_samples = n_samples
-        self.truth = truth
-        self.rate = rate
-        self.sensed = self.temperature = self.v_temp = self.scale = self.offset = None
-        self.counts = self.flags = self.gyro = None
 
 
 def _held_or_per_sample(values):
