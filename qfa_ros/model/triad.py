@@ -386,9 +386,8 @@ class QfaTriad:
         if self.gyro is not None:
             gyro -= self.gyro_bias_correction
         index = self.sample_index + np.arange(n_samples)
-        valid = np.empty((n_samples, 3), dtype=bool)
-        for i, loop in enumerate(self.axes):
-            valid[:, i] = (not loop.open_loop) & (index >= self.settle_until[i])
+        valid = (index[:, None] >= self.settle_until) \
+            & ~np.array([loop.open_loop for loop in self.axes])
         self.sample_index += n_samples
         counts = chunk.counts.T
         accel = counts * self.scale
