@@ -84,11 +84,8 @@ class AxisLoop:
         self.params_f[kernel.P_REF_MOMENT] = \
             self.gains.k_t * self.gains.i_ref if self.reference_current_on else 0.0
         c = self.controller
-        self.params_i[kernel.Q_GAIN] = c.gain_word
-        self.params_i[kernel.Q_A1] = c.lead_a1
-        self.params_i[kernel.Q_B0] = c.lead_b0
-        self.params_i[kernel.Q_B1] = c.lead_b1
-        self.params_i[kernel.Q_KI] = c.integrator_gain
+        self.params_i[kernel.Q_GAIN:kernel.Q_KI + 1] = (
+            c.gain_word, c.lead_a1, c.lead_b0, c.lead_b1, c.integrator_gain)
         self.params_i[kernel.Q_OPEN_LOOP] = 1 if self.open_loop else 0
 
     def close(self):

@@ -61,9 +61,7 @@ def static(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, roll=0.0, pitch=0
            yaw=math.pi / 2):
     """Return a body at rest at a location, attitude in [rad] (yaw pi/2: x north)."""
     location = _location(latitude_deg, longitude_deg, height_m)
-    pose = np.array([location + (roll, pitch, yaw)] * 2)
-    zero = np.zeros_like(pose)
-    return Trajectory(quintic_coefficients([0.0, 1.0], pose, zero, zero), 'static')
+    return Trajectory(_dwells(location, [(roll, pitch, yaw)], 1.0, 0.0), 'static')
 
 
 TUMBLE_ATTITUDES = ((0.0, 0.0), (math.pi, 0.0), (0.0, -math.pi / 2), (0.0, math.pi / 2),

@@ -526,23 +526,19 @@ class PiecewiseMeans:
         self._piece_start = np.zeros(m, dtype=np.int64)
         self._piece_count = np.zeros(m, dtype=np.int64)
         self._used = np.zeros(2, dtype=np.int64)
-        self._allocate(64, 64 * 9)
+        # The segment storage (doubled by _grow when full): 64 segments, 576 coefficient rows.
+        self._bounds, self._mean_period = np.empty((64, 2)), np.full(64, np.nan)
+        self._degree, self._offset = np.zeros(64, dtype=np.int64), np.zeros(64, dtype=np.int64)
+        self._coefs, self._means = np.empty((64 * 9, 6)), np.empty((64 * 9, 6))
 
-    def _allocate(self, segments, rows):
-        """Grow the segment storage to ``segments`` segments and ``rows`` coefficient rows."""
-        used_segments, used_rows = self._used
-        bounds, degree = np.empty((segments, 2)), np.zeros(segments, dtype=np.int64)
-        offset, coefs = np.zeros(segments, dtype=np.int64), np.empty((rows, 6))
-        means, mean_period = np.empty((rows, 6)), np.full(segments, np.nan)
-        if used_segments:
-            bounds[:used_segments] = self._bounds[:used_segments]
-            degree[:used_segments] = self._degree[:used_segments]
-            offset[:used_segments] = self._offset[:used_segments]
-            coefs[:used_rows] = self._coefs[:used_rows]
-            means[:used_rows] = self._means[:used_rows]
-            mean_period[:used_segments] = self._mean_period[:used_segments]
-        self._bounds, self._degree, self._offset, self._coefs = bounds, degree, offset, coefs
-        self._means, self._mean_period = means, mean_period
+    def _grow(self):
+        """Double the segment storage, keeping its contents (no mean polynomial built after)."""
+        for name in ('_bounds', '_degree', '_offset', '_coefs', '_means', '_mean_period'):
+            old = getattr(self, name)
+            grown = np.empty((2 * len(old),) + old.shape[1:], old.dtype)
+            grown[:len(old)] = old
+            setattr(self, name, grown)
+        self._mean_period[len(self._mean_period) // 2:] = np.nan
 
     @property
     def segments(self):
@@ -567,5 +563,5 @@ class PiecewiseMeans:
                                 self._piece_start, self._piece_count, self._used,
                                 self._bounds, self._degree, self._offset, self._coefs,
                                 self._means, self._mean_period, force, rate):
-            self._allocate(2 * self._bounds.shape[0], 2 * self._coefs.shape[0])
+            self._grow()
         return force, rate

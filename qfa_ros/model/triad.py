@@ -8,6 +8,7 @@ configuration is :class:`~qfa_ros.model.triad_config.TriadConfig`, its output
 
 from fractions import Fraction
 import math
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -106,9 +107,7 @@ class QfaTriad:
 
     def __init__(self, config=None, rng=None, profile=None, start_ns=0):
         self.config = TriadConfig() if config is None else config
-        if not isinstance(rng, np.random.Generator):
-            rng = np.random.default_rng(rng)
-        self.rng = rng
+        self.rng = np.random.default_rng(rng)  # a Generator is returned as it is
         self.profile = StaticProfile.level() if profile is None else profile
         self.decimation = self.config.decimation
         self.dt = 1.0 / self.config.loop_rate_hz
@@ -117,7 +116,7 @@ class QfaTriad:
             raise ValueError(f'start_ns must be an integer number of ns, got {start_ns!r}')
         self._grid = SampleGrid(self.config.sample_rate_hz, start_ns=int(start_ns))
         self.noise = NoiseSource(self.config.noise, len(AXES), self.config.loop_rate_hz,
-                                 self.config.sample_rate_hz, rng)
+                                 self.config.sample_rate_hz, self.rng)
         self.axes = [AxisLoop(self.config, self.noise, i) for i in range(len(AXES))]
         self.workers = min(len(AXES), available_cores())
         self.drift = DriftModel(len(AXES))
@@ -125,12 +124,12 @@ class QfaTriad:
         self.thermal = None
         if self.config.thermal is not None:
             self.thermal = ThermalModel(self.config.thermal,
-                                        streams.generator(rng, 'triad.thermal'))
+                                        streams.generator(self.rng, 'triad.thermal'))
         self.gyro = None
         if self.config.gyro is not None:
             # A named child: the accelerometers' streams are the same with or without gyros.
             self.gyro = GyroTriad(self.config.gyro, self.config.sample_rate_hz,
-                                  streams.generator(rng, 'triad.gyro'))
+                                  streams.generator(self.rng, 'triad.gyro'))
         # Gyro bias correction [rad/s] the firmware subtracts from the published rate
         # (a gyro bias schedule estimates it); zero until one ran.
         self.gyro_bias_correction = np.zeros(3)
@@ -215,20 +214,17 @@ class QfaTriad:
 
     def set_n_fpga(self, axis, word):
         """Write the modulation amplitude word N_FPGA of ``axis``."""
-        hw = self.config.hardware
-        if int(word) != word or not 0 < word < 2 ** (hw.n_da1_bits - 1):
-            raise ValueError(f'n_fpga must be an integer in (0, 2^{hw.n_da1_bits - 1}), '
-                             f'got {word!r}')
-        self.axes[axis].n_fpga = int(word)
-        self.invalidate()
+        self._set_word(axis, 'n_fpga', word, self.config.hardware.n_da1_bits - 1)
 
     def set_n_vref(self, axis, word):
         """Write the DA0 reference word N_VREF of ``axis`` (eq. 30)."""
-        hw = self.config.hardware
-        if int(word) != word or not 0 < word < 2 ** hw.n_da0_bits:
-            raise ValueError(f'n_vref must be an integer in (0, 2^{hw.n_da0_bits}), '
-                             f'got {word!r}')
-        self.axes[axis].n_vref = int(word)
+        self._set_word(axis, 'n_vref', word, self.config.hardware.n_da0_bits)
+
+    def _set_word(self, axis, name, word, bits):
+        # Write the loop word ``name`` of ``axis``, an integer in (0, 2^bits).
+        if int(word) != word or not 0 < word < 2 ** bits:
+            raise ValueError(f'{name} must be an integer in (0, 2^{bits}), got {word!r}')
+        setattr(self.axes[axis], name, int(word))
         self.invalidate()
 
     def set_controller_gain(self, axis, gain):
@@ -274,12 +270,6 @@ class QfaTriad:
             return f'the sensor is moving ({self.profile.name}): self-estimation needs it ' \
                 'at rest'
         return None
-
-    def _motion(self, start, n_samples):
-        # Per-sample mean specific force and angular rate of a trajectory, else None.
-        if not hasattr(self.profile, 'sample_means'):
-            return None, np.zeros((n_samples, 3))
-        return self.profile.sample_means(start, self.sample_period, n_samples)
 
     def run(self, n_samples, specific_force=None, angular_rate=None):
         """
@@ -354,8 +344,9 @@ class QfaTriad:
         # the thermal terms (the thermal model advances, the loops do not).
         force, truth, rate = self._input(start_index * self.sample_period, n_samples,
                                          specific_force, angular_rate)
-        # Rows per axis: one value for the chunk, one per sample or one per loop step.
-        chunk = _Chunk(n_samples, truth, rate)
+        # The chunk's arrays until _finish; rows per axis: one value for the chunk, one
+        # per sample or one per loop step.
+        chunk = SimpleNamespace(n_samples=n_samples, truth=truth, rate=rate)
         chunk.sensed = self._sensed(force, start_index * self.sample_period)
         if self.thermal is not None:
             terms = self.thermal.run(n_samples, self.sample_period)
@@ -395,9 +386,8 @@ class QfaTriad:
         if self.gyro is not None:
             gyro -= self.gyro_bias_correction
         index = self.sample_index + np.arange(n_samples)
-        valid = np.empty((n_samples, 3), dtype=bool)
-        for i, loop in enumerate(self.axes):
-            valid[:, i] = (not loop.open_loop) & (index >= self.settle_until[i])
+        valid = (index[:, None] >= self.settle_until) \
+            & ~np.array([loop.open_loop for loop in self.axes])
         self.sample_index += n_samples
         counts = chunk.counts.T
         accel = counts * self.scale
@@ -431,8 +421,10 @@ class QfaTriad:
                     angular_rate = np.repeat(rest_rate[None, :], n_samples, axis=0)
                 return force, np.repeat(force, n_samples, axis=0), \
                     self._rate(n_samples, angular_rate)
-            force, rate = self._motion(start, n_samples)
-            if force is None:
+            if hasattr(self.profile, 'sample_means'):
+                # A trajectory: its mean specific force and angular rate over each sample.
+                force, rate = self.profile.sample_means(start, self.sample_period, n_samples)
+            else:
                 force = self.profile.evaluate(start + np.arange(n_steps) * self.dt)
         else:
             force = np.asarray(specific_force, dtype=float)
@@ -468,17 +460,6 @@ class QfaTriad:
             parts.append(self.run(n))
             total -= n
         return concatenate(parts)
-
-
-class _Chunk:
-    """The arrays of one chunk between :meth:`QfaTriad._prepare` and ``_finish``."""
-
-    def __init__(self, n_samples, truth, rate):
-        self.n_samples = n_samples
-        self.truth = truth
-        self.rate = rate
-        self.sensed = self.temperature = self.v_temp = self.scale = self.offset = None
-        self.counts = self.flags = self.gyro = None
 
 
 def _held_or_per_sample(values):

@@ -68,7 +68,8 @@ class TriadConfig:
     def __post_init__(self):
         for name in ('loop_rate_hz', 'sample_rate_hz', 'settle_time', 'crossover_hz'):
             value = getattr(self, name)
-            if not _is_real(value) or not math.isfinite(value) or value <= 0:
+            if not isinstance(value, numbers.Real) or isinstance(value, (bool, np.bool_)) \
+                    or not math.isfinite(value) or value <= 0:
                 if name == 'settle_time' and value == 0:
                     continue
                 raise ValueError(f'{name} must be a positive finite number, got {value!r}')
@@ -97,8 +98,3 @@ class TriadConfig:
         bias = tuple(b * MICRO_G for b in bias_ug)
         k2 = tuple(k * MICRO_G / STANDARD_GRAVITY ** 2 for k in k2_ug_per_g2)
         return cls(bias=bias, k2=k2, **kwargs)
-
-
-def _is_real(value):
-    """Return True for a real number (Python or numpy), not a bool."""
-    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))

@@ -50,6 +50,7 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.polynomial.polynomial import polyval
 
 from qfa_ros.model import streams
 from qfa_ros.model.thermal import ThermalConfig
@@ -239,11 +240,7 @@ def _voltage(temperature_c):
 def _mixed_bias(t, alpha, beta, poly):
     v = _voltage(t)
     value = alpha[:, 0] * np.exp(beta[:, 0] * v) + alpha[:, 1] * np.exp(beta[:, 1] * v)
-    d = t - _T0
-    total = np.zeros(np.broadcast_shapes(d.shape, (3,)))
-    for power in range(poly.shape[1] - 1, -1, -1):
-        total = total * d + poly[:, power]
-    return value + total
+    return value + polyval(t - _T0, poly.T, tensor=False)
 
 
 def _slope_scale(curve, grid, target):
