@@ -585,6 +585,9 @@ def test_run_rejects_bad_input():
         triad.set_n_fpga(0, 2 ** 20)
     with pytest.raises(ValueError, match='controller gain'):
         triad.set_controller_gain(0, float('nan'))
+    for chunk in (0, -1, True, 2.5):
+        with pytest.raises(ValueError, match='chunk_samples'):
+            triad.run_for(0.01, chunk_samples=chunk)
 
 
 def test_misalignment_couples_axes_as_configured():

@@ -453,6 +453,9 @@ class QfaTriad:
 
     def run_for(self, duration_s, chunk_samples=1000):
         """Run ``duration_s`` seconds in chunks and return the concatenated output."""
+        if _sample_count('chunk_samples', chunk_samples) == 0:
+            # A chunk of none would never finish the run.
+            raise ValueError('chunk_samples must be > 0, got 0')
         total = int(round(duration_s * self.config.sample_rate_hz))
         parts = []
         while total > 0:
