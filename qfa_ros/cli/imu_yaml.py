@@ -58,8 +58,8 @@ def config_figures(path):
     comments = {'update_rate': 'sample_rate_hz of imu/data_raw',
                 'rostopic': "the node's topic (under its namespace)"}
     if emulated is not None:
-        comments.update(dict.fromkeys(KEYS, f'emulated: noise.imu_yaml '
-                                            f'{values["noise.imu_yaml"]}'))
+        source = f'noise.imu_yaml {values["noise.imu_yaml"]}'
+        comments.update(dict.fromkeys(KEYS, f'emulated: {source}'))
     else:
         white = 'white noise of the published stream (sigma(tau) sqrt(tau) of its Allan ' \
             'deviation at short tau)'
