@@ -529,6 +529,8 @@ def test_stamps_are_evenly_spaced_integer_nanoseconds():
     ({'loop_rate_hz': 10500.0}, 'loop_rate_hz must be an integer multiple'),
     ({'loop_rate_hz': 500.0}, 'loop_rate_hz must be an integer multiple'),
     ({'settle_time': float('nan')}, 'settle_time'),
+    ({'settle_time': -0.01}, 'settle_time'),
+    ({'settle_time': False}, 'settle_time'),
     ({'loop_rate_hz': True}, 'loop_rate_hz'),
     ({'sample_rate_hz': '1000'}, 'sample_rate_hz'),
     ({'bias': (0.0, float('nan'), 0.0)}, 'bias'),
