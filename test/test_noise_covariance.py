@@ -13,11 +13,12 @@ import math
 
 import allantools
 import numpy as np
+import pytest
 from scipy import signal
 from statistics_helpers import allan_edf_white, mean_sd, t_bound, variance_ratio_bounds
 
 from qfa_ros.model.design import design_controller, LinearLoop, published_acceleration_variance
-from qfa_ros.model.noise import allan_deviation_model, NoiseConfig
+from qfa_ros.model.noise import allan_deviation_model, model_allan_deviation, NoiseConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.units import MICRO_G
@@ -103,6 +104,15 @@ def test_allan_deviation_at_one_second_matches_the_published_covariance():
     assert np.all((low < np.array(ratios)) & (np.array(ratios) < high)), (low, high, ratios)
     low, high = variance_ratio_bounds(edf * len(ratios), checks)
     assert low < np.mean(ratios) < high, (low, high, np.mean(ratios))
+
+
+@pytest.mark.parametrize('tau', [0, 0.0, -1.0, float('nan'), float('inf')])
+def test_the_model_allan_deviation_refuses_an_averaging_time_that_is_none(tau):
+    # sigma(tau) has N^2 / tau: at 0 it is no number (inf with a warning before the refusal).
+    with pytest.raises(ValueError, match='tau'):
+        allan_deviation_model(NoiseConfig(), tau)
+    with pytest.raises(ValueError, match='taus'):
+        model_allan_deviation(1e-5, 1e-6, (1.0,), [1.0, tau])
 
 
 def test_the_old_flicker_shape_breaks_the_allan_ratio():

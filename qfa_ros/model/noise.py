@@ -203,7 +203,8 @@ def allan_deviation_model(config, tau):
     ``sigma^2(tau) = N^2 / tau + sum_j AVAR_GM(tau; q^2, T_j) + K^2 tau / 3``.
     """
     return float(model_allan_deviation(config.noise_density, config.bias_instability,
-                                       config.correlation_times, tau, config.random_walk))
+                                       config.correlation_times,
+                                       checks.positive('tau', tau), config.random_walk))
 
 
 def model_allan_deviation(noise_density, bias_instability, correlation_times, taus,
@@ -217,6 +218,8 @@ def model_allan_deviation(noise_density, bias_instability, correlation_times, ta
     velocity) quantization.
     """
     taus = np.asarray(taus, dtype=float)
+    if not np.all(np.isfinite(taus) & (taus > 0)):
+        raise ValueError(f'taus must be finite and > 0 [s], got {taus!r}')
     variance = flicker_component_variance(SimpleNamespace(
         bias_instability=bias_instability, correlation_times=tuple(correlation_times)))
     flicker = sum(gauss_markov_allan_variance(taus, variance, t) for t in correlation_times) \
