@@ -68,11 +68,11 @@ class TriadConfig:
     def __post_init__(self):
         for name in ('loop_rate_hz', 'sample_rate_hz', 'settle_time', 'crossover_hz'):
             value = getattr(self, name)
-            # settle_time may be 0 (no settling), as a number: False is no time.
-            least_ok = name == 'settle_time'
+            # settle_time may be 0 (no settling), as a number: False is not a time.
+            zero_allowed = name == 'settle_time'
             if not isinstance(value, numbers.Real) or isinstance(value, (bool, np.bool_)) \
-                    or not math.isfinite(value) or value < 0 or (value == 0 and not least_ok):
-                rule = 'finite and >= 0' if least_ok else 'a positive finite number'
+                    or not math.isfinite(value) or value < 0 or (value == 0 and not zero_allowed):
+                rule = 'finite and >= 0' if zero_allowed else 'a positive finite number'
                 raise ValueError(f'{name} must be {rule}, got {value!r}')
         ratio = self.loop_rate_hz / self.sample_rate_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
