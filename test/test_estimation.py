@@ -20,6 +20,7 @@ from qfa_ros.calibration.experiments import (
     IMPROVED_SCHEDULE,
     PAPER_SCHEDULE,
 )
+from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.schedule import EstimationError, run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model.noise import NoiseConfig
@@ -378,6 +379,18 @@ def test_calibration_state_rejects_malformed_data(data):
     (FeedbackSettings, {'cycles': 0}, 'cycles'),
     (FeedbackSettings, {'settle_s': -1.0}, 'settle_s'),
     (FeedbackSettings, {'temperature_correction': 1}, 'temperature_correction'),
+    # Before: OverflowError, TypeError, a message not naming the field, or accepted.
+    (ForwardSettings, {'points': float('inf')}, 'points'),
+    (ForwardSettings, {'points': float('nan')}, 'points'),
+    (ForwardSettings, {'points': None}, 'points'),
+    (ForwardSettings, {'average_s': True}, 'average_s'),
+    (FeedbackSettings, {'cycles': float('inf')}, 'cycles'),
+    (FeedbackSettings, {'motion_limit': None}, 'motion_limit'),
+    (FeedbackSettings, {'motion_limit': True}, 'motion_limit'),
+    (FeedbackSettings, {'bias_instability': 'x'}, 'bias_instability'),
+    (GyroBiasSettings, {'duration_s': '10'}, 'duration_s'),
+    (GyroBiasSettings, {'latitude_deg': True}, 'latitude_deg'),
+    (GyroBiasSettings, {'rate_limit': None}, 'rate_limit'),
 ])
 def test_invalid_schedule_settings_raise_value_error(cls, kwargs, name):
     with pytest.raises(ValueError, match=name):

@@ -173,7 +173,13 @@ def test_plateaus_go_down_up_and_back_to_the_ambient():
                                           ({'bins': 3}, 'bins'),
                                           ({'m_bits': 40}, 'm_bits'),
                                           ({'step_c': 0.0}, 'step_c'),
-                                          ({'return_tolerance_c': 0.0}, 'return_tolerance_c')])
+                                          ({'return_tolerance_c': 0.0}, 'return_tolerance_c'),
+                                          # before: OverflowError, a message not naming
+                                          # the field, or accepted
+                                          ({'cycles': float('inf')}, 'cycles'),
+                                          ({'m_bits': float('nan')}, 'm_bits'),
+                                          ({'low_c': True}, 'low_c'),
+                                          ({'apply': 'no'}, 'apply')])
 def test_invalid_temperature_settings_raise_value_error(kwargs, name):
     with pytest.raises(ValueError, match=name):
         TemperatureSettings(**kwargs)

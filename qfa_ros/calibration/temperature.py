@@ -26,12 +26,11 @@ mass estimated from the same records) share the block format and the settings.
 from contextlib import contextmanager
 import dataclasses
 from dataclasses import asdict, dataclass
-import math
 
 import numpy as np
 from numpy.polynomial.chebyshev import chebvander
 
-from qfa_ros.calibration.estimation import check_int
+from qfa_ros.calibration.estimation import check_int, finite_number
 from qfa_ros.calibration.reference_tc import fit_plateau_steps, plateau_step, plateau_step_time_s
 from qfa_ros.calibration.schedule import (
     EstimationError,
@@ -128,7 +127,7 @@ class TemperatureSettings:
         for name in ('low_c', 'high_c', 'period_s', 'block_s', 'step_c', 'settle_s',
                      'stable_c_per_tumble', 'return_tolerance_c', 'max_soak_s'):
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
+            if not isinstance(value, (int, float)) or not finite_number(value):
                 raise ValueError(f'{name} must be a finite number, got {value!r}')
         if not -60.0 <= self.low_c < self.high_c <= 125.0:
             raise ValueError('low_c and high_c must satisfy -60 <= low_c < high_c <= 125 degC')
@@ -142,8 +141,9 @@ class TemperatureSettings:
                 or not self.stable_c_per_tumble > 0:
             raise ValueError('return_tolerance_c and stable_c_per_tumble must be > 0 and '
                              'max_soak_s >= 0')
-        if not isinstance(self.reference_steps, bool):
-            raise ValueError(f'reference_steps must be a bool, got {self.reference_steps!r}')
+        for name in ('apply', 'reference_steps'):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f'{name} must be a bool, got {getattr(self, name)!r}')
         for name, low, high in (('cycles', 1, 100), ('bins', 10, 10000), ('m_bits', 8, 30),
                                 ('sf_m_bits', 8, 30)):
             check_int(name, getattr(self, name), low, high)
