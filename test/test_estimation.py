@@ -222,6 +222,16 @@ def test_still_sensor_is_not_refused_for_motion():
         assert [ref.feedback_step for ref in state.references] == result.measured.tolist()
 
 
+@pytest.mark.parametrize('chunk_samples', [0, -1, 2.5, True, None])
+def test_run_schedule_refuses_a_chunk_that_is_no_count(chunk_samples):
+    # 0 looped forever before (no sample run, the request never shrank).
+    triad = QfaTriad(TriadConfig(noise=QUIET), rng=0)
+    schedule = capture_reference(triad, CalibrationState())
+    with pytest.raises(ValueError, match='chunk_samples'):
+        run_schedule(triad, schedule, chunk_samples=chunk_samples)
+    assert triad.sample_index == 0 and schedule.gi_frame is None
+
+
 def test_schedule_refuses_to_start_while_a_loop_is_open():
     triad, state = calibrated_triad()
     triad.set_open_loop(1, True)
