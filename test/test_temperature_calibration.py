@@ -179,7 +179,10 @@ def test_plateaus_go_down_up_and_back_to_the_ambient():
                                           ({'cycles': float('inf')}, 'cycles'),
                                           ({'m_bits': float('nan')}, 'm_bits'),
                                           ({'low_c': True}, 'low_c'),
-                                          ({'apply': 'no'}, 'apply')])
+                                          ({'apply': 'no'}, 'apply'),
+                                          # before: accepted, then plateaus() asked for
+                                          # 820 GiB
+                                          ({'step_c': 1e-9}, 'step_c')])
 def test_invalid_temperature_settings_raise_value_error(kwargs, name):
     with pytest.raises(ValueError, match=name):
         TemperatureSettings(**kwargs)

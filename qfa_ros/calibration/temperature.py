@@ -47,6 +47,10 @@ from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 AMBIENT_FIELDS = ('ambient_profile', 'ambient_c', 'cycle_low_c', 'cycle_high_c',
                   'cycle_period_s', 'cycle_shape', 'cycle_dwell_fraction')
 
+MAX_STEPS = 1e6
+"""Most plateau steps from ``low_c`` to ``high_c`` (``(high_c - low_c) / step_c``): a
+program of more takes at least two million tumbles."""
+
 POSITIONS = ((0, 1), (1, 1), (2, 1), (2, -1), (1, -1), (0, -1))
 """Tumble order as (axis up, sign): +x, +y, +z, -z, -y, -x."""
 
@@ -80,7 +84,8 @@ class TemperatureSettings:
         Discarded start of every position (the loop's transient after a rotation; the
         default loop settles to 1 ug in 0.05 s) [s].
     step_c : float
-        Spacing of the chamber plateaus [degC].
+        Spacing of the chamber plateaus [degC]; at least ``(high_c - low_c) /``
+        :data:`MAX_STEPS`.
     bins : int
         V_temp bins of the fits.
     m_bits : int
@@ -137,6 +142,9 @@ class TemperatureSettings:
             raise ValueError('block_s must be positive and at most period_s / 100')
         if not 0 < self.step_c <= self.high_c - self.low_c:
             raise ValueError('step_c must be positive and at most high_c - low_c')
+        if (self.high_c - self.low_c) / self.step_c > MAX_STEPS:
+            raise ValueError(f'step_c must be at least (high_c - low_c) / {MAX_STEPS:g} '
+                             f'(the plateaus are a list), got {self.step_c!r}')
         if self.return_tolerance_c <= 0 or self.max_soak_s < 0 \
                 or not self.stable_c_per_tumble > 0:
             raise ValueError('return_tolerance_c and stable_c_per_tumble must be > 0 and '
