@@ -20,6 +20,7 @@ from qfa_ros.calibration.experiments import (
     IMPROVED_SCHEDULE,
     PAPER_SCHEDULE,
 )
+from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.schedule import EstimationError, run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model.noise import NoiseConfig
@@ -221,6 +222,16 @@ def test_still_sensor_is_not_refused_for_motion():
         assert [ref.feedback_step for ref in state.references] == result.measured.tolist()
 
 
+@pytest.mark.parametrize('chunk_samples', [0, -1, 2.5, True, None])
+def test_run_schedule_refuses_a_chunk_that_is_no_count(chunk_samples):
+    # 0 looped forever before (no sample run, the request never shrank).
+    triad = QfaTriad(TriadConfig(noise=QUIET), rng=0)
+    schedule = capture_reference(triad, CalibrationState())
+    with pytest.raises(ValueError, match='chunk_samples'):
+        run_schedule(triad, schedule, chunk_samples=chunk_samples)
+    assert triad.sample_index == 0 and schedule.gi_frame is None
+
+
 def test_schedule_refuses_to_start_while_a_loop_is_open():
     triad, state = calibrated_triad()
     triad.set_open_loop(1, True)
@@ -378,6 +389,18 @@ def test_calibration_state_rejects_malformed_data(data):
     (FeedbackSettings, {'cycles': 0}, 'cycles'),
     (FeedbackSettings, {'settle_s': -1.0}, 'settle_s'),
     (FeedbackSettings, {'temperature_correction': 1}, 'temperature_correction'),
+    # Before: OverflowError, TypeError, a message not naming the field, or accepted.
+    (ForwardSettings, {'points': float('inf')}, 'points'),
+    (ForwardSettings, {'points': float('nan')}, 'points'),
+    (ForwardSettings, {'points': None}, 'points'),
+    (ForwardSettings, {'average_s': True}, 'average_s'),
+    (FeedbackSettings, {'cycles': float('inf')}, 'cycles'),
+    (FeedbackSettings, {'motion_limit': None}, 'motion_limit'),
+    (FeedbackSettings, {'motion_limit': True}, 'motion_limit'),
+    (FeedbackSettings, {'bias_instability': 'x'}, 'bias_instability'),
+    (GyroBiasSettings, {'duration_s': '10'}, 'duration_s'),
+    (GyroBiasSettings, {'latitude_deg': True}, 'latitude_deg'),
+    (GyroBiasSettings, {'rate_limit': None}, 'rate_limit'),
 ])
 def test_invalid_schedule_settings_raise_value_error(cls, kwargs, name):
     with pytest.raises(ValueError, match=name):

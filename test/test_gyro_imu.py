@@ -157,6 +157,20 @@ def test_gyro_bias_schedule_removes_the_bias_and_keeps_the_earth_rate():
         run_schedule(plain, gyro_bias_schedule(plain, CalibrationState()))
 
 
+@pytest.mark.parametrize('bias', [[1e300] * 3, [float('nan')] * 3, [0.0, 0.0, 10.0],
+                                  [0.0, 0.0]])
+def test_a_gyro_bias_beyond_the_range_is_not_applied(bias):
+    # A state file's gyro_bias of 1e300 rad/s was applied before: the node published
+    # rates of -1e300 rad/s. Now refused (the node sets such a file aside), nothing written.
+    state = CalibrationState(controller_gain=[0.5] * 3, gyro_bias=bias)
+    triad = QfaTriad(TriadConfig(), rng=0)
+    gain = triad.axes[0].controller.gain
+    with pytest.raises(ValueError, match='gyro_bias'):
+        state.apply_to(triad)
+    assert triad.axes[0].controller.gain == gain
+    assert np.all(triad.gyro_bias_correction == 0.0)
+
+
 def test_static_summary_does_not_depend_on_the_gyros(tmp_path, capsys):
     # qfa-sim static leaves the gyros out when no bag is written: the accelerometers'
     # numbers (and so the summary) are the same as with them, which the bag run has.

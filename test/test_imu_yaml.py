@@ -242,6 +242,9 @@ def refusal(content):
     (KALIBR_YAML.replace('2.0e-05 #Noise', '-1.0e-05 #Noise'), 'must be a number in [0,'),
     (KALIBR_YAML.replace('1e-06 ', '1.0e+03 '), 'gyroscope_random_walk must be a number in [0,'),
     (KALIBR_YAML.replace('1.0e-06', 'true'), 'gyroscope_noise_density must be a number'),
+    # An integer beyond the float range (OverflowError before).
+    (KALIBR_YAML.replace('2.0e-05 #Noise', '1' + '0' * 400 + ' #Noise'),
+     'must be a number in [0,'),
     # Deeper than PyYAML's recursive composer goes (RecursionError from about 500 levels;
     # its scanner's cost grows with the square of the depth: 1.3 CPU-s at 100 000).
     ('[' * 1000, 'not a YAML document'),

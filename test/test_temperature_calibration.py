@@ -173,10 +173,46 @@ def test_plateaus_go_down_up_and_back_to_the_ambient():
                                           ({'bins': 3}, 'bins'),
                                           ({'m_bits': 40}, 'm_bits'),
                                           ({'step_c': 0.0}, 'step_c'),
-                                          ({'return_tolerance_c': 0.0}, 'return_tolerance_c')])
+                                          ({'return_tolerance_c': 0.0}, 'return_tolerance_c'),
+                                          # before: OverflowError, a message not naming
+                                          # the field, or accepted
+                                          ({'cycles': float('inf')}, 'cycles'),
+                                          ({'m_bits': float('nan')}, 'm_bits'),
+                                          ({'low_c': True}, 'low_c'),
+                                          ({'apply': 'no'}, 'apply'),
+                                          # before: accepted, then plateaus() asked for
+                                          # 820 GiB
+                                          ({'step_c': 1e-9}, 'step_c')])
 def test_invalid_temperature_settings_raise_value_error(kwargs, name):
     with pytest.raises(ValueError, match=name):
         TemperatureSettings(**kwargs)
+
+
+@pytest.mark.parametrize('kwargs, name', [({'block_s': 0.0}, 'block_s'),
+                                          ({'block_s': -1.0}, 'block_s'),
+                                          ({'block_s': float('nan')}, 'block_s'),
+                                          ({'bin_c': 0.0}, 'bin_c'),
+                                          ({'bin_c': 1e-12}, 'bin_c'),
+                                          ({'period_s': float('inf')}, 'period_s'),
+                                          ({'low_c': None}, 'low_c')])
+def test_invalid_verification_cycle_raises_value_error(kwargs, name):
+    # Before: block_s <= 0 looped forever, bin_c = 0 ZeroDivisionError, bin_c = 1e-12 asked
+    # for 800 TiB of bin edges, block_s NaN a message not naming it.
+    triad = QfaTriad(TriadConfig(thermal=ThermalConfig(ambient_profile='constant'), **FAST),
+                     rng=0)
+    with pytest.raises(ValueError, match=name):
+        verify_cycle(triad, **{'period_s': 100.0, **kwargs})
+    assert triad.sample_index == 0
+
+
+def test_a_block_shorter_than_a_sample_counts_the_sample_it_runs():
+    triad = QfaTriad(TriadConfig(thermal=ThermalConfig(ambient_profile='constant'), **FAST),
+                     rng=0)
+    done = []
+    # Before: the cycle counted 1e-12 s a block, 1.2e12 blocks of a sample each.
+    verify_cycle(triad, period_s=1.2, block_s=1e-12, progress=done.append)
+    assert triad.sample_index == len(done) and 120 <= len(done) <= 126
+    assert done[0] == pytest.approx(0.01)
 
 
 def test_sim_paper_scenario_prints_the_papers_tables(tmp_path):

@@ -117,9 +117,9 @@ class FeedbackSettings:
         check_seconds('average_s', self.average_s)
         if self.order not in FEEDBACK_ORDERS:
             raise ValueError(f'order must be one of {FEEDBACK_ORDERS}, got {self.order!r}')
-        if not math.isfinite(self.bias_instability) or self.bias_instability < 0:
+        if not finite_number(self.bias_instability) or self.bias_instability < 0:
             raise ValueError(f'bias_instability must be >= 0, got {self.bias_instability!r}')
-        if not math.isfinite(self.motion_limit) or self.motion_limit <= 0:
+        if not finite_number(self.motion_limit) or self.motion_limit <= 0:
             raise ValueError(f'motion_limit must be positive, got {self.motion_limit!r}')
         if not isinstance(self.temperature_correction, bool):
             raise ValueError('temperature_correction must be a bool, got '
@@ -203,16 +203,24 @@ def _same(a, b):
     return math.isclose(float(a), float(b), rel_tol=1e-9, abs_tol=1e-12)
 
 
+def finite_number(value):
+    """Return True for a finite real number that is not a bool (None, a string: False)."""
+    try:
+        return not isinstance(value, bool) and math.isfinite(value)
+    except TypeError:
+        return False
+
+
 def check_int(name, value, low, high):
     """Raise ValueError naming ``name`` unless ``value`` is a whole number in [low, high]."""
-    if isinstance(value, bool) or int(value) != value or not low <= value <= high:
+    if not finite_number(value) or int(value) != value or not low <= value <= high:
         raise ValueError(f'{name} must be an integer in [{low}, {high}], got {value!r}')
 
 
 def check_seconds(name, value, allow_zero=False):
     """Raise ValueError naming ``name`` unless ``value`` is a time [s] > 0 (>= 0 if allowed)."""
-    if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0 \
-            or (value == 0 and not allow_zero):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
         raise ValueError(f'{name} must be a {"non-negative" if allow_zero else "positive"} '
                          f'number of seconds, got {value!r}')
 

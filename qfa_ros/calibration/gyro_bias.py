@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 
+from qfa_ros.calibration.estimation import finite_number
 from qfa_ros.calibration.schedule import EstimationError, require_closed, SensorPort
 from qfa_ros.model.earth import earth_rate_enu
 from qfa_ros.model.triad import AXES
@@ -64,16 +65,16 @@ class GyroBiasSettings:
     accel_limit: float = 100.0 * MICRO_G
 
     def __post_init__(self):
-        if not math.isfinite(self.duration_s) or self.duration_s < 2 * BLOCK_S:
+        if not finite_number(self.duration_s) or self.duration_s < 2 * BLOCK_S:
             raise ValueError(f'duration_s must be at least {2 * BLOCK_S:g} s, '
                              f'got {self.duration_s!r}')
-        if not math.isfinite(self.latitude_deg) or abs(self.latitude_deg) > 90.0:
+        if not finite_number(self.latitude_deg) or abs(self.latitude_deg) > 90.0:
             raise ValueError(f'latitude_deg must be in [-90, 90], got {self.latitude_deg!r}')
-        if not math.isfinite(self.yaw):
+        if not finite_number(self.yaw):
             raise ValueError(f'yaw must be finite, got {self.yaw!r}')
         for name in ('rate_limit', 'accel_limit'):
             value = getattr(self, name)
-            if not math.isfinite(value) or value <= 0:
+            if not finite_number(value) or value <= 0:
                 raise ValueError(f'{name} must be positive, got {value!r}')
 
 

@@ -75,8 +75,14 @@ def _number(value):
     """
     if isinstance(value, bool):
         return None
-    if isinstance(value, (int, float)):
-        return float(value)
+    if isinstance(value, float):
+        return value
+    if isinstance(value, int):
+        try:
+            return float(value)
+        except OverflowError:
+            # An integer beyond the float range (a literal of 309 digits): out of range.
+            return math.inf if value > 0 else -math.inf
     if isinstance(value, str) and len(value) <= 40:
         try:
             number = float(value)

@@ -316,6 +316,10 @@ def run_schedule(triad, schedule, chunk_samples=1000, progress=None):
     needs the sensor at rest. ``progress``, if given, is called with the sensor seconds
     of every chunk run.
     """
+    if isinstance(chunk_samples, bool) or not isinstance(chunk_samples, (int, np.integer)) \
+            or chunk_samples < 1:
+        schedule.close()
+        raise ValueError(f'chunk_samples must be an integer >= 1, got {chunk_samples!r}')
     moving = triad.is_at_rest() if hasattr(triad, 'is_at_rest') else None
     if moving:
         schedule.close()

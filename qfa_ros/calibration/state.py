@@ -142,7 +142,19 @@ class CalibrationState:
         return state
 
     def apply_to(self, triad):
-        """Write the stored words and temperature ROM into ``triad``."""
+        """
+        Write the stored words, temperature ROM and gyro bias correction into ``triad``.
+
+        :raises ValueError: The gyro bias correction is not three numbers within the gyro
+            range ``|b| <= range`` [rad/s] (a bias beyond it could not have been measured);
+            nothing is written. The message quotes no value (they come from a file).
+        """
+        if self.gyro_bias:
+            bias = np.array(self.gyro_bias, dtype=float)
+            limit = math.inf if triad.config.gyro is None else triad.config.gyro.range
+            if bias.shape != (len(AXES),) or not np.all(np.abs(bias) <= limit):
+                raise ValueError('gyro_bias must be three numbers within the gyro range '
+                                 f'+-{limit:g} rad/s')
         for axis in range(len(AXES)):
             if self.controller_gain:
                 triad.set_controller_gain(axis, self.controller_gain[axis])

@@ -26,12 +26,11 @@ mass estimated from the same records) share the block format and the settings.
 from contextlib import contextmanager
 import dataclasses
 from dataclasses import asdict, dataclass
-import math
 
 import numpy as np
 from numpy.polynomial.chebyshev import chebvander
 
-from qfa_ros.calibration.estimation import check_int
+from qfa_ros.calibration.estimation import check_int, finite_number
 from qfa_ros.calibration.reference_tc import fit_plateau_steps, plateau_step, plateau_step_time_s
 from qfa_ros.calibration.schedule import (
     EstimationError,
@@ -47,6 +46,10 @@ from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 
 AMBIENT_FIELDS = ('ambient_profile', 'ambient_c', 'cycle_low_c', 'cycle_high_c',
                   'cycle_period_s', 'cycle_shape', 'cycle_dwell_fraction')
+
+MAX_STEPS = 1e6
+"""Most plateau steps from ``low_c`` to ``high_c`` (``(high_c - low_c) / step_c``): a
+program of more takes at least two million tumbles."""
 
 POSITIONS = ((0, 1), (1, 1), (2, 1), (2, -1), (1, -1), (0, -1))
 """Tumble order as (axis up, sign): +x, +y, +z, -z, -y, -x."""
@@ -81,7 +84,8 @@ class TemperatureSettings:
         Discarded start of every position (the loop's transient after a rotation; the
         default loop settles to 1 ug in 0.05 s) [s].
     step_c : float
-        Spacing of the chamber plateaus [degC].
+        Spacing of the chamber plateaus [degC]; at least ``(high_c - low_c) /``
+        :data:`MAX_STEPS`.
     bins : int
         V_temp bins of the fits.
     m_bits : int
@@ -128,7 +132,7 @@ class TemperatureSettings:
         for name in ('low_c', 'high_c', 'period_s', 'block_s', 'step_c', 'settle_s',
                      'stable_c_per_tumble', 'return_tolerance_c', 'max_soak_s'):
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
+            if not isinstance(value, (int, float)) or not finite_number(value):
                 raise ValueError(f'{name} must be a finite number, got {value!r}')
         if not -60.0 <= self.low_c < self.high_c <= 125.0:
             raise ValueError('low_c and high_c must satisfy -60 <= low_c < high_c <= 125 degC')
@@ -138,12 +142,16 @@ class TemperatureSettings:
             raise ValueError('block_s must be positive and at most period_s / 100')
         if not 0 < self.step_c <= self.high_c - self.low_c:
             raise ValueError('step_c must be positive and at most high_c - low_c')
+        if (self.high_c - self.low_c) / self.step_c > MAX_STEPS:
+            raise ValueError(f'step_c must be at least (high_c - low_c) / {MAX_STEPS:g} '
+                             f'(the plateaus are a list), got {self.step_c!r}')
         if self.return_tolerance_c <= 0 or self.max_soak_s < 0 \
                 or not self.stable_c_per_tumble > 0:
             raise ValueError('return_tolerance_c and stable_c_per_tumble must be > 0 and '
                              'max_soak_s >= 0')
-        if not isinstance(self.reference_steps, bool):
-            raise ValueError(f'reference_steps must be a bool, got {self.reference_steps!r}')
+        for name in ('apply', 'reference_steps'):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f'{name} must be a bool, got {getattr(self, name)!r}')
         for name, low, high in (('cycles', 1, 100), ('bins', 10, 10000), ('m_bits', 8, 30),
                                 ('sf_m_bits', 8, 30)):
             check_int(name, getattr(self, name), low, high)

@@ -14,10 +14,14 @@ import math
 import numpy as np
 
 from qfa_ros.calibration.chamber import idle
+from qfa_ros.calibration.estimation import finite_number
 from qfa_ros.calibration.schedule import samples_for
 from qfa_ros.calibration.temperature import chamber_program, fixture_profile, POSITIONS
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.units import STANDARD_GRAVITY
+
+MAX_BINS = 1e6
+"""Most temperature bins :func:`verify_cycle` takes (``(high_c - low_c) / bin_c``)."""
 
 
 @dataclass
@@ -50,10 +54,22 @@ def verify_cycle(triad, low_c=-40.0, high_c=70.0, period_s=2400.0, shape='sine',
     The cycle is a ``shape`` profile (default a sine, not the calibration's plateaus)
     between ``low_c`` and ``high_c``; the head tumbles through the six positions in
     the reverse order with ``block_s`` dwell. Errors are binned by the on-board
-    reading into ``bin_c`` bins. Runs offline (``triad.run``); ``progress`` is called
-    with the sensor seconds done, if given.
+    reading into ``bin_c`` bins [degC]. Runs offline (``triad.run``); ``progress`` is
+    called with the sensor seconds done, if given. ``period_s`` and ``block_s`` [s] and
+    ``bin_c`` must be finite and > 0, and ``(high_c - low_c) / bin_c`` at most
+    :data:`MAX_BINS` (ValueError naming the parameter).
     """
+    for name, value in (('low_c', low_c), ('high_c', high_c)):
+        if not finite_number(value):
+            raise ValueError(f'{name} must be a finite number, got {value!r}')
+    for name, value in (('period_s', period_s), ('block_s', block_s), ('bin_c', bin_c)):
+        if not finite_number(value) or value <= 0:
+            raise ValueError(f'{name} must be a finite number > 0, got {value!r}')
+    if (high_c - low_c) / bin_c > MAX_BINS:
+        raise ValueError(f'bin_c must be at least (high_c - low_c) / {MAX_BINS:g}, got {bin_c!r}')
     n = samples_for(triad, block_s)
+    # A block runs at least one sample: the cycle counts at least its sensor time.
+    step_s = max(block_s, 1.0 / triad.config.sample_rate_hz)
     keep = min(samples_for(triad, 0.25), n // 2)
     rows = []
     with chamber_program(triad, ambient_profile='cycle', cycle_low_c=low_c,
@@ -65,9 +81,9 @@ def verify_cycle(triad, low_c=-40.0, high_c=70.0, period_s=2400.0, shape='sine',
                 out = triad.run(n)
                 rows.append((out.v_temp[keep:].mean(), axis, sign,
                              (out.accel[keep:] - out.truth[keep:]).mean(axis=0)))
-                done += block_s
+                done += step_s
                 if progress is not None:
-                    progress(block_s)
+                    progress(step_s)
     reading = triad.thermal.reading_c(np.array([r[0] for r in rows]))
     edges = np.arange(low_c, high_c + bin_c, bin_c)
     which = np.digitize(reading, edges)
