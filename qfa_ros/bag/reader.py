@@ -7,16 +7,67 @@ ROS: the replay publisher in :mod:`qfa_ros.ros.replay` puts the bytes on the wir
 """
 
 import dataclasses
+import errno
 import heapq
+import os
 from pathlib import Path
+import stat
+import struct
 
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, InvalidMagic, McapError, RecordLengthLimitExceeded
 from mcap.reader import make_reader
 import yaml
+import zstandard
 
 
 class BagError(RuntimeError):
     """The bag cannot be read: missing, not MCAP, or malformed."""
+
+
+MCAP_READ_ERRORS = (McapError, zstandard.ZstdError, struct.error, EOFError, ValueError,
+                    RuntimeError, OverflowError)
+"""What reading a malformed MCAP file raises: mcap's own errors, a chunk that does not
+decompress (zstd; lz4 raises RuntimeError), a record cut short (struct), a string that is
+not UTF-8 (ValueError), a time beyond int64 (OverflowError)."""
+
+
+def mcap_read_problem(error):
+    """
+    Return what is wrong with an MCAP file that raised ``error``, quoting none of it.
+
+    mcap's messages quote the file (the first bytes for a bad magic, lengths read from
+    it); a stranger's file is named, never quoted.
+    """
+    if isinstance(error, InvalidMagic):
+        return 'not an MCAP file (no MCAP magic)'
+    if isinstance(error, (EndOfFile, EOFError, struct.error)):
+        return 'truncated (a record cut short)'
+    if isinstance(error, RecordLengthLimitExceeded):
+        return 'malformed (a record longer than the limit)'
+    if isinstance(error, zstandard.ZstdError):
+        return 'corrupt (a chunk that does not decompress)'
+    return f'malformed ({type(error).__name__})'
+
+
+def open_mcap_file(path):
+    """
+    Open the MCAP file ``path`` for reading (binary); refuse anything but a regular file.
+
+    A FIFO, a device (``/dev/zero``) or a directory would block or never end: they are
+    refused without being read (opened non-blocking, checked with ``fstat``).
+
+    :raises OSError: The file cannot be opened or is not a regular file; the message
+        names ``path``.
+    """
+    descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    try:
+        if not stat.S_ISREG(os.fstat(descriptor).st_mode):
+            raise OSError(errno.EINVAL, 'not a regular file', os.fspath(path))
+        os.set_blocking(descriptor, True)
+        return os.fdopen(descriptor, 'rb')
+    except BaseException:
+        os.close(descriptor)
+        raise
 
 
 @dataclasses.dataclass
@@ -124,7 +175,7 @@ class BagSource:
     def _channels(self, file):
         """Yield ``(channel, schema name)`` of every channel in ``file``."""
         try:
-            with open(file, 'rb') as stream:
+            with open_mcap_file(file) as stream:
                 reader = make_reader(stream)
                 summary = reader.get_summary()
                 if summary is not None:
@@ -138,8 +189,10 @@ class BagSource:
                     if channel.id not in seen:
                         seen.add(channel.id)
                         yield channel, schema.name if schema else ''
-        except (OSError, McapError, ValueError) as error:
-            raise BagError(f'{file}: cannot read MCAP ({error})') from error
+        except OSError as error:
+            raise BagError(f'{file}: cannot read MCAP ({error.strerror or error})') from None
+        except MCAP_READ_ERRORS as error:
+            raise BagError(f'{file}: cannot read MCAP: {mcap_read_problem(error)}') from None
 
     def _add_channel(self, channel, schema_name, metadata):
         msgtype = normalized_type(schema_name or (metadata or {}).get('type', ''))
@@ -174,13 +227,13 @@ class BagSource:
         yield from heapq.merge(*streams, key=lambda item: item[1])
 
     def _file_messages(self, file, topics, start_ns):
-        with open(file, 'rb') as stream:
+        with open_mcap_file(file) as stream:
             reader = make_reader(stream)
             try:
                 for _, channel, message in reader.iter_messages(
                         topics=topics, starting_at=start_ns, log_time_order=True):
                     if channel.topic in self.topics:
                         yield channel.topic, message.log_time, bytes(message.data)
-            except McapError as error:
+            except MCAP_READ_ERRORS as error:
                 # A truncated file still plays up to its last complete chunk.
-                self.warnings.append(f'{file}: stopped reading: {error}')
+                self.warnings.append(f'{file}: stopped reading: {mcap_read_problem(error)}')
