@@ -446,6 +446,25 @@ def test_bag_source_reads_project_bags_and_refuses_others(tmp_path):
         BagSource(sqlite)
 
 
+@pytest.mark.parametrize('argv', [
+    # Before: --domain-ready-timeout nan waited forever; the others printed tracebacks
+    # (ValueError from BagReplayer, OverflowError for an infinite offset).
+    ['--rate', '0'], ['--rate', 'nan'], ['--start-offset', '-1'], ['--start-offset', 'nan'],
+    ['--start-offset', 'inf'], ['--clock', 'nan'], ['--clock', 'inf'], ['--clock', '-1'],
+    ['--wait-for-subscribers', '1', '--domain-ready-timeout', 'nan'],
+])
+def test_bad_replay_options_are_one_line_before_ros_starts(monkeypatch, capsys, argv):
+    from qfa_ros.cli import replay
+
+    def no_ros():
+        raise AssertionError('ROS started')
+
+    monkeypatch.setattr(replay, 'use_shipped_fastdds_profile', no_ros)
+    assert replay.main(['bag.mcap', *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('qfa-replay: --') and err.count('\n') == 1, err
+
+
 def test_summary_format_lists_topics_and_skips():
     summary = ReplaySummary(counts={'/a': 3}, skipped={'/b': 'unknown message type'},
                             wall_s=1.0, bag_s=1.0, max_lateness_s=0.0002, loops=1)
