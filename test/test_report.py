@@ -254,6 +254,7 @@ def test_command_line_reports_missing_and_empty_inputs(tmp_path, capsys):
     empty.mkdir()
     assert main([str(empty), '--out', str(tmp_path / 'out')]) == 1
     assert 'nothing to plot' in capsys.readouterr().err
+    assert not (tmp_path / 'out').exists(), 'before: an empty output directory was left'
 
 
 SECRET = b'SECRET-hunter2'
@@ -290,6 +291,7 @@ def test_a_malformed_bag_is_one_line_naming_it_without_quoting_it(scenario, tmp_
     assert main([str(bag), '--out', str(tmp_path / 'out')]) == 1
     err = capsys.readouterr().err
     assert expected in err and err.count('\n') == 1 and 'SECRET' not in err
+    assert not (tmp_path / 'out').exists()
     with pytest.raises(BagError, match='no bag' if case in ('fifo', 'device') else expected
                        ) as caught:
         BagSource(bag)

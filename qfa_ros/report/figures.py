@@ -564,7 +564,7 @@ def report(paths, out_dir):
     paths : str, os.PathLike or list of them
         MCAP files (trace files, scenario bags) or directories of them.
     out_dir : str or os.PathLike
-        Created if missing.
+        Created if missing, once there is a figure to write.
 
     Returns
     -------
@@ -574,13 +574,17 @@ def report(paths, out_dir):
     if isinstance(paths, (str, Path)):
         paths = [paths]
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    # Created once there is something to write: a refused input leaves nothing behind.
+    figures = build_figures(paths)
     written = []
-    for item in build_figures(paths):
-        target = out_dir / f'{item.name}.png'
-        try:
+    try:
+        if figures:
+            out_dir.mkdir(parents=True, exist_ok=True)
+        for item in figures:
+            target = out_dir / f'{item.name}.png'
             item.figure.savefig(target, dpi=DPI)
-        finally:
+            written.append(target)
+    finally:
+        for item in figures:
             plt.close(item.figure)
-        written.append(target)
     return written
