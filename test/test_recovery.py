@@ -331,6 +331,23 @@ def test_a_part_whose_offered_qos_nests_too_deep_is_recovered_without_it(tmp_pat
     assert report_main(['recover', str(tmp_path)]) == 0
 
 
+@pytest.mark.parametrize('kind, expected', [
+    # Before: a ValueError traceback for a finished .mcap; "no such file" for a FIFO.
+    ('finished', 'not a .mcap.part file, nor a directory of them'),
+    ('fifo', 'not a regular file or directory'),
+    ('missing', 'no such file or directory'),
+])
+def test_qfa_report_recover_refuses_what_it_cannot_recover_in_one_line(tmp_path, capsys, kind,
+                                                                       expected):
+    path = tmp_path / 'x.mcap'
+    if kind == 'finished':
+        path.write_bytes(b'\x89MCAP0\r\n')
+    elif kind == 'fifo':
+        os.mkfifo(path)
+    assert report_main(['recover', str(path)]) == 1
+    assert capsys.readouterr().err == f'qfa-report recover: {path}: {expected}\n'
+
+
 CLI = textwrap.dedent("""
     import sys
     for name in ('matplotlib', 'dask', 'distributed', 'pyarrow'):
