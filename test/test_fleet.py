@@ -46,6 +46,30 @@ def write_study(path, data):
     return path
 
 
+@pytest.mark.parametrize('case, expected', [
+    # Before: a traceback (RecursionError), a message quoting the line, MemoryError reading
+    # /dev/zero, a FIFO that blocked forever.
+    ('[' * 1000, 'not YAML (nested too deeply)'),
+    ('units: 2\nname: SECRET\n: : :\n', 'not YAML (line 3, column 1)'),
+    ('fifo', 'cannot read the study file: not a regular file'),
+    ('device', 'cannot read the study file: not a regular file'),
+    ('big', 'more than the 1048576 read'),
+])
+def test_a_study_file_that_is_none_is_refused_without_reading_or_quoting_it(tmp_path, capsys,
+                                                                            case, expected):
+    study = tmp_path / 'study.yaml'
+    if case == 'fifo':
+        os.mkfifo(study)
+    elif case == 'device':
+        study.symlink_to('/dev/zero')
+    else:
+        study.write_text(f'# SECRET\n{" " * (1 << 20)}' if case == 'big' else case)
+    assert fleet_main([str(study), '--workers', '1', '--no-progress']) == 2
+    err = capsys.readouterr().err
+    assert expected in err and err.count('\n') == 1 and 'SECRET' not in err, err
+    assert not list(tmp_path.glob('*.parquet*'))
+
+
 @pytest.mark.parametrize('change, key', [
     ({'unitz': 3}, 'unitz'),
     ({'horizon_years': -1.0}, 'horizon_years'),

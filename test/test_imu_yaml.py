@@ -254,6 +254,31 @@ def test_a_bad_imu_yaml_is_refused_without_quoting_it(content, expected):
     assert expected in refusal(content)
 
 
+@pytest.mark.parametrize('content, expected', [
+    # Before: a RecursionError traceback, a YAML error quoting the file, a dict.update
+    # message naming nothing.
+    ('[' * 1000, 'not a YAML document'),
+    (f'{SECRET}: [1, 2\n', 'not a YAML document'),
+    (f'qfa_node:\n  ros__parameters: [{SECRET}]\n', 'ros__parameters must be a mapping'),
+])
+def test_a_bad_parameter_file_is_refused_in_one_line_without_quoting_it(tmp_path, capsys,
+                                                                        content, expected):
+    config = tmp_path / 'qfa.yaml'
+    config.write_text(content)
+    assert report.main(['imu-yaml', str(config)]) == 1
+    err = capsys.readouterr().err
+    assert expected in err and err.count('\n') == 1 and 'hunter2' not in err, err
+
+
+def test_an_unwritable_out_is_one_line(tmp_path, capsys):
+    """Before: a FileNotFoundError or IsADirectoryError traceback."""
+    for out in (tmp_path / 'missing' / 'imu.yaml', tmp_path):
+        assert report.main(['imu-yaml', str(ROOT / 'config' / 'qfa.yaml'), '--out',
+                            str(out)]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f'qfa-report: --out {out}: ') and err.count('\n') == 1
+
+
 def test_the_node_reads_its_imu_yaml_once_bounded_and_emulates_it(tmp_path):
     source = tmp_path / 'imu.yaml'
     source.write_text(KALIBR_YAML)

@@ -311,6 +311,43 @@ def test_strangers_files_are_bounded_set_aside_and_never_quoted(tmp_path, killed
     assert len(contents.imu_stamps) == 3500
 
 
+def test_a_part_whose_offered_qos_nests_too_deep_is_recovered_without_it(tmp_path):
+    """Before: PyYAML's RecursionError ended ``qfa-report recover`` in a traceback."""
+    from mcap.writer import Writer
+    part = tmp_path / 'deep.mcap.part'
+    with open(part, 'wb') as stream:
+        writer = Writer(stream)
+        writer.start('ros2', 'test')
+        schema = writer.register_schema('std_msgs/msg/String', 'ros2msg', b'string data')
+        channel = writer.register_channel('/t', 'cdr', schema,
+                                          metadata={'offered_qos_profiles': '[' * 1000})
+        for i in range(10):
+            writer.add_message(channel, log_time=10 ** 18 + i, publish_time=10 ** 18 + i,
+                               data=encode_message({'data': 'a'}, 'std_msgs/msg/String'))
+        writer.finish()
+    part.write_bytes(part.read_bytes()[:-200])  # the summary and footer cut off
+    result = recover_part(part)
+    assert result.status == 'recovered', result.problem
+    assert report_main(['recover', str(tmp_path)]) == 0
+
+
+@pytest.mark.parametrize('kind, expected', [
+    # Before: a ValueError traceback for a finished .mcap; "no such file" for a FIFO.
+    ('finished', 'not a .mcap.part file, nor a directory of them'),
+    ('fifo', 'not a regular file or directory'),
+    ('missing', 'no such file or directory'),
+])
+def test_qfa_report_recover_refuses_what_it_cannot_recover_in_one_line(tmp_path, capsys, kind,
+                                                                       expected):
+    path = tmp_path / 'x.mcap'
+    if kind == 'finished':
+        path.write_bytes(b'\x89MCAP0\r\n')
+    elif kind == 'fifo':
+        os.mkfifo(path)
+    assert report_main(['recover', str(path)]) == 1
+    assert capsys.readouterr().err == f'qfa-report recover: {path}: {expected}\n'
+
+
 CLI = textwrap.dedent("""
     import sys
     for name in ('matplotlib', 'dask', 'distributed', 'pyarrow'):

@@ -446,6 +446,63 @@ def test_bag_source_reads_project_bags_and_refuses_others(tmp_path):
         BagSource(sqlite)
 
 
+@pytest.mark.parametrize('metadata, expected', [
+    # Before: RecursionError, AttributeError and TypeError tracebacks, a YAML error quoting
+    # the file, /dev/zero read until memory ran out, a string taken as a list of one-letter
+    # file names.
+    ('[' * 1000, 'metadata.yaml: not YAML'),
+    ('rosbag2_bagfile_information: [SECRET]\n', 'no rosbag2_bagfile_information mapping'),
+    ('rosbag2_bagfile_information:\n  x: [SECRET\n', 'metadata.yaml: not YAML'),
+    ('rosbag2_bagfile_information:\n  relative_file_paths: SECRET.mcap\n',
+     'relative_file_paths must be a list of file names'),
+    ('rosbag2_bagfile_information:\n  relative_file_paths: [{a: 1}]\n',
+     'relative_file_paths must be a list of file names'),
+    ('device', 'not a regular file'),
+])
+def test_a_malformed_metadata_yaml_is_one_line_without_quoting_it(tmp_path, metadata, expected):
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    write_project_bag(bag / 'bag_0.mcap', '/source', seconds=0.1)
+    if metadata == 'device':
+        (bag / 'metadata.yaml').symlink_to('/dev/zero')
+    else:
+        (bag / 'metadata.yaml').write_text(metadata)
+    with pytest.raises(BagError, match=expected) as caught:
+        BagSource(bag)
+    assert 'SECRET' not in str(caught.value) and '\n' not in str(caught.value)
+
+
+def test_wrongly_typed_topic_metadata_is_ignored():
+    """Before: an AttributeError for a type that is not a string."""
+    source = BagSource.__new__(BagSource)
+    source.topics, source.warnings = {}, []
+
+    class Channel:
+        topic, message_encoding, metadata = '/t', 'cdr', {'offered_qos_profiles': '[' * 1000}
+
+    source._add_channel(Channel(), '', {'type': [1], 'offered_qos_profiles': '[' * 1000})
+    assert source.topics['/t'].msgtype == '' and source.topics['/t'].offered_qos == []
+
+
+@pytest.mark.parametrize('argv', [
+    # Before: --domain-ready-timeout nan waited forever; the others printed tracebacks
+    # (ValueError from BagReplayer, OverflowError for an infinite offset).
+    ['--rate', '0'], ['--rate', 'nan'], ['--start-offset', '-1'], ['--start-offset', 'nan'],
+    ['--start-offset', 'inf'], ['--clock', 'nan'], ['--clock', 'inf'], ['--clock', '-1'],
+    ['--wait-for-subscribers', '1', '--domain-ready-timeout', 'nan'],
+])
+def test_bad_replay_options_are_one_line_before_ros_starts(monkeypatch, capsys, argv):
+    from qfa_ros.cli import replay
+
+    def no_ros():
+        raise AssertionError('ROS started')
+
+    monkeypatch.setattr(replay, 'use_shipped_fastdds_profile', no_ros)
+    assert replay.main(['bag.mcap', *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('qfa-replay: --') and err.count('\n') == 1, err
+
+
 def test_summary_format_lists_topics_and_skips():
     summary = ReplaySummary(counts={'/a': 3}, skipped={'/b': 'unknown message type'},
                             wall_s=1.0, bag_s=1.0, max_lateness_s=0.0002, loops=1)

@@ -254,6 +254,48 @@ def test_command_line_reports_missing_and_empty_inputs(tmp_path, capsys):
     empty.mkdir()
     assert main([str(empty), '--out', str(tmp_path / 'out')]) == 1
     assert 'nothing to plot' in capsys.readouterr().err
+    assert not (tmp_path / 'out').exists(), 'before: an empty output directory was left'
+
+
+SECRET = b'SECRET-hunter2'
+
+
+@pytest.mark.parametrize('case, expected', [
+    ('text', 'not an MCAP file'),
+    ('empty', 'truncated'),
+    ('cut', 'cannot read MCAP'),
+    ('fifo', 'not a regular file'),
+    ('device', 'not a regular file'),
+    ('not imu', '/qfa/scenario/phase is not sensor_msgs/msg/Imu'),
+])
+def test_a_malformed_bag_is_one_line_naming_it_without_quoting_it(scenario, tmp_path, capsys,
+                                                                   case, expected):
+    """Before: a traceback (mcap, zstd, struct errors), a FIFO blocked, a String decoded."""
+    from qfa_ros.bag.reader import BagError, BagSource
+    bag = tmp_path / 'bag.mcap'
+    data = Path(scenario['path']).read_bytes()
+    if case == 'fifo':
+        os.mkfifo(bag)
+    elif case == 'device':
+        bag.symlink_to('/dev/zero')
+    else:
+        bag.write_bytes({'text': SECRET * 10, 'empty': b'', 'cut': data[:100],
+                         'not imu': data}[case])
+    topic = ['--topic', '/qfa/scenario/phase'] if case == 'not imu' else []
+    assert main(['imu-yaml', str(bag), *topic]) == 1
+    err = capsys.readouterr().err
+    assert expected in err and str(bag) in err and err.count('\n') == 1
+    assert 'SECRET' not in err and '83, 69' not in err
+    if case == 'not imu':
+        return
+    assert main([str(bag), '--out', str(tmp_path / 'out')]) == 1
+    err = capsys.readouterr().err
+    assert expected in err and err.count('\n') == 1 and 'SECRET' not in err
+    assert not (tmp_path / 'out').exists()
+    with pytest.raises(BagError, match='no bag' if case in ('fifo', 'device') else expected
+                       ) as caught:
+        BagSource(bag)
+    assert 'SECRET' not in str(caught.value) and '83, 69' not in str(caught.value)
 
 
 def test_command_line_writes_the_pngs_headless(traces, tmp_path):

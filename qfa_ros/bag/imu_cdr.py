@@ -13,6 +13,9 @@ _DOUBLES_BEFORE_RATE = 4 + 9
 _DOUBLES_BEFORE_ACCEL = _DOUBLES_BEFORE_RATE + 3 + 9
 """... then angular_velocity, angular_velocity_covariance."""
 
+IMU_DOUBLES = _DOUBLES_BEFORE_ACCEL + 3 + 9
+"""Doubles from the orientation on: ... then linear_acceleration and its covariance."""
+
 UNKNOWN_COVARIANCE = (-1.0,) + (0.0,) * 8
 """REP-145: element 0 = -1 marks a quantity the sensor does not measure."""
 
@@ -122,6 +125,8 @@ def decode_imu(messages):
     name_length = struct.unpack_from('<I', first, 12)[0]
     orientation = (12 + name_length + 7) // 8 * 8
     size = len(first)
+    if size < len(ENCAPSULATION) + orientation + 8 * IMU_DOUBLES:
+        raise ValueError('decode_imu: messages too short for sensor_msgs/msg/Imu')
     if any(len(m) != size for m in messages):
         raise ValueError('decode_imu needs messages of one size (one frame_id)')
     buffer = np.frombuffer(b''.join(messages), dtype=np.uint8).reshape(len(messages), size)

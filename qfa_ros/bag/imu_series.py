@@ -4,6 +4,13 @@ from mcap.reader import make_reader
 import numpy as np
 
 from qfa_ros.bag.imu_cdr import decode_imu
+from qfa_ros.bag.reader import MCAP_READ_ERRORS, mcap_read_problem, normalized_type, open_mcap_file
+
+IMU_TYPE = 'sensor_msgs/msg/Imu'
+
+
+class ImuStreamError(ValueError):
+    """The topic read is not a stream of ``sensor_msgs/msg/Imu`` that can be decoded."""
 
 BATCH = 65536
 """Messages decoded per numpy batch."""
@@ -16,19 +23,38 @@ def read_imu(path, topic='/imu/data_raw'):
     ``path`` is one MCAP file; the messages come in log-time order (read in file order and
     sorted once: mcap's log-time merge costs 1.6x the CPU per message, 2.7 against
     1.7 CPU-s for a two-minute 1 kHz bag).
+
+    :raises ValueError: ``path`` is no regular MCAP file, is malformed, or ``topic`` is not
+        ``sensor_msgs/msg/Imu``; the message names the file, never quotes it.
     """
+    try:
+        return _read_imu(path, topic)
+    except ImuStreamError:
+        raise
+    except OSError as error:
+        raise ValueError(f'{path}: cannot read: {error.strerror or error}') from None
+    except MCAP_READ_ERRORS as error:
+        raise ValueError(f'{path}: cannot read MCAP: {mcap_read_problem(error)}') from None
+
+
+def _read_imu(path, topic):
     parts = []
     batch = []
     log_times = []  # the batch's, as int64 arrays: a list of Python ints costs 36 bytes each
 
     def decode_batch():
-        parts.append((*decode_imu(batch), np.array(log_times, dtype=np.int64)))
+        try:
+            parts.append((*decode_imu(batch), np.array(log_times, dtype=np.int64)))
+        except ValueError as error:
+            raise ImuStreamError(f'{path}: {topic}: {error}') from None
         batch.clear()
         log_times.clear()
 
-    with open(path, 'rb') as stream:
-        for _, _, message in make_reader(stream).iter_messages(topics=[topic],
-                                                               log_time_order=False):
+    with open_mcap_file(path) as stream:
+        for schema, _, message in make_reader(stream).iter_messages(topics=[topic],
+                                                                    log_time_order=False):
+            if normalized_type(schema.name if schema else '') != IMU_TYPE:
+                raise ImuStreamError(f'{path}: {topic} is not {IMU_TYPE}')
             batch.append(message.data)
             log_times.append(message.log_time)
             if len(batch) == BATCH:

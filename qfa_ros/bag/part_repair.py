@@ -139,7 +139,7 @@ def _qos_yaml(text):
         return ''
     try:
         return text if isinstance(yaml.safe_load(text), list) else ''
-    except yaml.YAMLError:
+    except (yaml.YAMLError, RecursionError):  # nested deeper than PyYAML recurses
         return ''
 
 

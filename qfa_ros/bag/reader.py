@@ -7,16 +7,71 @@ ROS: the replay publisher in :mod:`qfa_ros.ros.replay` puts the bytes on the wir
 """
 
 import dataclasses
+import errno
 import heapq
+import os
 from pathlib import Path
+import stat
+import struct
 
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, InvalidMagic, McapError, RecordLengthLimitExceeded
 from mcap.reader import make_reader
 import yaml
+import zstandard
+
+from qfa_ros.model.files import read_regular_file, UntrustedFileError
 
 
 class BagError(RuntimeError):
     """The bag cannot be read: missing, not MCAP, or malformed."""
+
+
+MAX_METADATA_BYTES = 64 << 20
+"""Largest ``metadata.yaml`` read [bytes] (about 300 bytes a split file: 200 000 splits)."""
+MCAP_READ_ERRORS = (McapError, zstandard.ZstdError, struct.error, EOFError, ValueError,
+                    RuntimeError, OverflowError)
+"""What reading a malformed MCAP file raises: mcap's own errors, a chunk that does not
+decompress (zstd; lz4 raises RuntimeError), a record cut short (struct), a string that is
+not UTF-8 (ValueError), a time beyond int64 (OverflowError)."""
+
+
+def mcap_read_problem(error):
+    """
+    Return what is wrong with an MCAP file that raised ``error``, quoting none of it.
+
+    mcap's messages quote the file (the first bytes for a bad magic, lengths read from
+    it); a stranger's file is named, never quoted.
+    """
+    if isinstance(error, InvalidMagic):
+        return 'not an MCAP file (no MCAP magic)'
+    if isinstance(error, (EndOfFile, EOFError, struct.error)):
+        return 'truncated (a record cut short)'
+    if isinstance(error, RecordLengthLimitExceeded):
+        return 'malformed (a record longer than the limit)'
+    if isinstance(error, zstandard.ZstdError):
+        return 'corrupt (a chunk that does not decompress)'
+    return f'malformed ({type(error).__name__})'
+
+
+def open_mcap_file(path):
+    """
+    Open the MCAP file ``path`` for reading (binary); refuse anything but a regular file.
+
+    A FIFO, a device (``/dev/zero``) or a directory would block or never end: they are
+    refused without being read (opened non-blocking, checked with ``fstat``).
+
+    :raises OSError: The file cannot be opened or is not a regular file; the message
+        names ``path``.
+    """
+    descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    try:
+        if not stat.S_ISREG(os.fstat(descriptor).st_mode):
+            raise OSError(errno.EINVAL, 'not a regular file', os.fspath(path))
+        os.set_blocking(descriptor, True)
+        return os.fdopen(descriptor, 'rb')
+    except BaseException:
+        os.close(descriptor)
+        raise
 
 
 @dataclasses.dataclass
@@ -47,7 +102,7 @@ def _parse_offers(value):
     if isinstance(value, str):
         try:
             value = yaml.safe_load(value)
-        except yaml.YAMLError:
+        except (yaml.YAMLError, RecursionError):
             return []
     if isinstance(value, dict):
         value = [value]
@@ -105,26 +160,45 @@ class BagSource:
             if not files:
                 raise BagError(f'{directory} has neither metadata.yaml nor .mcap files')
             return files, {}
+        # A stranger's file: read bounded, regular files only, and never quoted.
         try:
-            info = yaml.safe_load(metadata_file.read_text())['rosbag2_bagfile_information']
-        except (OSError, yaml.YAMLError, KeyError, TypeError) as error:
-            raise BagError(f'{metadata_file}: not rosbag2 metadata ({error})') from error
+            document = yaml.safe_load(read_regular_file(metadata_file, MAX_METADATA_BYTES))
+        except UntrustedFileError as error:
+            raise BagError(str(error)) from None
+        except (yaml.YAMLError, RecursionError):
+            raise BagError(f'{metadata_file}: not YAML') from None
+        info = document.get('rosbag2_bagfile_information') \
+            if isinstance(document, dict) else None
+        if not isinstance(info, dict):
+            raise BagError(f'{metadata_file}: not rosbag2 metadata (no '
+                           'rosbag2_bagfile_information mapping)')
         storage = info.get('storage_identifier', 'mcap')
         if storage != 'mcap':
-            raise BagError(f'{directory}: storage {storage!r} is not supported, only mcap '
+            shown = repr(storage) if isinstance(storage, str) and len(storage) <= 40 \
+                else 'other than mcap'
+            raise BagError(f'{directory}: storage {shown} is not supported, only mcap '
                            '(convert with `ros2 bag convert` or rosbags-convert)')
-        files = [directory / name for name in info.get('relative_file_paths') or []]
-        missing = [str(file) for file in files if not file.exists()]
+        names = info.get('relative_file_paths') or []
+        if not isinstance(names, list) or not all(
+                isinstance(name, str) and name for name in names):
+            raise BagError(f'{metadata_file}: relative_file_paths must be a list of file names')
+        files = [directory / name for name in names]
+        missing = [str(file) if str(file).isprintable() and len(str(file)) <= 1024
+                   else 'an unprintable or overlong name' for file in files if not file.exists()]
         if missing or not files:
-            raise BagError(f'{directory}: bag files missing: {", ".join(missing) or "none"}')
-        metas = [entry.get('topic_metadata') or {}
-                 for entry in info.get('topics_with_message_count') or []]
-        return files, {meta['name']: meta for meta in metas if 'name' in meta}
+            raise BagError(f'{directory}: bag files missing: '
+                           f'{", ".join(missing[:3]) or "none"}'
+                           + (f' and {len(missing) - 3} more' if len(missing) > 3 else ''))
+        entries = info.get('topics_with_message_count') or []
+        metas = [entry.get('topic_metadata') for entry in entries
+                 if isinstance(entry, dict)] if isinstance(entries, list) else []
+        return files, {meta['name']: meta for meta in metas
+                       if isinstance(meta, dict) and isinstance(meta.get('name'), str)}
 
     def _channels(self, file):
         """Yield ``(channel, schema name)`` of every channel in ``file``."""
         try:
-            with open(file, 'rb') as stream:
+            with open_mcap_file(file) as stream:
                 reader = make_reader(stream)
                 summary = reader.get_summary()
                 if summary is not None:
@@ -138,11 +212,15 @@ class BagSource:
                     if channel.id not in seen:
                         seen.add(channel.id)
                         yield channel, schema.name if schema else ''
-        except (OSError, McapError, ValueError) as error:
-            raise BagError(f'{file}: cannot read MCAP ({error})') from error
+        except OSError as error:
+            raise BagError(f'{file}: cannot read MCAP ({error.strerror or error})') from None
+        except MCAP_READ_ERRORS as error:
+            raise BagError(f'{file}: cannot read MCAP: {mcap_read_problem(error)}') from None
 
     def _add_channel(self, channel, schema_name, metadata):
-        msgtype = normalized_type(schema_name or (metadata or {}).get('type', ''))
+        recorded_type = (metadata or {}).get('type', '')
+        msgtype = normalized_type(schema_name or (
+            recorded_type if isinstance(recorded_type, str) else ''))
         offers = _parse_offers(channel.metadata.get('offered_qos_profiles'))
         if not offers and metadata:
             offers = _parse_offers(metadata.get('offered_qos_profiles'))
@@ -174,13 +252,13 @@ class BagSource:
         yield from heapq.merge(*streams, key=lambda item: item[1])
 
     def _file_messages(self, file, topics, start_ns):
-        with open(file, 'rb') as stream:
+        with open_mcap_file(file) as stream:
             reader = make_reader(stream)
             try:
                 for _, channel, message in reader.iter_messages(
                         topics=topics, starting_at=start_ns, log_time_order=True):
                     if channel.topic in self.topics:
                         yield channel.topic, message.log_time, bytes(message.data)
-            except McapError as error:
+            except MCAP_READ_ERRORS as error:
                 # A truncated file still plays up to its last complete chunk.
-                self.warnings.append(f'{file}: stopped reading: {error}')
+                self.warnings.append(f'{file}: stopped reading: {mcap_read_problem(error)}')

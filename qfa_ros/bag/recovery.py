@@ -246,10 +246,18 @@ def recover(path, should_stop=None, depth=2):
     ``path`` is a flight-recorder bag directory, a ``.mcap.part`` file (a trace) or a
     directory holding them, ``depth`` levels down: ``recorder.directory``, ``trace_dir``
     or ``output_dir``. A symlink given here is followed; none found inside is.
+
+    :raises OSError: ``path`` is missing, another file than a ``.mcap.part``, or neither a
+        regular file nor a directory.
     """
     path = Path(path).resolve()
     if path.is_file():
+        if not path.name.endswith('.mcap' + PART_SUFFIX):
+            raise OSError(errno.EINVAL, 'not a .mcap.part file, nor a directory of them',
+                          str(path))
         return [recover_trace(path, should_stop)]
+    if path.exists() and not path.is_dir():
+        raise OSError(errno.EINVAL, 'not a regular file or directory', str(path))
     if not path.is_dir():
         raise FileNotFoundError(errno.ENOENT, 'no such file or directory', str(path))
     return _recover_directory(path, should_stop, depth)

@@ -45,11 +45,19 @@ def config_figures(path):
     from qfa_ros.model.files import read_regular_file
     from qfa_ros.ros.model_settings import load_imu_noise, triad_config
     from qfa_ros.ros.parameter_table import PARAMETERS
-    document = yaml.safe_load(read_regular_file(path, MAX_CONFIG_BYTES)) or {}
+    try:
+        document = yaml.safe_load(read_regular_file(path, MAX_CONFIG_BYTES)) or {}
+    except (yaml.YAMLError, RecursionError):
+        # PyYAML's messages quote the offending line.
+        raise ValueError(f'{path}: not a YAML document') from None
     values = {spec.name: spec.default for spec in PARAMETERS}
     for section in (document.values() if isinstance(document, dict) else ()):
         if isinstance(section, dict):
-            values.update(section.get('ros__parameters', {}) or {})
+            parameters = section.get('ros__parameters', {}) or {}
+            if not isinstance(parameters, dict):
+                raise ValueError(f'{path}: ros__parameters must be a mapping of parameters, '
+                                 f'got {type(parameters).__name__}')
+            values.update(parameters)
     emulated = load_imu_noise(values)
     config = triad_config(values, imu_noise=emulated)
     figures = imu_noise.config_figures(config).as_dict()
@@ -171,7 +179,11 @@ def main(argv=None):
         return 1
     text = imu_yaml_text(figures, comments, header)
     if args.out:
-        Path(args.out).write_text(text)
+        try:
+            Path(args.out).write_text(text)
+        except OSError as error:
+            print(f'qfa-report: --out {args.out}: {error.strerror or error}', file=sys.stderr)
+            return 1
         print(args.out)
     else:
         print(text, end='')

@@ -1,6 +1,7 @@
 """``qfa-replay BAG``: publish a rosbag2 MCAP bag with its original timing and QoS."""
 
 import argparse
+import math
 import signal
 import sys
 
@@ -44,8 +45,14 @@ def main(argv=None):
     if not args.rate > 0:
         print('qfa-replay: --rate must be positive', file=sys.stderr)
         return 2
-    if args.start_offset < 0 or (args.clock is not None and args.clock < 0):
-        print('qfa-replay: --start-offset and --clock must not be negative', file=sys.stderr)
+    if not 0 <= args.start_offset < math.inf or (
+            args.clock is not None and not 0 <= args.clock < math.inf):
+        print('qfa-replay: --start-offset and --clock must be finite and not negative',
+              file=sys.stderr)
+        return 2
+    if math.isnan(args.domain_ready_timeout):
+        print('qfa-replay: --domain-ready-timeout must be a number of seconds, got nan',
+              file=sys.stderr)
         return 2
     use_shipped_fastdds_profile()
     import rclpy

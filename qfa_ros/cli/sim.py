@@ -17,6 +17,7 @@ import datetime
 import functools
 import gc
 import math
+import os
 import sys
 import time
 
@@ -109,7 +110,18 @@ def run_static(args, out=None):
     total = int(round(args.duration * config.sample_rate_hz))
     # Per axis, the phase of (accel - reference) for the Allan deviation (one row, the
     # only array of the run's length) and the sums of its first two powers.
-    phase = np.zeros((len(AXES), total + 1))
+    # Refused before it is allocated: with memory overcommitted, an array larger than the
+    # machine is granted and the run killed when it fills it, hours later.
+    needed = len(AXES) * (total + 1) * 8
+    try:
+        if needed > os.sysconf('SC_PHYS_PAGES') * os.sysconf('SC_PAGE_SIZE'):
+            raise MemoryError
+        phase = np.zeros((len(AXES), total + 1))
+    except MemoryError:
+        print(f'qfa-sim: --duration {args.duration:g} s needs {needed / 2 ** 30:.3g} GiB for '
+              'the Allan deviation of the static summary, more than there is; simulate less',
+              file=sys.stderr)
+        return 2
     reference = None
     sums = np.zeros((2, len(AXES)))
     truth = np.zeros(len(AXES))
@@ -422,7 +434,40 @@ def parse_start_time(text):
     if moment.tzinfo is None:
         moment = moment.replace(tzinfo=datetime.timezone.utc)
     epoch = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
-    return (moment - epoch) // datetime.timedelta(microseconds=1) * 1000
+    time_ns = (moment - epoch) // datetime.timedelta(microseconds=1) * 1000
+    # A bag's times are unsigned (MCAP) and the stamps int64 nanoseconds.
+    if not 0 <= time_ns < 2 ** 63:
+        raise argparse.ArgumentTypeError(f'{text!r} is not between 1970 and 2262')
+    return time_ns
+
+
+def option_problem(args):
+    """Return what is wrong with the numeric options of ``args`` (one line), or None."""
+    if args.duration is not None and not 0 < args.duration < math.inf:
+        return f'--duration must be a positive finite number of seconds, got {args.duration}'
+    if args.start_ns + (args.duration or 0.0) * 1e9 >= 2 ** 63:
+        return (f'--duration {args.duration:g} s from --start-time ends after 2262 (int64 '
+                'nanoseconds)')
+    if args.trials < 1:
+        return '--trials must be at least 1'
+    if args.seed < 0:
+        return f'--seed must be non-negative, got {args.seed}'
+    if args.scenario == 'temperature-cycle':
+        from qfa_ros.calibration.temperature import TemperatureSettings
+        try:
+            TemperatureSettings(period_s=args.duration)
+        except ValueError as error:
+            return f'--duration: {error}'
+    if args.scenario == 'trajectory':
+        try:
+            TriadConfig(sample_rate_hz=args.rate)
+        except ValueError as error:
+            return f'--rate: {error}'
+        if not 0 < args.truth_rate < math.inf:
+            return f'--truth-rate must be a positive finite number of Hz, got {args.truth_rate}'
+        if not math.isfinite(args.yaw):
+            return f'--yaw must be a finite number of degrees, got {args.yaw}'
+    return None
 
 
 @stops_quietly('qfa-sim')
@@ -431,11 +476,9 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     if args.duration is None and args.scenario != 'trajectory':
         args.duration = 3600.0 if args.scenario == 'temperature-cycle' else 60.0
-    if args.duration is not None and not args.duration > 0:
-        print('qfa-sim: --duration must be positive', file=sys.stderr)
-        return 2
-    if args.trials < 1:
-        print('qfa-sim: --trials must be at least 1', file=sys.stderr)
+    problem = option_problem(args)
+    if problem:
+        print(f'qfa-sim: {problem}', file=sys.stderr)
         return 2
     if args.error_profile != 'paper' and args.scenario not in ('static', 'trajectory'):
         print(f'qfa-sim: --error-profile {args.error_profile} applies to static and trajectory '
@@ -464,6 +507,11 @@ def main(argv=None):
     gc.freeze()
     try:
         status = SCENARIOS[args.scenario](args)
+    except OSError as error:
+        # --out: an existing file, a missing directory, a full disk.
+        where = f'{error.filename}: ' if error.filename else ''
+        print(f'qfa-sim: {where}{error.strerror or error}', file=sys.stderr)
+        return 1
     finally:
         gc.unfreeze()
     print(f'wall time {time.perf_counter() - start:.2f} s', file=sys.stdout)

@@ -54,7 +54,6 @@ from dataclasses import asdict, dataclass, field, fields, replace
 import hashlib
 import json
 import math
-from pathlib import Path
 
 import yaml
 
@@ -62,6 +61,7 @@ from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
 from qfa_ros.calibration.experiments import IMPROVED_SCHEDULE, PAPER_SCHEDULE
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model.errors import ERROR_PROFILES
+from qfa_ros.model.files import read_regular_file, UntrustedFileError
 
 SCHEDULES = {'paper': PAPER_SCHEDULE, 'improved': IMPROVED_SCHEDULE}
 AGING_DISTRIBUTIONS = ('normal', 'uniform')
@@ -76,6 +76,8 @@ of aging (+-100 ppm/year, the navigation-grade QFA scale-factor stability class)
 +-1000 ppm."""
 TORQUER_SPAN_PPM = 50.0
 """Span of the k_t drift in the Monte Carlo with k_t drift [ppm]."""
+MAX_STUDY_BYTES = 1 << 20
+"""Largest study file read [bytes] (the shipped ones are under 2 KiB)."""
 MAX_UNITS = 1_000_000
 MAX_HORIZON_YEARS = 30.0
 
@@ -318,10 +320,18 @@ class Study:
     @classmethod
     def load(cls, path):
         """Read and validate a study file."""
+        name = str(path)
         try:
-            data = yaml.safe_load(Path(path).read_text())
-        except OSError as error:
-            raise StudyError(f'cannot read the study file: {error}') from None
+            # A stranger's file: a regular file of bounded size, parsed by the safe loader;
+            # no message quotes it (PyYAML's quote the offending line).
+            data = yaml.safe_load(read_regular_file(path, MAX_STUDY_BYTES))
+        except UntrustedFileError as error:
+            reason = str(error).removeprefix(f'{name}: ')
+            raise StudyError(f'cannot read the study file: {reason}') from None
         except yaml.YAMLError as error:
-            raise StudyError(f'the study file is not YAML: {error}') from None
+            mark = getattr(error, 'problem_mark', None)
+            where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
+            raise StudyError(f'the study file is not YAML{where}') from None
+        except RecursionError:
+            raise StudyError('the study file is not YAML (nested too deeply)') from None
         return cls.from_dict(data)

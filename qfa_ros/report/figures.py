@@ -36,6 +36,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 
+from qfa_ros.bag.reader import MCAP_READ_ERRORS, mcap_read_problem, open_mcap_file
 from qfa_ros.bag.trace import key_values_to_dict
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.units import MICRO_G
@@ -155,12 +156,27 @@ def load_bag(path):
     Returns
     -------
     BagContents
+
+    Raises
+    ------
+    ValueError
+        ``path`` is not a regular file or not a readable MCAP file; the message names it,
+        never quotes it.
     """
     path = Path(path)
+    try:
+        return _load_bag(path)
+    except OSError as error:
+        raise ValueError(f'{path}: cannot read: {error.strerror or error}') from None
+    except MCAP_READ_ERRORS as error:
+        raise ValueError(f'{path}: cannot read MCAP: {mcap_read_problem(error)}') from None
+
+
+def _load_bag(path):
     statuses = {}
     tables = {}
     imu_times, imu_accel, phases = [], [], []
-    with open(path, 'rb') as stream:
+    with open_mcap_file(path) as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         for schema, channel, message, decoded in reader.iter_decoded_messages():
             topic, msgtype = channel.topic, schema.name if schema else ''
@@ -548,7 +564,7 @@ def report(paths, out_dir):
     paths : str, os.PathLike or list of them
         MCAP files (trace files, scenario bags) or directories of them.
     out_dir : str or os.PathLike
-        Created if missing.
+        Created if missing, once there is a figure to write.
 
     Returns
     -------
@@ -558,13 +574,17 @@ def report(paths, out_dir):
     if isinstance(paths, (str, Path)):
         paths = [paths]
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    # Created once there is something to write: a refused input leaves nothing behind.
+    figures = build_figures(paths)
     written = []
-    for item in build_figures(paths):
-        target = out_dir / f'{item.name}.png'
-        try:
+    try:
+        if figures:
+            out_dir.mkdir(parents=True, exist_ok=True)
+        for item in figures:
+            target = out_dir / f'{item.name}.png'
             item.figure.savefig(target, dpi=DPI)
-        finally:
+            written.append(target)
+    finally:
+        for item in figures:
             plt.close(item.figure)
-        written.append(target)
     return written

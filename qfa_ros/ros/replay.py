@@ -13,6 +13,7 @@ warning.
 import dataclasses
 import heapq
 import importlib
+import math
 import threading
 import time
 
@@ -213,10 +214,10 @@ class BagReplayer:
                  loop=False, start_offset=0.0, spin_s=SPIN_S):
         if not rate > 0:
             raise ValueError(f'rate must be positive, got {rate!r}')
-        if not start_offset >= 0:
-            raise ValueError(f'start_offset must be non-negative, got {start_offset!r}')
-        if clock and not clock_hz >= 0:
-            raise ValueError(f'clock_hz must be non-negative, got {clock_hz!r}')
+        if not 0 <= start_offset < math.inf:
+            raise ValueError(f'start_offset must be finite and non-negative, got {start_offset!r}')
+        if clock and not 0 <= clock_hz < math.inf:
+            raise ValueError(f'clock_hz must be finite and non-negative, got {clock_hz!r}')
         self.node = node
         self.spin_s = max(0.0, float(spin_s))
         self.source = BagSource(path)
