@@ -4,7 +4,8 @@ from mcap.reader import make_reader
 import numpy as np
 
 from qfa_ros.bag.imu_cdr import decode_imu
-from qfa_ros.bag.reader import MCAP_READ_ERRORS, mcap_read_problem, normalized_type, open_mcap_file
+from qfa_ros.bag.reader import MCAP_READ_ERRORS, mcap_read_problem, normalized_type
+from qfa_ros.model.files import open_regular_file, UntrustedFileError
 
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 
@@ -29,7 +30,7 @@ def read_imu(path, topic='/imu/data_raw'):
     """
     try:
         return _read_imu(path, topic)
-    except ImuStreamError:
+    except (ImuStreamError, UntrustedFileError):
         raise
     except OSError as error:
         raise ValueError(f'{path}: cannot read: {error.strerror or error}') from None
@@ -50,7 +51,7 @@ def _read_imu(path, topic):
         batch.clear()
         log_times.clear()
 
-    with open_mcap_file(path) as stream:
+    with open_regular_file(path) as stream:
         for schema, _, message in make_reader(stream).iter_messages(topics=[topic],
                                                                     log_time_order=False):
             if normalized_type(schema.name if schema else '') != IMU_TYPE:

@@ -7,11 +7,8 @@ ROS: the replay publisher in :mod:`qfa_ros.ros.replay` puts the bytes on the wir
 """
 
 import dataclasses
-import errno
 import heapq
-import os
 from pathlib import Path
-import stat
 import struct
 
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError, RecordLengthLimitExceeded
@@ -19,7 +16,7 @@ from mcap.reader import make_reader
 import yaml
 import zstandard
 
-from qfa_ros.model.files import read_regular_file, UntrustedFileError
+from qfa_ros.model.files import open_regular_file, read_regular_file, UntrustedFileError
 
 
 class BagError(RuntimeError):
@@ -51,27 +48,6 @@ def mcap_read_problem(error):
     if isinstance(error, zstandard.ZstdError):
         return 'corrupt (a chunk that does not decompress)'
     return f'malformed ({type(error).__name__})'
-
-
-def open_mcap_file(path):
-    """
-    Open the MCAP file ``path`` for reading (binary); refuse anything but a regular file.
-
-    A FIFO, a device (``/dev/zero``) or a directory would block or never end: they are
-    refused without being read (opened non-blocking, checked with ``fstat``).
-
-    :raises OSError: The file cannot be opened or is not a regular file; the message
-        names ``path``.
-    """
-    descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
-    try:
-        if not stat.S_ISREG(os.fstat(descriptor).st_mode):
-            raise OSError(errno.EINVAL, 'not a regular file', os.fspath(path))
-        os.set_blocking(descriptor, True)
-        return os.fdopen(descriptor, 'rb')
-    except BaseException:
-        os.close(descriptor)
-        raise
 
 
 @dataclasses.dataclass
@@ -198,7 +174,7 @@ class BagSource:
     def _channels(self, file):
         """Yield ``(channel, schema name)`` of every channel in ``file``."""
         try:
-            with open_mcap_file(file) as stream:
+            with open_regular_file(file) as stream:
                 reader = make_reader(stream)
                 summary = reader.get_summary()
                 if summary is not None:
@@ -212,8 +188,8 @@ class BagSource:
                     if channel.id not in seen:
                         seen.add(channel.id)
                         yield channel, schema.name if schema else ''
-        except OSError as error:
-            raise BagError(f'{file}: cannot read MCAP ({error.strerror or error})') from None
+        except UntrustedFileError as error:
+            raise BagError(f'cannot read MCAP: {error}') from None
         except MCAP_READ_ERRORS as error:
             raise BagError(f'{file}: cannot read MCAP: {mcap_read_problem(error)}') from None
 
@@ -252,7 +228,7 @@ class BagSource:
         yield from heapq.merge(*streams, key=lambda item: item[1])
 
     def _file_messages(self, file, topics, start_ns):
-        with open_mcap_file(file) as stream:
+        with open_regular_file(file) as stream:
             reader = make_reader(stream)
             try:
                 for _, channel, message in reader.iter_messages(

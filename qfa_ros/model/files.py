@@ -79,6 +79,54 @@ def _open_without_symlinks(resolved):
         os.close(directory)
 
 
+def _open_regular(name):
+    """
+    Return ``(descriptor, stat)`` of the regular file ``name``, opened non-blocking.
+
+    :raises UntrustedFileError: As :func:`read_regular_file` says, the size aside.
+    """
+    if not name:
+        raise UntrustedFileError('no file named')
+    try:
+        resolved = Path(name).resolve()
+    except (OSError, RuntimeError) as error:
+        raise UntrustedFileError(f'{name}: cannot resolve: {system_reason(error)}') from None
+    try:
+        descriptor = _open_without_symlinks(resolved)
+    except OSError as error:
+        raise UntrustedFileError(f'{name}: cannot open: {system_reason(error)}') from None
+    try:
+        info = os.fstat(descriptor)
+        kind = PSEUDO_FILE_SYSTEMS.get(file_system_type(descriptor))
+        if kind:
+            raise UntrustedFileError(f'{name}: on the kernel file system {kind}: its files '
+                                     'are interfaces, not data, and are not read')
+        if not stat.S_ISREG(info.st_mode):
+            raise UntrustedFileError(f'{name}: not a regular file')
+    except OSError as error:
+        os.close(descriptor)
+        raise UntrustedFileError(f'{name}: cannot read: {system_reason(error)}') from None
+    except BaseException:
+        os.close(descriptor)
+        raise
+    return descriptor, info
+
+
+def open_regular_file(path):
+    """
+    Open the regular file ``path`` for reading (binary), to be read as a stream.
+
+    The checks of :func:`read_regular_file` but the size: for files read a record at a
+    time (a bag's MCAP files). A FIFO or a device would block or never end: refused
+    without a byte read.
+
+    :raises UntrustedFileError: As :func:`read_regular_file`; the message names ``path``.
+    """
+    descriptor, _ = _open_regular(os.fspath(path))
+    os.set_blocking(descriptor, True)
+    return os.fdopen(descriptor, 'rb')
+
+
 def read_regular_file(path, max_bytes):
     """
     Return the bytes of the regular file ``path``, at most ``max_bytes`` of them.
@@ -100,24 +148,8 @@ def read_regular_file(path, max_bytes):
     if max_bytes < 1:
         raise ValueError(f'max_bytes must be positive, got {max_bytes!r}')
     name = os.fspath(path)
-    if not name:
-        raise UntrustedFileError('no file named')
+    descriptor, info = _open_regular(name)
     try:
-        resolved = Path(name).resolve()
-    except (OSError, RuntimeError) as error:
-        raise UntrustedFileError(f'{name}: cannot resolve: {system_reason(error)}') from None
-    try:
-        descriptor = _open_without_symlinks(resolved)
-    except OSError as error:
-        raise UntrustedFileError(f'{name}: cannot open: {system_reason(error)}') from None
-    try:
-        info = os.fstat(descriptor)
-        kind = PSEUDO_FILE_SYSTEMS.get(file_system_type(descriptor))
-        if kind:
-            raise UntrustedFileError(f'{name}: on the kernel file system {kind}: its files '
-                                     'are interfaces, not data, and are not read')
-        if not stat.S_ISREG(info.st_mode):
-            raise UntrustedFileError(f'{name}: not a regular file')
         if info.st_size > max_bytes:
             raise UntrustedFileError(
                 f'{name}: {info.st_size} bytes, more than the {max_bytes} read')
