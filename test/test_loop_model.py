@@ -587,9 +587,15 @@ def test_run_rejects_bad_input():
         triad.set_n_fpga(0, 2 ** 20)
     with pytest.raises(ValueError, match='controller gain'):
         triad.set_controller_gain(0, float('nan'))
-    for chunk in (0, -1, True, 2.5):
+    for chunk in (0, -1, True, 2.5, float('nan'), None, '10'):
         with pytest.raises(ValueError, match='chunk_samples'):
             triad.run_for(0.01, chunk_samples=chunk)
+    for duration in (float('nan'), float('inf'), -0.01, None, True):
+        with pytest.raises(ValueError, match='duration_s'):
+            triad.run_for(duration)
+    for count in (float('nan'), float('inf'), None, -1, True):
+        with pytest.raises(ValueError, match='n_samples'):
+            triad.run(count)
 
 
 def test_misalignment_couples_axes_as_configured():

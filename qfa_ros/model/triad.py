@@ -12,7 +12,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from qfa_ros.model import kernel, streams
+from qfa_ros.model import checks, kernel, streams
 from qfa_ros.model.axis import AxisLoop, start_axes
 from qfa_ros.model.drift import DriftModel
 from qfa_ros.model.gyro import GyroTriad
@@ -456,7 +456,10 @@ class QfaTriad:
         if _sample_count('chunk_samples', chunk_samples) == 0:
             # A chunk of none would never finish the run.
             raise ValueError('chunk_samples must be > 0, got 0')
-        total = int(round(duration_s * self.config.sample_rate_hz))
+        if isinstance(duration_s, (bool, np.bool_)):
+            raise ValueError(f'duration_s must be a number of seconds, got {duration_s!r}')
+        duration_s = checks.positive('duration_s', duration_s, allow_zero=True)
+        total = round(duration_s * self.config.sample_rate_hz)
         parts = []
         while total > 0:
             n = min(chunk_samples, total)
@@ -474,6 +477,11 @@ def _held_or_per_sample(values):
 
 def _sample_count(name, value):
     """Return ``value`` as a non-negative int, else raise ValueError naming ``name``."""
-    if isinstance(value, bool) or int(value) != value or value < 0:
+    try:
+        valid = not isinstance(value, bool) and int(value) == value and value >= 0
+    except (TypeError, ValueError, OverflowError):
+        # None, a string, NaN, infinity: not a count.
+        valid = False
+    if not valid:
         raise ValueError(f'{name} must be a non-negative integer, got {value!r}')
     return int(value)
