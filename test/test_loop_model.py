@@ -587,6 +587,26 @@ def test_run_rejects_bad_input():
         triad.set_n_fpga(0, 2 ** 20)
     with pytest.raises(ValueError, match='controller gain'):
         triad.set_controller_gain(0, float('nan'))
+    with pytest.raises(ValueError, match='controller gain'):
+        triad.set_controller_gain(0, None)
+    for word in (float('nan'), None):
+        with pytest.raises(ValueError, match='n_vref'):
+            triad.set_n_vref(0, word)
+    with pytest.raises(ValueError, match='temperature'):
+        triad.set_temperature(None)
+    # Before: IndexError, or axis -1 silently the z axis, True the y axis.
+    for axis in (3, -1, True, 1.0):
+        with pytest.raises(ValueError, match='axis'):
+            triad.set_open_loop(axis, True)
+        with pytest.raises(ValueError, match='axis'):
+            triad.set_reference_current(axis, True)
+        with pytest.raises(ValueError, match='axis'):
+            triad.set_controller_gain(axis, 1.0)
+        with pytest.raises(ValueError, match='axis'):
+            triad.set_n_fpga(axis, 100)
+        with pytest.raises(ValueError, match='axis'):
+            triad.drift.set_step(axis, 'i_ref', 1e-6)
+    triad.set_open_loop(np.int64(2), False)
     for chunk in (0, -1, True, 2.5, float('nan'), None, '10'):
         with pytest.raises(ValueError, match='chunk_samples'):
             triad.run_for(0.01, chunk_samples=chunk)
