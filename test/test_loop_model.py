@@ -536,6 +536,8 @@ def test_stamps_are_evenly_spaced_integer_nanoseconds():
     ({'bias': (0.0, float('nan'), 0.0)}, 'bias'),
     ({'k2': (0.0, 0.0, float('inf'))}, 'k2'),
     ({'misalignment': ((0.0, 0.0), (0.0, 0.0))}, 'misalignment'),
+    ({'open_loop_cref_sensitivity': None}, 'open_loop_cref_sensitivity'),
+    ({'open_loop_cref_sensitivity': '1'}, 'open_loop_cref_sensitivity'),
 ])
 def test_invalid_triad_settings_raise_value_error(kwargs, name):
     with pytest.raises(ValueError, match=name):
@@ -571,10 +573,24 @@ def test_numpy_numbers_are_valid_settings():
     ({'bias_instability': float('nan')}, 'bias_instability'),
     ({'adc_noise': float('inf')}, 'adc_noise'),
     ({'correlation_times': ()}, 'correlation_times'),
+    ({'noise_density': None}, 'noise_density'),
+    ({'adc_noise': '4'}, 'adc_noise'),
+    ({'correlation_times': None}, 'correlation_times'),
 ])
 def test_invalid_noise_raises_value_error(kwargs, name):
     with pytest.raises(ValueError, match=name):
         NoiseConfig(**kwargs)
+
+
+@pytest.mark.parametrize('kwargs, name', [
+    ({'lead_pole_ratio': None}, 'lead_pole_ratio'),
+    ({'integrator_ratio': 'x'}, 'integrator_ratio'),
+    ({'integrator_ratio': float('nan')}, 'integrator_ratio'),
+])
+def test_invalid_controller_targets_raise_value_error(kwargs, name):
+    # Checked where the controller is designed: before, None raised TypeError.
+    with pytest.raises(ValueError, match=name):
+        QfaTriad(TriadConfig(**kwargs))
 
 
 def test_run_rejects_bad_input():
