@@ -582,6 +582,21 @@ def test_invalid_noise_raises_value_error(kwargs, name):
         NoiseConfig(**kwargs)
 
 
+@pytest.mark.parametrize('build, name', [
+    (lambda: StepProfile((0.0, float('nan')), ((0, 0, 1), (0, 0, 2))), 'times'),
+    (lambda: StepProfile(None, None), 'times'),
+    (lambda: tumble_profile(float('nan')), 'dwell_s'),
+    (lambda: tumble_profile(None), 'dwell_s'),
+    (lambda: SineProfile(1.0, phase=float('nan')), 'phase'),
+    (lambda: SineProfile(None), 'frequency_hz'),
+])
+def test_invalid_profiles_raise_value_error(build, name):
+    # Before: NaN times or dwell gave a profile stuck on its first level, a NaN phase a
+    # NaN force, None a TypeError.
+    with pytest.raises(ValueError, match=name):
+        build()
+
+
 @pytest.mark.parametrize('kwargs, name', [
     ({'lead_pole_ratio': None}, 'lead_pole_ratio'),
     ({'integrator_ratio': 'x'}, 'integrator_ratio'),
