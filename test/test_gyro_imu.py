@@ -90,7 +90,10 @@ def test_gyro_output_does_not_depend_on_how_the_samples_are_cut():
 
 
 @pytest.mark.parametrize('name, value', [('arw', -1.0), ('range', 0.0),
-                                         ('correlation_times', ()), ('bias_tc', math.nan)])
+                                         ('correlation_times', ()), ('bias_tc', math.nan),
+                                         ('range', None), ('reference_c', None),
+                                         ('arw', '1'), ('correlation_times', None),
+                                         ('correlation_times', ('x',))])
 def test_gyro_config_refuses_bad_values(name, value):
     with pytest.raises(ValueError, match=name):
         GyroConfig().with_errors(**{name: value})

@@ -97,6 +97,32 @@ def test_a_body_at_a_pole_sees_the_vertical_earth_rate_and_polar_gravity(latitud
         earth.check_location(90.001, 0.0, 0.0)
 
 
+NAN, INF = float('nan'), float('inf')
+
+
+@pytest.mark.parametrize('script, kwargs, name', [
+    ('static', {'yaw': NAN}, 'yaw'),
+    ('static', {'roll': INF}, 'roll'),
+    ('six_position_tumble', {'dwell_s': NAN}, 'dwell_s'),
+    ('six_position_tumble', {'move_s': -1.0}, 'move_s'),
+    ('rate_table_turn', {'rate_deg_s': NAN}, 'rate_deg_s'),
+    ('rate_table_turn', {'turns': NAN}, 'turns'),
+    ('rate_table_turn', {'ramp_s': INF}, 'ramp_s'),
+    ('vehicle_drive', {'knot_s': 0.0}, 'knot_s'),
+    ('vehicle_drive', {'ramp_s': 0.0}, 'ramp_s'),
+    ('vehicle_drive', {'yaw': NAN}, 'yaw'),
+    ('vehicle_drive', {'script': [(10.0, NAN, 0.0, 0.0)]}, 'script'),
+    ('coning', {'knots_per_cycle': 0}, 'knots_per_cycle'),
+    ('coning', {'amplitude_deg': NAN}, 'amplitude_deg'),
+    ('coning', {'duration_s': INF}, 'duration_s'),
+    ('sculling', {'displacement_m': NAN}, 'displacement_m'),
+])
+def test_motion_scripts_refuse_a_value_that_is_no_number_by_name(script, kwargs, name):
+    # Before, NaN gave a trajectory of NaN poses and a zero knot or ramp a ZeroDivisionError.
+    with pytest.raises(ValueError, match=name):
+        getattr(tr, script)(**kwargs)
+
+
 
 def test_a_body_at_rest_has_one_pose_at_every_instant_and_callers_may_write_it():
     # The node's truth asks a static input for its force and pose ten times a second: a

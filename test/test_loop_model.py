@@ -536,6 +536,8 @@ def test_stamps_are_evenly_spaced_integer_nanoseconds():
     ({'bias': (0.0, float('nan'), 0.0)}, 'bias'),
     ({'k2': (0.0, 0.0, float('inf'))}, 'k2'),
     ({'misalignment': ((0.0, 0.0), (0.0, 0.0))}, 'misalignment'),
+    ({'open_loop_cref_sensitivity': None}, 'open_loop_cref_sensitivity'),
+    ({'open_loop_cref_sensitivity': '1'}, 'open_loop_cref_sensitivity'),
 ])
 def test_invalid_triad_settings_raise_value_error(kwargs, name):
     with pytest.raises(ValueError, match=name):
@@ -571,10 +573,39 @@ def test_numpy_numbers_are_valid_settings():
     ({'bias_instability': float('nan')}, 'bias_instability'),
     ({'adc_noise': float('inf')}, 'adc_noise'),
     ({'correlation_times': ()}, 'correlation_times'),
+    ({'noise_density': None}, 'noise_density'),
+    ({'adc_noise': '4'}, 'adc_noise'),
+    ({'correlation_times': None}, 'correlation_times'),
 ])
 def test_invalid_noise_raises_value_error(kwargs, name):
     with pytest.raises(ValueError, match=name):
         NoiseConfig(**kwargs)
+
+
+@pytest.mark.parametrize('build, name', [
+    (lambda: StepProfile((0.0, float('nan')), ((0, 0, 1), (0, 0, 2))), 'times'),
+    (lambda: StepProfile(None, None), 'times'),
+    (lambda: tumble_profile(float('nan')), 'dwell_s'),
+    (lambda: tumble_profile(None), 'dwell_s'),
+    (lambda: SineProfile(1.0, phase=float('nan')), 'phase'),
+    (lambda: SineProfile(None), 'frequency_hz'),
+])
+def test_invalid_profiles_raise_value_error(build, name):
+    # Before: NaN times or dwell gave a profile stuck on its first level, a NaN phase a
+    # NaN force, None a TypeError.
+    with pytest.raises(ValueError, match=name):
+        build()
+
+
+@pytest.mark.parametrize('kwargs, name', [
+    ({'lead_pole_ratio': None}, 'lead_pole_ratio'),
+    ({'integrator_ratio': 'x'}, 'integrator_ratio'),
+    ({'integrator_ratio': float('nan')}, 'integrator_ratio'),
+])
+def test_invalid_controller_targets_raise_value_error(kwargs, name):
+    # Checked where the controller is designed: before, None raised TypeError.
+    with pytest.raises(ValueError, match=name):
+        QfaTriad(TriadConfig(**kwargs))
 
 
 def test_run_rejects_bad_input():
@@ -587,9 +618,35 @@ def test_run_rejects_bad_input():
         triad.set_n_fpga(0, 2 ** 20)
     with pytest.raises(ValueError, match='controller gain'):
         triad.set_controller_gain(0, float('nan'))
-    for chunk in (0, -1, True, 2.5):
+    with pytest.raises(ValueError, match='controller gain'):
+        triad.set_controller_gain(0, None)
+    for word in (float('nan'), None):
+        with pytest.raises(ValueError, match='n_vref'):
+            triad.set_n_vref(0, word)
+    with pytest.raises(ValueError, match='temperature'):
+        triad.set_temperature(None)
+    # Before: IndexError, or axis -1 silently the z axis, True the y axis.
+    for axis in (3, -1, True, 1.0):
+        with pytest.raises(ValueError, match='axis'):
+            triad.set_open_loop(axis, True)
+        with pytest.raises(ValueError, match='axis'):
+            triad.set_reference_current(axis, True)
+        with pytest.raises(ValueError, match='axis'):
+            triad.set_controller_gain(axis, 1.0)
+        with pytest.raises(ValueError, match='axis'):
+            triad.set_n_fpga(axis, 100)
+        with pytest.raises(ValueError, match='axis'):
+            triad.drift.set_step(axis, 'i_ref', 1e-6)
+    triad.set_open_loop(np.int64(2), False)
+    for chunk in (0, -1, True, 2.5, float('nan'), None, '10'):
         with pytest.raises(ValueError, match='chunk_samples'):
             triad.run_for(0.01, chunk_samples=chunk)
+    for duration in (float('nan'), float('inf'), -0.01, None, True):
+        with pytest.raises(ValueError, match='duration_s'):
+            triad.run_for(duration)
+    for count in (float('nan'), float('inf'), None, -1, True):
+        with pytest.raises(ValueError, match='n_samples'):
+            triad.run(count)
 
 
 def test_misalignment_couples_axes_as_configured():

@@ -17,6 +17,7 @@ import pytest
 from scipy import signal
 from statistics_helpers import allan_edf_white, mean_sd, t_bound, variance_ratio_bounds
 
+from qfa_ros.model.allan import allan_deviation
 from qfa_ros.model.design import design_controller, LinearLoop, published_acceleration_variance
 from qfa_ros.model.noise import allan_deviation_model, model_allan_deviation, NoiseConfig
 from qfa_ros.model.triad import QfaTriad
@@ -113,6 +114,20 @@ def test_the_model_allan_deviation_refuses_an_averaging_time_that_is_none(tau):
         allan_deviation_model(NoiseConfig(), tau)
     with pytest.raises(ValueError, match='taus'):
         model_allan_deviation(1e-5, 1e-6, (1.0,), [1.0, tau])
+
+
+@pytest.mark.parametrize('period, taus, name', [
+    (float('inf'), 'octave', 'sample_period'),
+    (None, 'octave', 'sample_period'),
+    ('x', 'octave', 'sample_period'),
+    (0.0, 'octave', 'sample_period'),
+    (1.0, [2.0, float('nan')], 'taus'),
+    (1.0, [float('inf')], 'taus'),
+])
+def test_the_measured_allan_deviation_refuses_a_period_or_tau_that_is_none(period, taus, name):
+    # Before: an infinite period gave infinite taus, None a TypeError, a NaN tau was dropped.
+    with pytest.raises(ValueError, match=name):
+        allan_deviation(np.arange(100.0) % 7, period, taus)
 
 
 def test_the_old_flicker_shape_breaks_the_allan_ratio():

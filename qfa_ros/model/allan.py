@@ -5,6 +5,8 @@ import math
 from numba import njit
 import numpy as np
 
+from qfa_ros.model import checks
+
 
 def octave_factors(n):
     """
@@ -67,8 +69,7 @@ def allan_deviation_of_phase(phase, sample_period, taus='octave'):
     n = len(phase) - 1
     if phase.ndim != 1 or n < 3:
         raise ValueError('phase must be a 1-D series of at least 4 values')
-    if not sample_period > 0:
-        raise ValueError(f'sample_period must be positive, got {sample_period!r}')
+    sample_period = checks.positive('sample_period', sample_period)
     if taus is None:
         taus = 'octave'
     if isinstance(taus, str):
@@ -76,7 +77,10 @@ def allan_deviation_of_phase(phase, sample_period, taus='octave'):
             raise ValueError(f"taus must be 'octave' or averaging times, got {taus!r}")
         m = octave_factors(n)
     else:
-        m = np.unique(np.round(np.asarray(taus, dtype=float) / sample_period)).astype(np.int64)
+        taus = np.asarray(taus, dtype=float)
+        if not np.all(np.isfinite(taus)):
+            raise ValueError(f'taus must be finite averaging times [s], got {taus!r}')
+        m = np.unique(np.round(taus / sample_period)).astype(np.int64)
         m = m[(m >= 1) & (n + 1 - 2 * m >= 2)]
     deviation = np.empty(len(m))
     _overlapping_adev(phase, m, deviation)

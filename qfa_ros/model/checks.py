@@ -10,6 +10,15 @@ import math
 import numpy as np
 
 
+def is_finite(value):
+    """Return True for a finite real number (``math.isfinite``), False for anything else."""
+    try:
+        return math.isfinite(value)
+    except TypeError:
+        # None, a string, a sequence: no number at all.
+        return False
+
+
 def finite(name, value):
     """Return ``value`` as a float: anything ``float()`` reads, if finite."""
     try:
@@ -31,14 +40,19 @@ def positive(name, value, allow_zero=False):
 
 def non_negative(name, value, types=None):
     """Refuse a non-finite or negative number (given ``types``, also one not of them)."""
-    if (types is not None and not isinstance(value, types)) or not math.isfinite(value) \
+    if (types is not None and not isinstance(value, types)) or not is_finite(value) \
             or value < 0:
         raise ValueError(f'{name} must be finite and >= 0, got {value!r}')
 
 
 def positive_times(name, values):
     """Refuse an empty sequence of times or one with a time not finite and > 0."""
-    if not values or any(not math.isfinite(t) or t <= 0 for t in values):
+    try:
+        valid = len(values) > 0 and all(is_finite(t) and t > 0 for t in values)
+    except TypeError:
+        # Not a sequence (None, a number).
+        valid = False
+    if not valid:
         raise ValueError(f'{name} must be positive and finite')
 
 

@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 
+from qfa_ros.model import checks
 from qfa_ros.model.hardware import nominal_gains
 from qfa_ros.model.noise import acceleration_variance
 
@@ -126,13 +127,16 @@ def design_controller(hw, loop_rate_hz, crossover_hz=300.0, integrator_ratio=0.1
     and ``w_p = lead_pole_ratio w_c``; k(D(z)) is then set so that the discrete
     loop gain is exactly 1 at ``crossover_hz``.
     """
+    loop_rate_hz = checks.positive('loop_rate_hz', loop_rate_hz)
     ts = 1.0 / loop_rate_hz
     nyquist = loop_rate_hz / 2.0
-    if not 0 < crossover_hz < nyquist / 4:
+    if not checks.is_finite(crossover_hz) or not 0 < crossover_hz < nyquist / 4:
         raise ValueError(f'crossover_hz must be in (0, {nyquist / 4:g}), got {crossover_hz!r}')
-    if not 0 < integrator_ratio < 1:
+    if not checks.is_finite(integrator_ratio) or not 0 < integrator_ratio < 1:
         raise ValueError(f'integrator_ratio must be in (0, 1), got {integrator_ratio!r}')
-    if not 1 < lead_pole_ratio:
+    # An infinite lead pole is clamped below Nyquist: kept valid.
+    if not (checks.is_finite(lead_pole_ratio) or lead_pole_ratio == math.inf) \
+            or not 1 < lead_pole_ratio:
         raise ValueError(f'lead_pole_ratio must exceed 1, got {lead_pole_ratio!r}')
     w_c = 2 * math.pi * crossover_hz
     w_z = hw.damping / hw.inertia

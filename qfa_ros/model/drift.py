@@ -53,7 +53,8 @@ class DriftModel:
         if component not in self.components:
             raise ValueError(f'unknown drift component {component!r}; '
                              f'expected one of {", ".join(self.components)}')
-        if not 0 <= axis < self.n_axes:
+        if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)) \
+                or not 0 <= axis < self.n_axes:
             raise ValueError(f'axis must be in [0, {self.n_axes}), got {axis!r}')
         return axis, self.components.index(component)
 

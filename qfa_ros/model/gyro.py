@@ -103,9 +103,9 @@ class GyroConfig:
     def __post_init__(self):
         for name in ERROR_TERMS:
             checks.non_negative(f'gyro {name}', getattr(self, name), (int, float))
-        if not math.isfinite(self.reference_c):
+        if not checks.is_finite(self.reference_c):
             raise ValueError(f'gyro reference_c must be finite, got {self.reference_c!r}')
-        if not math.isfinite(self.range) or self.range <= 0:
+        if not checks.is_finite(self.range) or self.range <= 0:
             raise ValueError(f'gyro range must be positive, got {self.range!r}')
         checks.positive_times('gyro correlation_times', self.correlation_times)
         checks.finite_vector('gyro bias', self.bias)

@@ -54,8 +54,15 @@ class StepProfile:
     levels: tuple
 
     def __post_init__(self):
-        if len(self.times) != len(self.levels) or not self.times:
+        try:
+            sized = len(self.times) == len(self.levels) and len(self.times) > 0
+        except TypeError:
+            # None or a number: no sequence.
+            sized = False
+        if not sized:
             raise ValueError('times and levels must be non-empty and of equal length')
+        if not all(checks.is_finite(t) for t in self.times):
+            raise ValueError(f'times must be finite numbers [s], got {self.times!r}')
         if any(b <= a for a, b in zip(self.times, self.times[1:])):
             raise ValueError('times must increase strictly')
         for level in self.levels:
@@ -78,8 +85,10 @@ class SineProfile:
     phase: float = 0.0
 
     def __post_init__(self):
-        if not math.isfinite(self.frequency_hz) or self.frequency_hz <= 0:
+        if not checks.is_finite(self.frequency_hz) or self.frequency_hz <= 0:
             raise ValueError(f'frequency_hz must be positive, got {self.frequency_hz!r}')
+        if not checks.is_finite(self.phase):
+            raise ValueError(f'phase must be finite [rad], got {self.phase!r}')
         checks.finite_vector('amplitude', self.amplitude)
         checks.finite_vector('offset', self.offset)
 
@@ -91,6 +100,7 @@ class SineProfile:
 
 def tumble_profile(dwell_s=10.0):
     """Return the six-position tumble (+-x, +-y, +-z up), ``dwell_s`` seconds each."""
+    checks.positive('dwell_s', dwell_s)
     g = STANDARD_GRAVITY
     levels = ((0, 0, g), (0, 0, -g), (g, 0, 0), (-g, 0, 0), (0, g, 0), (0, -g, 0))
     times = tuple(k * dwell_s for k in range(len(levels)))

@@ -24,7 +24,7 @@ import warnings
 
 import numpy as np
 
-from qfa_ros.model import earth
+from qfa_ros.model import checks, earth
 from qfa_ros.model.files import read_regular_file
 from qfa_ros.model.trajectory import quintic_coefficients, Trajectory
 from qfa_ros.model.units import DEGREE
@@ -38,6 +38,18 @@ CSV_COLUMNS = ('time_s', 'latitude_deg', 'longitude_deg', 'height_m', 'roll_deg'
 def _location(latitude_deg, longitude_deg, height_m):
     earth.check_location(latitude_deg, longitude_deg, height_m)
     return math.radians(latitude_deg), math.radians(longitude_deg), float(height_m)
+
+
+def _finite(**values):
+    """Refuse any of ``values`` (name=value) that is not a finite number."""
+    for name, value in values.items():
+        checks.finite(name, value)
+
+
+def _positive(**values):
+    """Refuse any of ``values`` (name=value) that is not a finite number > 0."""
+    for name, value in values.items():
+        checks.positive(name, value)
 
 
 def _dwells(location, attitudes, dwell_s, move_s):
@@ -61,6 +73,7 @@ def static(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, roll=0.0, pitch=0
            yaw=math.pi / 2):
     """Return a body at rest at a location, attitude in [rad] (yaw pi/2: x north)."""
     location = _location(latitude_deg, longitude_deg, height_m)
+    _finite(roll=roll, pitch=pitch, yaw=yaw)
     return Trajectory(_dwells(location, [(roll, pitch, yaw)], 1.0, 0.0), 'static')
 
 
@@ -73,6 +86,8 @@ def six_position_tumble(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0,
                         dwell_s=10.0, move_s=4.0, yaw=math.pi / 2):
     """Return the six-position tumble: each axis up then down, ``dwell_s`` at rest each."""
     location = _location(latitude_deg, longitude_deg, height_m)
+    _positive(dwell_s=dwell_s, move_s=move_s)
+    _finite(yaw=yaw)
     attitudes = [(r, p, yaw) for r, p in TUMBLE_ATTITUDES]
     return Trajectory(_dwells(location, attitudes, dwell_s, move_s), 'six-position tumble')
 
@@ -86,6 +101,7 @@ def rate_table_turn(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, rate_deg
     ramp down, rest.
     """
     location = _location(latitude_deg, longitude_deg, height_m)
+    _finite(rate_deg_s=rate_deg_s, turns=turns, ramp_s=ramp_s, dwell_s=dwell_s, yaw=yaw)
     rate = math.radians(rate_deg_s)
     if rate == 0 or turns <= 0 or ramp_s <= 0 or dwell_s < 0:
         raise ValueError('rate_deg_s and turns must be non-zero; ramp_s > 0, dwell_s >= 0')
@@ -127,10 +143,16 @@ def vehicle_drive(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, yaw=math.p
     and joined by quintic Hermite pieces every ``knot_s``.
     """
     lat0, lon0, h0 = _location(latitude_deg, longitude_deg, height_m)
+    _finite(yaw=yaw)
+    _positive(ramp_s=ramp_s, knot_s=knot_s)
     script = np.asarray(script, dtype=float)
-    if script.ndim != 2 or script.shape[1] != 4 or np.any(script[:, 0] <= 0):
-        raise ValueError('script rows must be (duration > 0, accel, yaw rate, climb rate)')
+    if script.ndim != 2 or script.shape[1] != 4 or np.any(script[:, 0] <= 0) \
+            or not np.all(np.isfinite(script)):
+        raise ValueError('script rows must be finite (duration > 0, accel, yaw rate, climb '
+                         'rate)')
     dt = 1e-3
+    if knot_s < dt:
+        raise ValueError(f'knot_s must be at least the {dt:g} s grid, got {knot_s!r}')
     bounds = np.concatenate([[0.0], np.cumsum(script[:, 0])])
     t = np.arange(0.0, bounds[-1] + dt / 2, dt)
     commands = np.zeros((len(t), 3))
@@ -182,8 +204,15 @@ def _vibration(name, location, duration_s, frequency_hz, knots_per_cycle, yaw, a
     ``second(s, c, w)`` returns the second channel's index and its values, rates and
     accelerations, given ``s = sin(w t)`` and ``c = cos(w t)``.
     """
-    if not frequency_hz > 0 or not duration_s > 0:
-        raise ValueError('frequency_hz and duration_s must be positive')
+    _positive(frequency_hz=frequency_hz, duration_s=duration_s)
+    _finite(yaw=yaw, amplitude_deg=amplitude_deg)
+    try:
+        valid = not isinstance(knots_per_cycle, bool) and knots_per_cycle >= 1 \
+            and int(knots_per_cycle) == knots_per_cycle
+    except (TypeError, ValueError, OverflowError):
+        valid = False
+    if not valid:
+        raise ValueError(f'knots_per_cycle must be an integer >= 1, got {knots_per_cycle!r}')
     t = np.arange(0.0, duration_s, 1.0 / (frequency_hz * knots_per_cycle))
     t = np.append(t, duration_s)
     w = 2 * math.pi * frequency_hz
@@ -227,6 +256,7 @@ def sculling(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0
     the roll, rectifies into a mean specific force along body y.
     """
     location = _location(latitude_deg, longitude_deg, height_m)
+    _finite(displacement_m=displacement_m)
     return _vibration('sculling', location, duration_s, frequency_hz, knots_per_cycle, yaw,
                       amplitude_deg, lambda s, c, w: (2, *_sine(displacement_m, w, s, c)))
 
@@ -285,6 +315,7 @@ def parse_csv(data, name='trajectory'):
 
 def save_csv(path, trajectory, rate_hz=100.0):
     """Write ``trajectory`` sampled at ``rate_hz`` as a CSV pose file."""
+    _positive(rate_hz=rate_hz)
     t = np.arange(trajectory.start, trajectory.end + 0.5 / rate_hz, 1.0 / rate_hz)
     k = trajectory.kinematics(t)
     with open(path, 'w', newline='') as handle:

@@ -12,7 +12,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from qfa_ros.model import kernel, streams
+from qfa_ros.model import checks, kernel, streams
 from qfa_ros.model.axis import AxisLoop, start_axes
 from qfa_ros.model.drift import DriftModel
 from qfa_ros.model.gyro import GyroTriad
@@ -176,6 +176,7 @@ class QfaTriad:
 
     def set_open_loop(self, axis, open_loop):
         """Open (True) or re-close (False) the loop of ``axis``."""
+        axis = _axis_index(axis)
         loop = self.axes[axis]
         if open_loop and not loop.open_loop:
             loop.open()
@@ -203,13 +204,11 @@ class QfaTriad:
 
     def set_temperature(self, temperature):
         """Set the sensor temperature [degC] that drives the temperature coefficients."""
-        if not math.isfinite(temperature):
-            raise ValueError(f'temperature must be finite, got {temperature!r}')
-        self.temperature = float(temperature)
+        self.temperature = checks.finite('temperature', temperature)
 
     def set_reference_current(self, axis, on):
         """Close (True) or open (False) the switch M1 of the constant current source."""
-        self.axes[axis].reference_current_on = bool(on)
+        self.axes[_axis_index(axis)].reference_current_on = bool(on)
         self.invalidate()
 
     def set_n_fpga(self, axis, word):
@@ -222,9 +221,13 @@ class QfaTriad:
 
     def _set_word(self, axis, name, word, bits):
         # Write the loop word ``name`` of ``axis``, an integer in (0, 2^bits).
-        if int(word) != word or not 0 < word < 2 ** bits:
+        try:
+            valid = int(word) == word and 0 < word < 2 ** bits
+        except (TypeError, ValueError, OverflowError):
+            valid = False
+        if not valid:
             raise ValueError(f'{name} must be an integer in (0, 2^{bits}), got {word!r}')
-        setattr(self.axes[axis], name, int(word))
+        setattr(self.axes[_axis_index(axis)], name, int(word))
         self.invalidate()
 
     def set_controller_gain(self, axis, gain):
@@ -232,10 +235,14 @@ class QfaTriad:
 
         The bound keeps every int64 product of the kernel below 2^62 at full-scale ADC.
         """
-        if not math.isfinite(gain) or not 0 < gain < MAX_CONTROLLER_GAIN:
+        try:
+            valid = math.isfinite(gain) and 0 < gain < MAX_CONTROLLER_GAIN
+        except TypeError:
+            valid = False
+        if not valid:
             raise ValueError(f'controller gain must be in (0, {MAX_CONTROLLER_GAIN}), '
                              f'got {gain!r}')
-        loop = self.axes[axis]
+        loop = self.axes[_axis_index(axis)]
         loop.controller = loop.controller.with_gain(gain)
         self.invalidate()
 
@@ -456,7 +463,10 @@ class QfaTriad:
         if _sample_count('chunk_samples', chunk_samples) == 0:
             # A chunk of none would never finish the run.
             raise ValueError('chunk_samples must be > 0, got 0')
-        total = int(round(duration_s * self.config.sample_rate_hz))
+        if isinstance(duration_s, (bool, np.bool_)):
+            raise ValueError(f'duration_s must be a number of seconds, got {duration_s!r}')
+        duration_s = checks.positive('duration_s', duration_s, allow_zero=True)
+        total = round(duration_s * self.config.sample_rate_hz)
         parts = []
         while total > 0:
             n = min(chunk_samples, total)
@@ -472,8 +482,21 @@ def _held_or_per_sample(values):
     return np.ascontiguousarray(values.T)
 
 
+def _axis_index(axis):
+    """Return ``axis`` as 0, 1 or 2 (x, y, z), else raise ValueError naming it."""
+    if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)) \
+            or not 0 <= axis < len(AXES):
+        raise ValueError(f'axis must be an integer in [0, {len(AXES)}), got {axis!r}')
+    return int(axis)
+
+
 def _sample_count(name, value):
     """Return ``value`` as a non-negative int, else raise ValueError naming ``name``."""
-    if isinstance(value, bool) or int(value) != value or value < 0:
+    try:
+        valid = not isinstance(value, bool) and int(value) == value and value >= 0
+    except (TypeError, ValueError, OverflowError):
+        # None, a string, NaN, infinity: not a count.
+        valid = False
+    if not valid:
         raise ValueError(f'{name} must be a non-negative integer, got {value!r}')
     return int(value)

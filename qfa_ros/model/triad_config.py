@@ -6,6 +6,7 @@ import numbers
 
 import numpy as np
 
+from qfa_ros.model import checks
 from qfa_ros.model.gyro import GyroConfig
 from qfa_ros.model.hardware import AxisHardware
 from qfa_ros.model.noise import NoiseConfig
@@ -78,8 +79,9 @@ class TriadConfig:
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise ValueError('loop_rate_hz must be an integer multiple of sample_rate_hz, got '
                              f'{self.loop_rate_hz!r} / {self.sample_rate_hz!r}')
-        if not math.isfinite(self.open_loop_cref_sensitivity):
-            raise ValueError('open_loop_cref_sensitivity must be finite')
+        if not checks.is_finite(self.open_loop_cref_sensitivity):
+            raise ValueError('open_loop_cref_sensitivity must be finite, got '
+                             f'{self.open_loop_cref_sensitivity!r}')
         matrix = np.asarray(self.misalignment, dtype=float)
         if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
             raise ValueError('misalignment must be a finite 3x3 matrix')
