@@ -10,8 +10,15 @@ import math
 import numpy as np
 
 
-def is_finite(value):
-    """Return True for a finite real number (``math.isfinite``), False for anything else."""
+def is_finite(value, bool_ok=True):
+    """
+    Return True for a finite real number (``math.isfinite``), False for anything else.
+
+    A bool is a number to ``math.isfinite``; ``bool_ok=False`` counts it as none (a time or
+    a limit given as ``True``).
+    """
+    if not bool_ok and isinstance(value, (bool, np.bool_)):
+        return False
     try:
         return math.isfinite(value)
     except TypeError:

@@ -76,8 +76,8 @@ class CalibrationKeeper:
             kept = store.set_aside()
             where = f'kept as {kept}' if kept else 'could not be set aside'
             self.problem = (f'state file {store.path} holds words the sensor cannot take '
-                            f'(k(D(z)), N_VREF or the temperature ROM out of range: '
-                            f'{type(error).__name__}); {where}; starting uncalibrated')
+                            '(k(D(z)), N_VREF, the temperature ROM or the gyro bias out of '
+                            f'range: {type(error).__name__}); {where}; starting uncalibrated')
             self._logger.error(self.problem)
             return
         self.state = state
