@@ -42,10 +42,11 @@ FORBIDDEN = {'truth', 'temperature', 'drift', 'thermal', 'noise', 'config', 'gai
              'axes', 'profile', '_triad', 'scale', 'sample_index'}
 FORBIDDEN_NAMES = {'_triad', 'ErrorProfile', 'NoiseConfig', 'ThermalConfig', 'QfaTriad',
                    'triad'}
-# qfa_ros.model.units holds constants only (PPM, MICRO_G, ...; test_units keeps it so).
+# qfa_ros.model.units holds constants only (PPM, MICRO_G, ...; test_units keeps it so);
+# qfa_ros.model.checks only the checks of a caller's numbers (no model state).
 ALLOWED_IMPORTS = {'dataclasses', 'math', 'numpy', 'qfa_ros.calibration.schedule',
                    'qfa_ros.calibration.estimation', 'qfa_ros.model.triad',
-                   'qfa_ros.model.earth', 'qfa_ros.model.units'}
+                   'qfa_ros.model.earth', 'qfa_ros.model.units', 'qfa_ros.model.checks'}
 
 
 def truth_reads(path):

@@ -20,7 +20,7 @@ from qfa_ros.calibration.schedule import (
     require_closed,
     SensorPort,
 )
-from qfa_ros.model import checks
+from qfa_ros.model.checks import is_finite
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED
 from qfa_ros.model.units import MICRO_G, PPM
 
@@ -118,9 +118,9 @@ class FeedbackSettings:
         check_seconds('average_s', self.average_s)
         if self.order not in FEEDBACK_ORDERS:
             raise ValueError(f'order must be one of {FEEDBACK_ORDERS}, got {self.order!r}')
-        if not checks.is_finite(self.bias_instability, bool_ok=False) or self.bias_instability < 0:
+        if not is_finite(self.bias_instability, bool_ok=False) or self.bias_instability < 0:
             raise ValueError(f'bias_instability must be >= 0, got {self.bias_instability!r}')
-        if not checks.is_finite(self.motion_limit, bool_ok=False) or self.motion_limit <= 0:
+        if not is_finite(self.motion_limit, bool_ok=False) or self.motion_limit <= 0:
             raise ValueError(f'motion_limit must be positive, got {self.motion_limit!r}')
         if not isinstance(self.temperature_correction, bool):
             raise ValueError('temperature_correction must be a bool, got '
@@ -206,7 +206,7 @@ def _same(a, b):
 
 def check_int(name, value, low, high):
     """Raise ValueError naming ``name`` unless ``value`` is a whole number in [low, high]."""
-    if not checks.is_finite(value, bool_ok=False) or int(value) != value \
+    if not is_finite(value, bool_ok=False) or int(value) != value \
             or not low <= value <= high:
         raise ValueError(f'{name} must be an integer in [{low}, {high}], got {value!r}')
 

@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from qfa_ros.calibration.schedule import EstimationError, require_closed, SensorPort
-from qfa_ros.model import checks
+from qfa_ros.model.checks import is_finite
 from qfa_ros.model.earth import earth_rate_enu
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G
@@ -65,16 +65,16 @@ class GyroBiasSettings:
     accel_limit: float = 100.0 * MICRO_G
 
     def __post_init__(self):
-        if not checks.is_finite(self.duration_s, bool_ok=False) or self.duration_s < 2 * BLOCK_S:
+        if not is_finite(self.duration_s, bool_ok=False) or self.duration_s < 2 * BLOCK_S:
             raise ValueError(f'duration_s must be at least {2 * BLOCK_S:g} s, '
                              f'got {self.duration_s!r}')
-        if not checks.is_finite(self.latitude_deg, bool_ok=False) or abs(self.latitude_deg) > 90.0:
+        if not is_finite(self.latitude_deg, bool_ok=False) or abs(self.latitude_deg) > 90.0:
             raise ValueError(f'latitude_deg must be in [-90, 90], got {self.latitude_deg!r}')
-        if not checks.is_finite(self.yaw, bool_ok=False):
+        if not is_finite(self.yaw, bool_ok=False):
             raise ValueError(f'yaw must be finite, got {self.yaw!r}')
         for name in ('rate_limit', 'accel_limit'):
             value = getattr(self, name)
-            if not checks.is_finite(value, bool_ok=False) or value <= 0:
+            if not is_finite(value, bool_ok=False) or value <= 0:
                 raise ValueError(f'{name} must be positive, got {value!r}')
 
 

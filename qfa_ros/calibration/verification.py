@@ -16,7 +16,7 @@ import numpy as np
 from qfa_ros.calibration.chamber import idle
 from qfa_ros.calibration.schedule import samples_for
 from qfa_ros.calibration.temperature import chamber_program, fixture_profile, POSITIONS
-from qfa_ros.model import checks
+from qfa_ros.model.checks import is_finite
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.units import STANDARD_GRAVITY
 
@@ -60,10 +60,10 @@ def verify_cycle(triad, low_c=-40.0, high_c=70.0, period_s=2400.0, shape='sine',
     :data:`MAX_BINS` (ValueError naming the parameter).
     """
     for name, value in (('low_c', low_c), ('high_c', high_c)):
-        if not checks.is_finite(value, bool_ok=False):
+        if not is_finite(value, bool_ok=False):
             raise ValueError(f'{name} must be a finite number, got {value!r}')
     for name, value in (('period_s', period_s), ('block_s', block_s), ('bin_c', bin_c)):
-        if not checks.is_finite(value, bool_ok=False) or value <= 0:
+        if not is_finite(value, bool_ok=False) or value <= 0:
             raise ValueError(f'{name} must be a finite number > 0, got {value!r}')
     if (high_c - low_c) / bin_c > MAX_BINS:
         raise ValueError(f'bin_c must be at least (high_c - low_c) / {MAX_BINS:g}, got {bin_c!r}')
