@@ -396,7 +396,9 @@ KILL_SCRIPT = textwrap.dedent("""
                             range(10, 60))
         earlier.write_result({'done': True}, 100)
     digest = hashlib.sha256(open(earlier.path, 'rb').read()).hexdigest()
-    print('earlier', digest, flush=True)
+    # One write a line: with PYTHONUNBUFFERED print writes its pieces one by one, and a
+    # kill between them left a line cut short.
+    os.write(1, f'earlier {digest}\\n'.encode())
     trace = TraceWriter(os.path.join(directory, 'killed.mcap'), chunk_size=2048)
     trace.write_settings({'run': 'killed'}, 1)
     on_disk = trace.bag.bytes_written
@@ -407,7 +409,7 @@ KILL_SCRIPT = textwrap.dedent("""
         row += 1
         if trace.bag.bytes_written != on_disk:  # a chunk went to the file
             on_disk = trace.bag.bytes_written
-            print('flushed', row, flush=True)
+            os.write(1, f'flushed {row}\\n'.encode())
     os._exit(5)  # never reached when the parent kills in time
 """)
 
