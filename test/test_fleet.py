@@ -46,6 +46,16 @@ def write_study(path, data):
     return path
 
 
+
+def test_a_scheduler_address_that_is_none_is_one_line(tmp_path, capsys):
+    """Before: Dask's ValueError as a traceback."""
+    study = write_study(tmp_path / 'study.yaml', CHEAP)
+    assert fleet_main([str(study), '--scheduler', 'nonsense!!', '--no-progress']) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('qfa-fleet: --scheduler: ') and err.count('\n') == 1, err
+    assert list(tmp_path.iterdir()) == [study], 'nothing made before the refusal'
+
+
 @pytest.mark.parametrize('case, expected', [
     # Before: a traceback (RecursionError), a message quoting the line, MemoryError reading
     # /dev/zero, a FIFO that blocked forever.

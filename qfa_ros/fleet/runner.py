@@ -150,9 +150,15 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
         The whole study, one row per unit and calibration.
     """
     from dask.distributed import as_completed, Client, LocalCluster
+    from distributed.comm import get_address_host_port
     from tqdm import tqdm
 
     out_path = Path(out_path)
+    if scheduler:
+        try:
+            get_address_host_port(scheduler)  # refused before a parts directory is made
+        except ValueError as error:
+            raise StudyError(f'--scheduler: {error}') from None
     parts = parts_directory(out_path)
     code = code_digest()
     pending = _prepare(study, parts, code)
