@@ -4,8 +4,8 @@ from mcap.reader import make_reader
 import numpy as np
 
 from qfa_ros.bag.imu_cdr import decode_imu
-from qfa_ros.bag.reader import MCAP_READ_ERRORS, mcap_read_problem, normalized_type
-from qfa_ros.model.files import open_regular_file, UntrustedFileError
+from qfa_ros.bag.reader import mcap_read_errors, normalized_type
+from qfa_ros.model.files import open_regular_file
 
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 
@@ -28,17 +28,6 @@ def read_imu(path, topic='/imu/data_raw'):
     :raises ValueError: ``path`` is no regular MCAP file, is malformed, or ``topic`` is not
         ``sensor_msgs/msg/Imu``; the message names the file, never quotes it.
     """
-    try:
-        return _read_imu(path, topic)
-    except (ImuStreamError, UntrustedFileError):
-        raise
-    except OSError as error:
-        raise ValueError(f'{path}: cannot read: {error.strerror or error}') from None
-    except MCAP_READ_ERRORS as error:
-        raise ValueError(f'{path}: cannot read MCAP: {mcap_read_problem(error)}') from None
-
-
-def _read_imu(path, topic):
     parts = []
     batch = []
     log_times = []  # the batch's, as int64 arrays: a list of Python ints costs 36 bytes each
@@ -51,7 +40,7 @@ def _read_imu(path, topic):
         batch.clear()
         log_times.clear()
 
-    with open_regular_file(path) as stream:
+    with mcap_read_errors(path, ImuStreamError), open_regular_file(path) as stream:
         for schema, _, message in make_reader(stream).iter_messages(topics=[topic],
                                                                     log_time_order=False):
             if normalized_type(schema.name if schema else '') != IMU_TYPE:

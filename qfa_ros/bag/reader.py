@@ -6,6 +6,7 @@ each topic's type and the QoS its publishers offered (``offered_qos_profiles``).
 ROS: the replay publisher in :mod:`qfa_ros.ros.replay` puts the bytes on the wire.
 """
 
+import contextlib
 import dataclasses
 import heapq
 from pathlib import Path
@@ -48,6 +49,25 @@ def mcap_read_problem(error):
     if isinstance(error, zstandard.ZstdError):
         return 'corrupt (a chunk that does not decompress)'
     return f'malformed ({type(error).__name__})'
+
+
+@contextlib.contextmanager
+def mcap_read_errors(path, *passing):
+    """
+    Raise what reading the MCAP file ``path`` raises as one ValueError naming it.
+
+    :class:`UntrustedFileError` (a file not read) and the exception types ``passing`` go
+    through as they are; an ``OSError`` or one of :data:`MCAP_READ_ERRORS` becomes
+    ``ValueError('<path>: cannot read ...')``, quoting nothing of the file.
+    """
+    try:
+        yield
+    except (UntrustedFileError, *passing):
+        raise
+    except OSError as error:
+        raise ValueError(f'{path}: cannot read: {error.strerror or error}') from None
+    except MCAP_READ_ERRORS as error:
+        raise ValueError(f'{path}: cannot read MCAP: {mcap_read_problem(error)}') from None
 
 
 @dataclasses.dataclass

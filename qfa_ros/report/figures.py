@@ -36,9 +36,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 
-from qfa_ros.bag.reader import MCAP_READ_ERRORS, mcap_read_problem
+from qfa_ros.bag.reader import mcap_read_errors
 from qfa_ros.bag.trace import key_values_to_dict
-from qfa_ros.model.files import open_regular_file, UntrustedFileError
+from qfa_ros.model.files import open_regular_file
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.units import MICRO_G
 
@@ -165,21 +165,10 @@ def load_bag(path):
         never quotes it.
     """
     path = Path(path)
-    try:
-        return _load_bag(path)
-    except UntrustedFileError:
-        raise
-    except OSError as error:
-        raise ValueError(f'{path}: cannot read: {error.strerror or error}') from None
-    except MCAP_READ_ERRORS as error:
-        raise ValueError(f'{path}: cannot read MCAP: {mcap_read_problem(error)}') from None
-
-
-def _load_bag(path):
     statuses = {}
     tables = {}
     imu_times, imu_accel, phases = [], [], []
-    with open_regular_file(path) as stream:
+    with mcap_read_errors(path), open_regular_file(path) as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         for schema, channel, message, decoded in reader.iter_decoded_messages():
             topic, msgtype = channel.topic, schema.name if schema else ''
