@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from qfa_ros.model import checks
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.triad_output import concatenate
 
@@ -316,10 +317,11 @@ def run_schedule(triad, schedule, chunk_samples=1000, progress=None):
     needs the sensor at rest. ``progress``, if given, is called with the sensor seconds
     of every chunk run.
     """
-    if isinstance(chunk_samples, bool) or not isinstance(chunk_samples, (int, np.integer)) \
-            or chunk_samples < 1:
+    try:
+        checks.count('chunk_samples', chunk_samples, least=1)
+    except ValueError:
         schedule.close()
-        raise ValueError(f'chunk_samples must be an integer >= 1, got {chunk_samples!r}')
+        raise
     moving = triad.is_at_rest() if hasattr(triad, 'is_at_rest') else None
     if moving:
         schedule.close()

@@ -26,6 +26,26 @@ def is_finite(value, bool_ok=True):
         return False
 
 
+def count(name, value, least=0):
+    """Return ``value`` as an int: a whole number (``2.0`` too, not a bool) >= ``least``."""
+    try:
+        valid = not isinstance(value, bool) and int(value) == value and value >= least
+    except (TypeError, ValueError, OverflowError):
+        # None, a string, NaN, infinity: not a count.
+        valid = False
+    if not valid:
+        raise ValueError(f'{name} must be an integer >= {least}, got {value!r}')
+    return int(value)
+
+
+def index(name, value, size):
+    """Return ``value`` as an int in ``[0, size)``: an integer type only, not a bool."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
+            or not 0 <= value < size:
+        raise ValueError(f'{name} must be an integer in [0, {size}), got {value!r}')
+    return int(value)
+
+
 def finite(name, value):
     """Return ``value`` as a float: anything ``float()`` reads, if finite."""
     try:

@@ -53,10 +53,7 @@ class DriftModel:
         if component not in self.components:
             raise ValueError(f'unknown drift component {component!r}; '
                              f'expected one of {", ".join(self.components)}')
-        if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)) \
-                or not 0 <= axis < self.n_axes:
-            raise ValueError(f'axis must be in [0, {self.n_axes}), got {axis!r}')
-        return axis, self.components.index(component)
+        return checks.index('axis', axis, self.n_axes), self.components.index(component)
 
     def set_step(self, axis, component, delta):
         """Set the step drift of ``component`` on ``axis`` (relative, e.g. 200e-6)."""

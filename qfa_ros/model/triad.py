@@ -176,7 +176,7 @@ class QfaTriad:
 
     def set_open_loop(self, axis, open_loop):
         """Open (True) or re-close (False) the loop of ``axis``."""
-        axis = _axis_index(axis)
+        axis = checks.index('axis', axis, len(AXES))
         loop = self.axes[axis]
         if open_loop and not loop.open_loop:
             loop.open()
@@ -208,7 +208,7 @@ class QfaTriad:
 
     def set_reference_current(self, axis, on):
         """Close (True) or open (False) the switch M1 of the constant current source."""
-        self.axes[_axis_index(axis)].reference_current_on = bool(on)
+        self.axes[checks.index('axis', axis, len(AXES))].reference_current_on = bool(on)
         self.invalidate()
 
     def set_n_fpga(self, axis, word):
@@ -227,7 +227,7 @@ class QfaTriad:
             valid = False
         if not valid:
             raise ValueError(f'{name} must be an integer in (0, 2^{bits}), got {word!r}')
-        setattr(self.axes[_axis_index(axis)], name, int(word))
+        setattr(self.axes[checks.index('axis', axis, len(AXES))], name, int(word))
         self.invalidate()
 
     def set_controller_gain(self, axis, gain):
@@ -242,7 +242,7 @@ class QfaTriad:
         if not valid:
             raise ValueError(f'controller gain must be in (0, {MAX_CONTROLLER_GAIN}), '
                              f'got {gain!r}')
-        loop = self.axes[_axis_index(axis)]
+        loop = self.axes[checks.index('axis', axis, len(AXES))]
         loop.controller = loop.controller.with_gain(gain)
         self.invalidate()
 
@@ -295,7 +295,7 @@ class QfaTriad:
             True angular rate w_ib^b [rad/s] per sample, shape (n_samples, 3), with
             ``specific_force``; default: the trajectory's, or zero.
         """
-        n_samples = _sample_count('n_samples', n_samples)
+        n_samples = checks.count('n_samples', n_samples)
         chunk = self._prepare(self.sample_index, n_samples, specific_force, angular_rate)
         self._launch(chunk).join()
         return self._finish(chunk)
@@ -319,10 +319,8 @@ class QfaTriad:
         chunk_samples : int
             Samples per chunk (the last one may be shorter), at least 1.
         """
-        n_samples = _sample_count('n_samples', n_samples)
-        chunk_samples = _sample_count('chunk_samples', chunk_samples)
-        if chunk_samples < 1:
-            raise ValueError(f'chunk_samples must be at least 1, got {chunk_samples}')
+        n_samples = checks.count('n_samples', n_samples)
+        chunk_samples = checks.count('chunk_samples', chunk_samples, least=1)
         sizes = [min(chunk_samples, n_samples - done)
                  for done in range(0, n_samples, chunk_samples)]
         if not sizes:
@@ -460,9 +458,8 @@ class QfaTriad:
 
     def run_for(self, duration_s, chunk_samples=1000):
         """Run ``duration_s`` seconds in chunks and return the concatenated output."""
-        if _sample_count('chunk_samples', chunk_samples) == 0:
-            # A chunk of none would never finish the run.
-            raise ValueError('chunk_samples must be > 0, got 0')
+        # A chunk of none would never finish the run.
+        checks.count('chunk_samples', chunk_samples, least=1)
         if isinstance(duration_s, (bool, np.bool_)):
             raise ValueError(f'duration_s must be a number of seconds, got {duration_s!r}')
         duration_s = checks.positive('duration_s', duration_s, allow_zero=True)
@@ -480,23 +477,3 @@ def _held_or_per_sample(values):
     if len(values) and np.all(values == values[0]):
         return np.ascontiguousarray(values[:1].T)
     return np.ascontiguousarray(values.T)
-
-
-def _axis_index(axis):
-    """Return ``axis`` as 0, 1 or 2 (x, y, z), else raise ValueError naming it."""
-    if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)) \
-            or not 0 <= axis < len(AXES):
-        raise ValueError(f'axis must be an integer in [0, {len(AXES)}), got {axis!r}')
-    return int(axis)
-
-
-def _sample_count(name, value):
-    """Return ``value`` as a non-negative int, else raise ValueError naming ``name``."""
-    try:
-        valid = not isinstance(value, bool) and int(value) == value and value >= 0
-    except (TypeError, ValueError, OverflowError):
-        # None, a string, NaN, infinity: not a count.
-        valid = False
-    if not valid:
-        raise ValueError(f'{name} must be a non-negative integer, got {value!r}')
-    return int(value)
