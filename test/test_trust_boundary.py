@@ -265,6 +265,8 @@ def hostile_state(case, state):
         return json.dumps({**state, 'compensation_enabled': SECRET})
     if case == 'not JSON':
         return f'{SECRET}\n'
+    if case == 'gyro bias beyond the range':  # applied before: rates of 1e300 rad/s published
+        return json.dumps({**state, 'gyro_bias': [1e300, 0.0, 0.0]})
     raise ValueError(case)
 
 
@@ -283,7 +285,8 @@ class LogLines:
 @pytest.mark.parametrize('case', [
     'nested', 'nested in a field', 'Infinity in n_vref', 'huge captured_at_ns', 'huge integer',
     'word in controller_gain', 'word as a reference key', 'word in last_estimates',
-    'word in the temperature record', 'word as the compensation switch', 'not JSON'])
+    'word in the temperature record', 'word as the compensation switch', 'not JSON',
+    'gyro bias beyond the range'])
 def test_a_malformed_state_file_is_set_aside_without_quoting_it(tmp_path, case):
     triad = make_triad(defaults())
     nominal = [(loop.controller.gain, loop.n_vref) for loop in triad.axes]
