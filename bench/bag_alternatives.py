@@ -36,13 +36,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from qfa_ros.bag.files import make_durable  # noqa: E402
 from qfa_ros.bag.flight_recorder import FlightRecorder  # noqa: E402
 from qfa_ros.bag.imu_cdr import decode_imu, ImuEncoder  # noqa: E402
 from qfa_ros.bag.msgdefs import definition, type_hash  # noqa: E402
+from qfa_ros.bag.part_files import make_durable  # noqa: E402
 from qfa_ros.bag.part_repair import recover_part  # noqa: E402
 from qfa_ros.bag.writer import McapBagWriter  # noqa: E402
-from qfa_ros.model.units import STANDARD_GRAVITY  # noqa: E402
+from qfa_ros.model.constants import STANDARD_GRAVITY  # noqa: E402
 
 TOPIC = '/imu/data_raw'
 IMU = 'sensor_msgs/msg/Imu'

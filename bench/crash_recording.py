@@ -353,9 +353,9 @@ def recording_cost(scratch, seconds, rounds, rate=1000.0):
     never fsyncs until the file is finished. Returns ``{variant: [(CPU s, wall s, bytes,
     fsync wall times)]}``.
     """
-    from qfa_ros.bag.files import make_durable
     from qfa_ros.bag.flight_recorder import FlightRecorder
     from qfa_ros.bag.imu_cdr import ImuEncoder
+    from qfa_ros.bag.part_files import make_durable
     from qfa_ros.ros.pacing import RECORD_PERIOD_S
 
     encoder = ImuEncoder('imu_link', [1e-6, 0, 0, 0, 1e-6, 0, 0, 0, 1e-6])

@@ -1,8 +1,8 @@
-"""Seed 1's experiment as a distribution, and the Monte Carlo of the residual scale error.
+"""Ran et al.'s experiment as a distribution, and the Monte Carlo of the residual scale error.
 
 Run: ``.venv/bin/python bench/estimation_accuracy.py [--trials 50] [--draws 100] [--seed 0]``.
 
-Part 1: ``--trials`` seeds of seed 1 §IV-A (each a fresh sensor in the paper's room:
+Part 1: ``--trials`` seeds of Ran et al. 2019, §IV-A (each a fresh sensor in the paper's room:
 wander within 3 degC, warm-up; see ``qfa_ros.calibration.experiments.PaperRoom``): mean
 and standard deviation of both estimates, the static errors and the restrained error
 beside the paper's six trials.
@@ -48,7 +48,7 @@ def paper_distribution(trials, seed):
     values['compensated_error_ug'] = np.array([abs(t.compensated_error_ug) for t in results])
     values['restrained_percent'] = 100 * (1 - values['compensated_error_ug']
                                           / values['drifted_error_ug'])
-    print(f'| quantity ({trials} seeds) | mean | σ | σ of the mean | seed 1 (6 trials) |')
+    print(f'| quantity ({trials} seeds) | mean | σ | σ of the mean | Ran et al. 2019 (6 trials) |')
     print('|---|---|---|---|---|')
     for name, v in values.items():
         paper = PAPER.get(name)

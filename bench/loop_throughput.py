@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from qfa_ros.model.units import STANDARD_GRAVITY
+from qfa_ros.model.constants import STANDARD_GRAVITY
 
 COMPILE_SNIPPET = """
 import time

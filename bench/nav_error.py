@@ -4,7 +4,7 @@ Run: ``PYTHONPATH=. .venv/bin/python bench/nav_error.py [--units 20] [--first-se
 [--jobs 2] [--minutes 60] [--figure docs/figures/nav_error.png] [--save DIR]``;
 ``--save DIR --tabulate`` tabulates the units an interrupted run saved.
 
-Each unit is the drawn unit of its seed (``qfa_ros.model.unit``) with seed 1's component
+Each unit is the drawn unit of its seed (``qfa_ros.model.drawn_unit``) with Ran et al.'s component
 temperature coefficients (``sensor.error_profile: paper``) and the default gyros, in a
 constant 25 degC ambient, its loops at 10 kHz, published at 100 Hz. In the factory it gets
 ``calibrate_temperature`` (the default chamber program: bias, scale factor,
@@ -48,10 +48,10 @@ from qfa_ros.calibration.schedule import run_schedule  # noqa: E402
 from qfa_ros.calibration.state import CalibrationState  # noqa: E402
 from qfa_ros.calibration.temperature import temperature_calibration  # noqa: E402
 from qfa_ros.model import trajectories as tr  # noqa: E402
+from qfa_ros.model.drawn_unit import draw_unit  # noqa: E402
 from qfa_ros.model.errors import ErrorProfile  # noqa: E402
 from qfa_ros.model.thermal import ThermalConfig  # noqa: E402
 from qfa_ros.model.triad_config import TriadConfig  # noqa: E402
-from qfa_ros.model.unit import draw_unit  # noqa: E402
 
 RATE_HZ = 100.0
 LEVEL_S = 15.0

@@ -18,11 +18,11 @@ import numpy as np
 from scipy import signal
 from tqdm import tqdm
 
+from qfa_ros.model.constants import MICRO_G
 from qfa_ros.model.design import design_controller, LinearLoop, published_acceleration_variance
 from qfa_ros.model.noise import allan_deviation_model
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.units import MICRO_G
 
 
 def main():

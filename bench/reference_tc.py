@@ -41,10 +41,10 @@ from qfa_ros.calibration.temperature import (  # noqa: E402
     temperature_calibration,
     TemperatureSettings,
 )
+from qfa_ros.model.drawn_unit import draw_unit  # noqa: E402
 from qfa_ros.model.errors import ErrorProfile  # noqa: E402
 from qfa_ros.model.thermal import ThermalConfig  # noqa: E402
 from qfa_ros.model.triad_config import TriadConfig  # noqa: E402
-from qfa_ros.model.unit import draw_unit  # noqa: E402
 from qfa_ros.ros.model_settings import make_triad, temperature_settings
 from qfa_ros.ros.parameter_table import PARAMETERS
 
@@ -107,7 +107,7 @@ def main(argv=None):
     print(f'# I_ref temperature coefficient from the temperature calibration ({scenario})\n')
     print(f'Command: `python bench/reference_tc.py{" --short" if args.short else ""} '
           f"--units {args.units}`; each unit's own I_ref coefficient c0 (drawn: "
-          'qfa_ros.model.unit, the estimator does not read it); feedback estimates 10 degC '
+          'qfa_ros.model.drawn_unit, the estimator does not read it); feedback estimates 10 degC '
           'above the reference, no drift applied (right answer 0).\n')
     print('| unit | axis | true c0 [ppm/degC] | measured c [ppm/degC] | (c - c0) / SE | '
           'feedback, uncorrected [ppm] | feedback, corrected [ppm] |')

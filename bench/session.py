@@ -27,8 +27,8 @@ from node_helpers import (  # noqa: E402
     NodeProcess,
 )
 
+from qfa_ros.model.constants import MICRO_G
 from qfa_ros.model.earth import normal_gravity  # noqa: E402
-from qfa_ros.model.units import MICRO_G
 
 G = float(normal_gravity(np.radians(45.0)))
 

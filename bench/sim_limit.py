@@ -36,7 +36,7 @@ import time
 from numba import njit
 import numpy as np
 
-from qfa_ros.model.units import STANDARD_GRAVITY
+from qfa_ros.model.constants import STANDARD_GRAVITY
 
 
 @njit(cache=True, nogil=True)

@@ -1,5 +1,5 @@
 """
-Benchmark the temperature compensation chain (seed 2) and print Markdown tables.
+Benchmark the temperature compensation chain (Liu, Li and Shen) and print Markdown tables.
 
 Run from the repository root::
 
@@ -40,10 +40,10 @@ from qfa_ros.calibration.tempfit import (  # noqa: E402
 )
 from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias  # noqa: E402
 from qfa_ros.calibration.verification import verify_cycle  # noqa: E402
+from qfa_ros.model.constants import MICRO_G  # noqa: E402
+from qfa_ros.model.drawn_unit import draw_unit  # noqa: E402
 from qfa_ros.model.thermal import ThermalConfig, ThermalModel  # noqa: E402
 from qfa_ros.model.triad_config import TriadConfig  # noqa: E402
-from qfa_ros.model.unit import draw_unit  # noqa: E402
-from qfa_ros.model.units import MICRO_G  # noqa: E402
 
 SEED = 20240611
 THERMAL_DT = 0.1
@@ -257,7 +257,7 @@ def units_table(units, short):
     tau = 300.0 * scale
     calibration_s, verification_s = 3600.0 * scale * 1.2, 4800.0 * scale * 1.2
     lines = ['## Six-position calibration of drawn units, verified in six orientations', '',
-             f'Units drawn by seed (qfa_ros.model.unit); body time constant {tau:g} s; '
+             f'Units drawn by seed (qfa_ros.model.drawn_unit); body time constant {tau:g} s; '
              f'calibration: chamber plateaus -40..+70 degC every 10 degC, {calibration_s:g} s '
              'program + extreme soaks + soak back, head tumbling +x +y +z -z -y -x with 2 s '
              f'dwell; verification: sine chamber cycle of {verification_s:g} s, the head '
@@ -302,7 +302,7 @@ def main(argv=None):
         print('\n'.join(units_table(1, True)))
         return
     rng = np.random.default_rng(SEED)
-    lines = ['# Temperature compensation benchmark (seed 2)', '',
+    lines = ['# Temperature compensation benchmark (Liu, Li and Shen)', '',
              f'Python {platform.python_version()}, numpy {np.__version__}, '
              f'{platform.machine()}; seed {SEED}.', '']
     lines += cordic_table(rng) + ['']

@@ -47,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 from node_helpers import node_environment, ROOT  # noqa: E402
 
 from qfa_ros.calibration.verification import ATTITUDES, SCALE_PAIRS  # noqa: E402
-from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY  # noqa: E402
+from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY  # noqa: E402
 
 PLATEAUS_C = (-27.0, 8.0, 41.0, 64.0)
 ZERO_LIMIT_UG = 30.0
@@ -118,7 +118,7 @@ def trace_facts(directory, rate):
     from mcap.reader import make_reader
     from rclpy.serialization import deserialize_message
 
-    from qfa_ros.bag.trace import key_values_to_dict
+    from qfa_ros.bag.trace_writer import key_values_to_dict
 
     facts = {}
     for path in sorted((directory / 'traces').glob('qfa_temperature_*.mcap')):

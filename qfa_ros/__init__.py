@@ -12,7 +12,7 @@ layer              what                                                       ma
 ``report``         figures drawn from bags (matplotlib)                       bag and below
 ``fleet``          Monte Carlo fleet studies on Dask, Parquet results         calibration, model
 ``bag``            MCAP / rosbag2 writing and reading, CDR, traces            calibration, model
-``calibration``    self-estimation schedules, calibration state, seed 2 fit   model
+``calibration``    self-estimation schedules, calibration state, temperature fits  model
 ``model``          the sensor physics: loops, noise, drift, thermal, triad    numpy/scipy/numba
 =================  =========================================================  ===========
 """

@@ -27,7 +27,7 @@ import shlex
 import numpy as np
 from rosbags.highlevel import AnyReader
 
-from qfa_ros.bag.trace import key_values_to_dict
+from qfa_ros.bag.trace_writer import key_values_to_dict
 
 REPO = Path(__file__).resolve().parents[1]
 BAGS = REPO / 'bags'

@@ -20,8 +20,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from qfa_ros.model.unit import draw_unit
-from qfa_ros.model.units import MICRO_G
+from qfa_ros.model.constants import MICRO_G
+from qfa_ros.model.drawn_unit import draw_unit
 from qfa_ros.ros.bounds import LARGEST_CHAMBER, LARGEST_FEEDBACK, LARGEST_FORWARD
 from qfa_ros.ros.distro import ros_distribution, SUPPORTED_DISTRIBUTIONS
 from qfa_ros.ros.fastdds import use_shipped_fastdds_profile
@@ -68,7 +68,7 @@ def unit_output(specific_force, seed=1, temperature_c=25.0, bias_ug=(0.0, 0.0, 0
     """Return the static output (x, y, z) [m/s^2] of the node's drawn unit (``seed``).
 
     The model's loop input at a steady body temperature: ``(bias + a + k2 a^2)(1 + e(T))
-    + b(T)`` with ``a = (I + M) f`` (:mod:`qfa_ros.model.unit`, :class:`QfaTriad`).
+    + b(T)`` with ``a = (I + M) f`` (:mod:`qfa_ros.model.drawn_unit`, :class:`QfaTriad`).
     """
     unit = draw_unit(seed)
     a = (np.eye(3) + np.asarray(unit.misalignment)) @ np.asarray(specific_force, dtype=float)

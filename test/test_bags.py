@@ -27,7 +27,7 @@ import yaml
 
 from qfa_ros.bag.imu_cdr import ImuEncoder
 from qfa_ros.bag.imu_series import read_imu
-from qfa_ros.bag.trace import key_values_to_dict
+from qfa_ros.bag.trace_writer import key_values_to_dict
 from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.cli.sim import SIM_START_NS
 from qfa_ros.model.gyro import GyroConfig

@@ -1,4 +1,4 @@
-"""Tests of the fixed-point hyperbolic CORDIC exponential (seed 2, eq. 4-9)."""
+"""Tests of the fixed-point hyperbolic CORDIC exponential (Liu, Li and Shen, eq. 4-9)."""
 
 import math
 
@@ -162,7 +162,7 @@ def _register(value, bits, signed=True):
 
 
 class HardwareExp:
-    """Seed 2 eq. 4-9 as a datapath of fixed-width registers, written from the paper.
+    """Liu, Li and Shen, eq. 4-9 as a datapath of fixed-width registers, written from the paper.
 
     Widths: input ``N + M + 1`` (signed), first product ``N + 2M + G + 3`` (signed),
     ``Q`` ``N + 2``, fraction ``W`` and ``theta0`` ``W`` (unsigned), CORDIC ``x`` ``W + 2``
@@ -239,7 +239,7 @@ def test_documented_error_budget_holds_up_to_extreme_q(m_bits, guard_bits):
 
 
 @pytest.mark.parametrize('m_bits, n_values, target', [
-    (16, range(0, 9), 2e-4),   # issue target 0.02 % (seed 2: 0.019 %)
+    (16, range(0, 9), 2e-4),   # issue target 0.02 % (Liu, Li and Shen: 0.019 %)
     (24, range(0, 10), 2e-6),  # every N the 64-bit multiplier allows at M = 24
 ])
 def test_accuracy_targets_hold_for_every_allowed_range(m_bits, n_values, target):

@@ -23,11 +23,11 @@ from qfa_ros.calibration.experiments import (
 from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.schedule import EstimationError, run_schedule
 from qfa_ros.calibration.state import CalibrationState
+from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 
 # Sensor noise off. The converter's own thermal noise (4 counts at the ADC) stays: it is
 # the dither that lets averaging resolve below one ADC code, as in any real converter.

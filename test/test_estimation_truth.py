@@ -24,11 +24,11 @@ from qfa_ros.calibration.reference_tc import reference_tc_schedule
 from qfa_ros.calibration.schedule import run_schedule, SensorPort, SensorSamples
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_calibration, TemperatureSettings
+from qfa_ros.model.drawn_unit import draw_unit
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.unit import draw_unit
 
 ROOT = Path(__file__).resolve().parents[1]
 # Every estimator that reads the sensor: estimation.py the gain schedules, reference_tc.py
@@ -42,11 +42,11 @@ FORBIDDEN = {'truth', 'temperature', 'drift', 'thermal', 'noise', 'config', 'gai
              'axes', 'profile', '_triad', 'scale', 'sample_index'}
 FORBIDDEN_NAMES = {'_triad', 'ErrorProfile', 'NoiseConfig', 'ThermalConfig', 'QfaTriad',
                    'triad'}
-# qfa_ros.model.units holds constants only (PPM, MICRO_G, ...; test_units keeps it so);
+# qfa_ros.model.constants holds constants only (PPM, MICRO_G, ...; test_units keeps it so);
 # qfa_ros.model.checks only the checks of a caller's numbers (no model state).
 ALLOWED_IMPORTS = {'dataclasses', 'math', 'numpy', 'qfa_ros.calibration.schedule',
                    'qfa_ros.calibration.estimation', 'qfa_ros.model.triad',
-                   'qfa_ros.model.earth', 'qfa_ros.model.units', 'qfa_ros.model.checks'}
+                   'qfa_ros.model.earth', 'qfa_ros.model.constants', 'qfa_ros.model.checks'}
 
 
 def truth_reads(path):

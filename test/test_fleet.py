@@ -246,7 +246,7 @@ def test_drawn_component_coefficients_differ_per_unit_and_move_no_other_draw():
     # Issue 28: component_tcs drawn gives each unit its own I_ref and forward-chain
     # temperature coefficients; the aging draws (another stream) stay the same.
     from qfa_ros.model import streams
-    from qfa_ros.model.unit import draw_component_tcs
+    from qfa_ros.model.drawn_unit import draw_component_tcs
     draws = [draw_component_tcs(streams.seed_sequence([0, i], 'unit.component_tcs'))
              for i in range(3)]
     assert len({round(float(i_ref[0]), 6) for i_ref, _ in draws}) == 3

@@ -25,7 +25,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 import ins_errors  # noqa: E402
 import strapdown  # noqa: E402
 
-from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G
+from qfa_ros.model.constants import DEG_PER_HOUR, MICRO_G
 
 LAT45 = math.radians(45.0)
 

@@ -15,6 +15,7 @@ from rosbags.highlevel import AnyReader
 from qfa_ros.bag.imu_series import read_imu
 from qfa_ros.cli import sim
 from qfa_ros.model import trajectories as tr
+from qfa_ros.model.drawn_unit import draw_unit
 from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.errors import ERROR_PROFILES, ideal_config, sensor_config
 from qfa_ros.model.geodetic import enu_to_geodetic
@@ -23,14 +24,13 @@ from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.unit import draw_unit
 from qfa_ros.ros.model_settings import make_triad
 from qfa_ros.ros.parameter_table import PARAMETERS
 
 sys.path.insert(0, os.path.dirname(__file__))
 import strapdown  # noqa: E402
 
-from qfa_ros.model.units import MICRO_G
+from qfa_ros.model.constants import MICRO_G
 
 ROOT = Path(__file__).resolve().parents[1]
 

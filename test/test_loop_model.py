@@ -18,6 +18,7 @@ from qfa_ros.cli.sim import static_sensor
 from qfa_ros.model import axis as axis_module
 from qfa_ros.model import kernel, trajectories
 from qfa_ros.model.allan import allan_deviation, allan_deviation_of_phase
+from qfa_ros.model.constants import MICRO_G, STANDARD_GRAVITY
 from qfa_ros.model.design import LinearLoop, matrix_exponential, pendulum_matrices
 from qfa_ros.model.drift import SECONDS_PER_YEAR
 from qfa_ros.model.earth import normal_gravity
@@ -35,7 +36,6 @@ from qfa_ros.model.thermal import ThermalConfig, ThermalModel
 from qfa_ros.model.triad import FLAG_DA2_CLIPPED, FLAG_OVER_RANGE, QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.triad_output import concatenate, TriadOutput
-from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -178,7 +178,7 @@ def test_reference_current_shifts_output_by_eq_26():
     on = triad.run_for(1.0).counts[:, 2].mean()
     gains = triad.axes[2].gains
     assert_allclose(on - off, -gains.i_ref / gains.k_da2_vi, atol=1.0)
-    assert_allclose(on - off, -71739, rtol=1e-3)  # seed 1 Table 4 scale
+    assert_allclose(on - off, -71739, rtol=1e-3)  # Ran et al. 2019, Table 4 scale
 
 
 def test_reclosing_the_loop_recovers_without_lasting_error():
@@ -761,7 +761,7 @@ def test_nominal_gains_follow_the_paper_equations():
 
 
 # Exponent of (1 + delta) of each component in (k_sense, open-loop level, k_DA2 k_VI, k_t,
-# I_ref), seed 1 eq. 4-13 and 16; 's' is the open-loop reference-capacitor sensitivity.
+# I_ref), Ran et al. 2019, eq. 4-13 and 16; 's' is the open-loop reference-capacitor sensitivity.
 GAIN_EXPONENTS = {
     'k1': (1, 0, 0, 0, 0), 'c_ref': (1, 's', 0, 0, 0), 'v_da1_ref': (1, 1, 0, 0, 0),
     'k_tz': (1, 1, 0, 0, 0), 'k_amp': (1, 1, 0, 0, 0), 'v_ad_ref': (-1, -1, 0, 0, 0),

@@ -10,7 +10,7 @@ import numpy as np
 from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
 
-from qfa_ros.model.units import DEG_PER_HOUR
+from qfa_ros.model.constants import DEG_PER_HOUR
 
 NODE = '/qfa_node'
 LATITUDE = math.radians(45.0)  # the default latitude_deg

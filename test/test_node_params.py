@@ -11,7 +11,7 @@ from rclpy.parameter import Parameter
 import yaml
 
 from qfa_ros.calibration.state import AxisReference, CalibrationState
-from qfa_ros.model.unit import draw_unit, FORWARD_TC_COMPONENTS
+from qfa_ros.model.drawn_unit import draw_unit, FORWARD_TC_COMPONENTS
 from qfa_ros.ros.model_settings import make_triad
 from qfa_ros.ros.parameter_checks import as_declared_type, check_all, check_value, descriptor
 from qfa_ros.ros.parameter_docs import access_table, config_yaml, markdown_table
@@ -80,9 +80,9 @@ def test_bad_values_are_rejected_with_a_reason(name, value, words):
 
 
 def test_default_sensor_carries_the_paper_error_sources_in_the_paper_room():
-    # One sensor: the node's default triad has seed 1's component temperature
+    # One sensor: the node's default triad has Ran et al.'s component temperature
     # coefficients (qfa_ros.model.errors) and sits in the paper's wandering room.
-    # The drawn unit (seed 1) brings its own I_ref and forward-chain coefficients.
+    # The drawn unit (Ran et al. 2019) brings its own I_ref and forward-chain coefficients.
     paper = make_triad(defaults())
     drift = paper.drift
     unit = draw_unit(1)

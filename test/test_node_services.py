@@ -14,9 +14,9 @@ from rosbags.highlevel import AnyReader
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
-from qfa_ros.bag.trace import key_values_to_dict
+from qfa_ros.bag.trace_writer import key_values_to_dict
+from qfa_ros.model.drawn_unit import draw_unit
 from qfa_ros.model.earth import normal_gravity
-from qfa_ros.model.unit import draw_unit
 
 NODE = '/qfa_node'
 G = float(normal_gravity(math.radians(45.0)))  # the default latitude_deg

@@ -35,7 +35,7 @@ advertised variance within 30 % (3.5 standard errors); a correct node fails the 
 about 4e-4 of runs (at 10 s: 3e-5)."""
 BIAS_UG = (20.0, -30.0, 50.0)  # integral: typed as integers below
 # Configured IEEE 1293 bias plus the thermal zero bias at the constant 25 degC ambient.
-# What the node's drawn unit (seed 1) outputs level and rolled 90 degrees at 25 degC.
+# What the node's drawn unit (Ran et al. 2019) outputs level and rolled 90 degrees at 25 degC.
 LEVEL = unit_output((0.0, 0.0, G), bias_ug=BIAS_UG)
 ROLLED = unit_output((0.0, G, 0.0), bias_ug=BIAS_UG)
 

@@ -16,7 +16,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from qfa_ros.bag.qos import QOS_TRUTH
 from qfa_ros.model import trajectories, trajectory
-from qfa_ros.model.units import MICRO_G
+from qfa_ros.model.constants import MICRO_G
 
 NODE = '/qfa_node'
 ROOT = Path(__file__).resolve().parents[1]

@@ -18,11 +18,11 @@ from scipy import signal
 from statistics_helpers import allan_edf_white, mean_sd, t_bound, variance_ratio_bounds
 
 from qfa_ros.model.allan import allan_deviation
+from qfa_ros.model.constants import MICRO_G
 from qfa_ros.model.design import design_controller, LinearLoop, published_acceleration_variance
 from qfa_ros.model.noise import allan_deviation_model, model_allan_deviation, NoiseConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.units import MICRO_G
 
 SECONDS = 60.0
 

@@ -24,12 +24,12 @@ from rosbags.rosbag2 import Reader as Rosbag2Reader
 from rosbags.typesys import get_types_from_msg, get_typestore, Stores
 import yaml
 
-from qfa_ros.bag.files import RecorderError
+from qfa_ros.bag.estimation_trace import trace_path, write_estimation_trace
 from qfa_ros.bag.flight_recorder import FlightRecorder
 from qfa_ros.bag.msgdefs import definition, RECORDED_TYPES, type_hash
+from qfa_ros.bag.part_files import RecorderError
 from qfa_ros.bag.qos import offered_qos_yaml, QOS_LATCHED, QOS_SENSOR_DATA, QosProfile
-from qfa_ros.bag.trace import key_values_to_dict, TraceWriter
-from qfa_ros.bag.traces import trace_path, write_estimation_trace
+from qfa_ros.bag.trace_writer import key_values_to_dict, TraceWriter
 from qfa_ros.bag.types import encode_message, stamp
 from qfa_ros.bag.writer import McapBagWriter
 from qfa_ros.calibration.estimation import (
@@ -45,10 +45,10 @@ from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
 from qfa_ros.calibration.tempfit import DoubleExpFit
+from qfa_ros.model.constants import STANDARD_GRAVITY
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.units import STANDARD_GRAVITY
 from qfa_ros.ros.distro import ros_distribution
 
 REPO = Path(__file__).resolve().parents[1]
@@ -388,7 +388,7 @@ def test_crash_leaves_part_readable_up_to_last_chunk(tmp_path, crashed, cut_byte
 
 KILL_SCRIPT = textwrap.dedent("""
     import hashlib, os, sys, time
-    from qfa_ros.bag.trace import TraceWriter
+    from qfa_ros.bag.trace_writer import TraceWriter
     directory = sys.argv[1]
     with TraceWriter(os.path.join(directory, 'earlier.mcap'), chunk_size=512) as earlier:
         earlier.write_settings({'run': 'earlier'}, 1)

@@ -39,7 +39,7 @@ from qfa_ros.bag.qos import QOS_LATCHED, QOS_SENSOR_DATA
 from qfa_ros.bag.reader import BagError, BagSource
 from qfa_ros.bag.types import register_message_definition, stamp
 from qfa_ros.bag.writer import McapBagWriter
-from qfa_ros.model.units import STANDARD_GRAVITY
+from qfa_ros.model.constants import STANDARD_GRAVITY
 from qfa_ros.ros.fastdds import shipped_fastdds_profile, use_shipped_fastdds_profile
 from qfa_ros.ros.replay import import_message_type, qos_from_offers, ReplaySummary
 

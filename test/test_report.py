@@ -12,8 +12,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
+from qfa_ros.bag.estimation_trace import trace_path, write_estimation_trace
 from qfa_ros.bag.scenario_bag import ScenarioBag
-from qfa_ros.bag.traces import trace_path, write_estimation_trace
 from qfa_ros.calibration.estimation import (
     capture_reference,
     FeedbackSettings,
@@ -24,10 +24,10 @@ from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_schedule, TemperatureSettings
 from qfa_ros.cli.report import main
+from qfa_ros.model.constants import MICRO_G
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.units import MICRO_G
 from qfa_ros.report.figures import build_figures, DPI, load_bag
 
 FORWARD = ForwardSettings(points=5, average_s=0.1)

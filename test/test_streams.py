@@ -5,10 +5,10 @@ import numpy.testing as npt
 import pytest
 
 from qfa_ros.model import streams
+from qfa_ros.model.drawn_unit import draw_unit
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.unit import draw_unit
 
 
 def _triad_draws(parent):

@@ -19,14 +19,14 @@ from qfa_ros.calibration.temperature import (
 from qfa_ros.calibration.thermal_compensation import ThermalCompensation
 from qfa_ros.calibration.verification import verify_attitudes, verify_cycle
 from qfa_ros.cli.sim import main as sim_main
+from qfa_ros.model.constants import MICRO_G, STANDARD_GRAVITY
+from qfa_ros.model.drawn_unit import draw_unit
 from qfa_ros.model.errors import ErrorProfile
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.unit import draw_unit
-from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 
 # Reduced cost where physics allows: the steady-state output depends on the feedback
 # gain only, so a 2 kHz loop (crossover 100 Hz, settles to 1 ug in 0.2 s) at 100 Hz

@@ -301,7 +301,7 @@ def _mixed_curve():
     v = np.linspace(0.1, 1.2, 80)
     t = (v - 0.75) / 0.01
     x = t / 55.0
-    # an exponential under a cubic trend: what a drawn unit looks like (model/unit.py)
+    # an exponential under a cubic trend: what a drawn unit looks like (model/drawn_unit.py)
     return v, 1e-3 * (0.4 * np.exp(2.5 * (v - 0.75)) + 0.8 * x - 0.3 * x ** 2 + 0.15 * x ** 3)
 
 

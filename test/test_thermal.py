@@ -7,8 +7,8 @@ import numpy.testing as npt
 import pytest
 from statistics_helpers import clipped_normal_moments, normal_bound
 
+from qfa_ros.model.constants import MICRO_G, STANDARD_GRAVITY
 from qfa_ros.model.thermal import AMBIENT_PROFILES, ThermalChunk, ThermalConfig, ThermalModel
-from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 
 
 def _run_chunked(model, total, dt, rng):
@@ -235,7 +235,7 @@ def _unit_curves(unit):
 
 
 def test_the_same_seed_is_the_same_unit_and_two_seeds_differ():
-    from qfa_ros.model.unit import draw_unit
+    from qfa_ros.model.drawn_unit import draw_unit
     assert draw_unit(7) == draw_unit(7)
     a, b = draw_unit(7), draw_unit(8)
     assert np.all(np.abs(np.subtract(a.turn_on_bias, b.turn_on_bias)) > 1e-6)
@@ -249,7 +249,7 @@ def test_the_same_seed_is_the_same_unit_and_two_seeds_differ():
 
 
 def test_drawn_units_stay_within_the_datasheet_spreads():
-    from qfa_ros.model.unit import draw_unit
+    from qfa_ros.model.drawn_unit import draw_unit
     g = STANDARD_GRAVITY
     slopes, turn_on = [], []
     for seed in range(30):
@@ -273,8 +273,8 @@ def test_drawn_units_stay_within_the_datasheet_spreads():
 
 
 def test_a_units_config_reproduces_its_curves_and_ages():
+    from qfa_ros.model.drawn_unit import draw_unit
     from qfa_ros.model.triad_config import TriadConfig
-    from qfa_ros.model.unit import draw_unit
     unit = draw_unit(3)
     base = TriadConfig(thermal=ThermalConfig(ambient_profile='constant', ambient_c=10.0))
     triad = unit.triad(base, rng=0)
@@ -295,10 +295,10 @@ def test_a_units_config_reproduces_its_curves_and_ages():
 def test_units_draw_their_own_component_coefficients_from_their_own_stream():
     # Issue 28: the I_ref and forward-chain temperature coefficients are per unit (the
     # estimators measure unknowns), drawn from their own stream: no other draw moved.
+    from qfa_ros.model.drawn_unit import draw_unit, FORWARD_TC_COMPONENTS, UnitSpread
     from qfa_ros.model.errors import ErrorProfile
     from qfa_ros.model.triad import QfaTriad
     from qfa_ros.model.triad_config import TriadConfig
-    from qfa_ros.model.unit import draw_unit, FORWARD_TC_COMPONENTS, UnitSpread
     units = [draw_unit(seed) for seed in range(200)]
     i_ref = np.array([unit.i_ref_tc_ppm_per_c for unit in units])
     forward = np.array([unit.forward_tc_ppm_per_c for unit in units])

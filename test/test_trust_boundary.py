@@ -16,9 +16,9 @@ import pytest
 from qfa_ros.calibration.estimation import capture_reference
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
-from qfa_ros.model import files, trajectories
-from qfa_ros.model.files import read_regular_file, UntrustedFileError, write_atomically
+from qfa_ros.model import safe_files, trajectories
 from qfa_ros.model.hardware import AxisHardware, nominal_gains
+from qfa_ros.model.safe_files import read_regular_file, UntrustedFileError, write_atomically
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.bounds import (
     CHAMBER_MAX_PERIOD_S,
@@ -97,12 +97,12 @@ def test_only_bounded_regular_files_are_read(tmp_path):
 def test_the_file_system_type_is_the_opened_descriptors():
     descriptor = os.open('/proc/self/status', os.O_RDONLY)
     try:
-        assert files.PSEUDO_FILE_SYSTEMS[files.file_system_type(descriptor)] == 'proc'
+        assert safe_files.PSEUDO_FILE_SYSTEMS[safe_files.file_system_type(descriptor)] == 'proc'
     finally:
         os.close(descriptor)
     descriptor = os.open(__file__, os.O_RDONLY)
     try:
-        assert files.file_system_type(descriptor) not in files.PSEUDO_FILE_SYSTEMS
+        assert safe_files.file_system_type(descriptor) not in safe_files.PSEUDO_FILE_SYSTEMS
     finally:
         os.close(descriptor)
 

@@ -8,7 +8,7 @@ This is the layout ``ros2 bag record -o NAME`` makes with the MCAP storage plugi
 
 import datetime
 
-from qfa_ros.bag.files import METADATA_FILE, write_text_atomically
+from qfa_ros.bag.part_files import METADATA_FILE, write_text_atomically
 from qfa_ros.bag.qos import dump_yaml
 from qfa_ros.bag.writer import bag_metadata_head, file_entry, ROS_DISTRO
 

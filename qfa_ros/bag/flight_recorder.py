@@ -8,10 +8,10 @@ import threading
 import time
 
 from qfa_ros.bag.bag_directory import BagMetadata, default_bag_name, split_file_name
-from qfa_ros.bag.files import lock_exclusively, os_error_with_context, RecorderError
+from qfa_ros.bag.part_files import lock_exclusively, os_error_with_context, RecorderError
 from qfa_ros.bag.types import as_time_ns, canonical_type, definition_of
 from qfa_ros.bag.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE, McapBagWriter
-from qfa_ros.model.files import fsync_directory
+from qfa_ros.model.safe_files import fsync_directory
 
 
 class FlightRecorder:
@@ -279,7 +279,7 @@ class FlightRecorder:
         list of pathlib.Path
             The ``.part`` file if anything was written to it since the last call (and the
             bag directory after a new file appeared in it), for
-            :func:`~qfa_ros.bag.files.make_durable`, called once no lock is held; empty
+            :func:`~qfa_ros.bag.part_files.make_durable`, called once no lock is held; empty
             between files.
         """
         with self._lock:

@@ -5,7 +5,7 @@ import numpy as np
 
 from qfa_ros.bag.imu_cdr import decode_imu
 from qfa_ros.bag.reader import mcap_read_errors, normalized_type
-from qfa_ros.model.files import open_regular_file
+from qfa_ros.model.safe_files import open_regular_file
 
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 

@@ -16,7 +16,7 @@ cannot write the summary of chunks it did not write; rewriting the file through 
 what ``bench/results/bag_alternatives.md`` measures.)
 
 **Never under a live writer**: a writer holds an exclusive ``flock`` on its ``.part``
-(:class:`~qfa_ros.bag.files.PartFile`); recovery takes it without waiting and leaves a
+(:class:`~qfa_ros.bag.part_files.PartFile`); recovery takes it without waiting and leaves a
 locked file alone. **Crash-safe and idempotent**: a recovery killed half way leaves the
 good prefix plus part of a tail, which the next run cuts off again; the final name
 appears only once the file is complete and fsynced (``link``, as ``finish()``
@@ -46,7 +46,7 @@ from mcap.records import (
 )
 import yaml
 
-from qfa_ros.bag.files import lock_exclusively, PART_SUFFIX, publish_part
+from qfa_ros.bag.part_files import lock_exclusively, PART_SUFFIX, publish_part
 from qfa_ros.bag.part_scan import (
     find_missing_definitions,
     MAGIC,
@@ -58,7 +58,7 @@ from qfa_ros.bag.part_scan import (
 )
 from qfa_ros.bag.qos import dump_yaml
 from qfa_ros.bag.writer import file_bag_metadata
-from qfa_ros.model.files import fsync_directory
+from qfa_ros.model.safe_files import fsync_directory
 
 __all__ = [
     'final_path',

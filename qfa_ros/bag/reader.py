@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 import yaml
 import zstandard
 
-from qfa_ros.model.files import open_regular_file, read_regular_file, UntrustedFileError
+from qfa_ros.model.safe_files import open_regular_file, read_regular_file, UntrustedFileError
 
 
 class BagError(RuntimeError):

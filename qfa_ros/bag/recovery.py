@@ -23,7 +23,7 @@ import os
 from pathlib import Path
 import re
 
-from qfa_ros.bag.files import lock_exclusively, METADATA_FILE, PART_SUFFIX
+from qfa_ros.bag.part_files import lock_exclusively, METADATA_FILE, PART_SUFFIX
 
 __all__ = [
     'MAX_ENTRIES',
@@ -39,7 +39,7 @@ __all__ = [
 MAX_ENTRIES = 100_000
 """Directory entries looked at per directory."""
 TRACE_PART_RE = re.compile(r'^qfa_[a-z_]+_\d{19}\.mcap\.part$')
-"""What :func:`~qfa_ros.bag.traces.trace_path` names a trace while it is written."""
+"""What :func:`~qfa_ros.bag.estimation_trace.trace_path` names a trace while it is written."""
 METADATA_LEFTOVER_RE = re.compile(r'^\.metadata\.yaml\.\d+\.tmp$')
 """What a kill while ``metadata.yaml`` was being replaced leaves (``write_atomically``)."""
 

@@ -2,10 +2,10 @@
 
 import numpy as np
 
+from qfa_ros.bag.estimation_trace import write_results
 from qfa_ros.bag.imu_cdr import ImuEncoder
 from qfa_ros.bag.qos import QOS_LATCHED, QOS_SENSOR_DATA, QOS_TRUTH
-from qfa_ros.bag.trace import TraceWriter
-from qfa_ros.bag.traces import write_results
+from qfa_ros.bag.trace_writer import TraceWriter
 from qfa_ros.bag.types import stamp
 from qfa_ros.bag.writer import McapBagWriter
 from qfa_ros.model.design import published_acceleration_variance
@@ -36,7 +36,7 @@ class ScenarioBag:
     ``/imu/temperature`` (sensor_msgs/Temperature [degC]),
     ``/qfa/scenario/phase`` (std_msgs/String naming the phase that starts at its log
     time) and estimation traces under ``/qfa/trace/<run>/...`` (see
-    :mod:`qfa_ros.bag.traces`). A context manager with an idempotent ``finish()``.
+    :mod:`qfa_ros.bag.estimation_trace`). A context manager with an idempotent ``finish()``.
     ``config`` (:class:`qfa_ros.model.triad_config.TriadConfig`) sets the published
     ``linear_acceleration_covariance``
     (:func:`qfa_ros.model.design.published_acceleration_variance`).

@@ -8,7 +8,7 @@ messages, ``offered_qos_profiles`` and ``topic_type_hash`` channel metadata, a
 ``rosbags`` read it; :mod:`qfa_ros.bag.flight_recorder` records into a sequence of
 such files.
 
-Durability rules (:mod:`qfa_ros.bag.files`):
+Durability rules (:mod:`qfa_ros.bag.part_files`):
 
 - A file is written as ``NAME.mcap.part``. Only ``finish()`` publishes it: the
   MCAP summary is written, the file is fsynced, linked to ``NAME.mcap`` without
@@ -44,7 +44,7 @@ from mcap.writer import CompressionType, LIBRARY_IDENTIFIER, Writer
 import mcap_ros2
 import yaml
 
-from qfa_ros.bag.files import (
+from qfa_ros.bag.part_files import (
     PART_SUFFIX,
     PartFile,
     publish_part,
@@ -59,7 +59,7 @@ from qfa_ros.bag.types import (
     encode_message,
     type_hash_of,
 )
-from qfa_ros.model.files import fsync_directory
+from qfa_ros.model.safe_files import fsync_directory
 
 __all__ = [
     'bag_metadata_head',
@@ -575,7 +575,7 @@ class McapBagWriter:
         Returns
         -------
         pathlib.Path
-            The ``.part`` file, to hand to :func:`~qfa_ros.bag.files.make_durable` once no
+            The ``.part`` file, to hand to :func:`~qfa_ros.bag.part_files.make_durable` once no
             lock is held (an fsync may take long).
         """
         with self._lock:

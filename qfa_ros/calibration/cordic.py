@@ -1,5 +1,5 @@
 r"""
-Fixed-point hyperbolic CORDIC exponential with an extended input range (seed 2, eq. 4-9).
+Fixed-point hyperbolic CORDIC exponential with an extended input range (Liu, Li and Shen, eq. 4-9).
 
 The datapath is modelled bit for bit with Python integers (scalar path) and ``int64``
 (vectorized path: numpy for the range reduction, a numba loop for the rotations); both

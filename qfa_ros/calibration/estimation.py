@@ -1,5 +1,5 @@
 """
-Forward- and feedback-gain self-estimation and in-place compensation (seed 1 §III-IV).
+Forward- and feedback-gain self-estimation and in-place compensation (Ran et al. 2019, §III-IV).
 
 Every schedule here sees the sensor through a :class:`SensorPort` only (its words,
 output, flags and on-board temperature reading); every coefficient it uses was measured
@@ -21,8 +21,8 @@ from qfa_ros.calibration.schedule import (
     SensorPort,
 )
 from qfa_ros.model.checks import is_finite
+from qfa_ros.model.constants import MICRO_G, PPM
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED
-from qfa_ros.model.units import MICRO_G, PPM
 
 FORWARD_ORDERS = ('ascending', 'bidirectional', 'interleaved')
 FEEDBACK_ORDERS = ('single', 'chopped')
@@ -31,7 +31,7 @@ FEEDBACK_ORDERS = ('single', 'chopped')
 @dataclass(frozen=True)
 class ForwardSettings:
     """
-    Forward-gain schedule (seed 1 §III-A, eq. 17-22).
+    Forward-gain schedule (Ran et al. 2019, §III-A, eq. 17-22).
 
     Attributes
     ----------
@@ -75,7 +75,7 @@ class ForwardSettings:
 @dataclass(frozen=True)
 class FeedbackSettings:
     """
-    Feedback-gain schedule (seed 1 §III-B, eq. 24-30).
+    Feedback-gain schedule (Ran et al. 2019, §III-B, eq. 24-30).
 
     Attributes
     ----------
@@ -474,7 +474,7 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
 
 
 def capture_reference(sensor, state, forward=ForwardSettings(), feedback=FeedbackSettings()):
-    """Measure both references (seed 1 §IV-A step 1); return the two results."""
+    """Measure both references (Ran et al. 2019, §IV-A step 1); return the two results."""
     port = SensorPort.of(sensor)
     forward_result = yield from forward_schedule(port, state, forward, capture=True)
     feedback_result = yield from feedback_schedule(port, state, feedback, capture=True)

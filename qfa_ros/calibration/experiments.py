@@ -1,5 +1,5 @@
 """
-Seed 1's experiment (§IV) and the Monte Carlo comparison of estimation schedules.
+Ran et al.'s experiment (§IV) and the Monte Carlo comparison of estimation schedules.
 
 The error sources (:class:`ErrorProfile`) and the paper's room (:class:`PaperRoom`) are
 physics and live in :mod:`qfa_ros.model.errors`; they are re-exported here.
@@ -22,10 +22,10 @@ from qfa_ros.calibration.estimation import (
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model import streams
+from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
 from qfa_ros.model.errors import ErrorProfile, PaperRoom
 from qfa_ros.model.triad import AXES, QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 
 OBSERVABLE_FORWARD = ('v_da1_ref', 'k_tz', 'k_amp', 'v_ad_ref')
 OBSERVABLE_FEEDBACK = ('v_da2_ref', 'k_vi')
@@ -45,7 +45,7 @@ def split_drift(rng, total, components):
 
 @dataclass
 class PaperTrial:
-    """One trial of seed 1 §IV-A (z axis, level sensor, 1 g); counts and micro-g."""
+    """One trial of Ran et al. 2019, §IV-A (z axis, level sensor, 1 g); counts and micro-g."""
 
     forward_reference: float
     forward_drifted: float
@@ -99,7 +99,7 @@ def paper_experiment(seed=0, trials=6, forward_ppm=-200.0, feedback_ppm=200.0,
                      forward=ForwardSettings(), feedback=FeedbackSettings(), recorder=None,
                      progress=False, start_ns=0):
     """
-    Run seed 1 §IV-A steps 1-5 ``trials`` times and return the list of :class:`PaperTrial`.
+    Run Ran et al. 2019, §IV-A steps 1-5 ``trials`` times; return the :class:`PaperTrial` list.
 
     Per trial, a fresh sensor of the same design (seeded per trial) in the paper's room
     (:class:`PaperRoom`: wander, warm-up): (1) capture the references after the
@@ -175,7 +175,7 @@ def _static_phase(triad, seconds, name, recorder):
 
 
 def format_paper_tables(trials, forward_ppm=-200.0, feedback_ppm=200.0):
-    """Return seed 1 Tables 3-4 and the eq. 31 comparison as Markdown text."""
+    """Return Ran et al. 2019, Tables 3-4 and the eq. 31 comparison as Markdown text."""
     lines = _gain_table('Table 3 - Eq-forward-gain (dN_out/dN_FPGA, z axis)',
                         ('k_pre-eq0', 'k_pre-eq1', 'dk_pre'), 4, forward_ppm,
                         [(t.forward_reference, t.forward_drifted, t.forward_estimate_ppm)
@@ -204,7 +204,7 @@ def format_paper_tables(trials, forward_ppm=-200.0, feedback_ppm=200.0):
 
 
 def _gain_table(title, names, decimals, injected_ppm, rows):
-    """Return one table of seed 1 Tables 3-4: reference, drifted, estimate, residual."""
+    """Return one table of Ran et al. 2019, Tables 3-4: reference, drifted, estimate, residual."""
     lines = [title, '', f'| trial | {names[0]} | {names[1]} | {names[2]} (ppm) | residual |',
              '|---|---|---|---|---|']
     rows = np.asarray(rows, dtype=float)

@@ -1,5 +1,7 @@
 r"""
-Fixed-point evaluation of a double-exponential fit: the compensation ROM's datapath (seed 2).
+Fixed-point evaluation of a double-exponential fit: the compensation ROM's datapath.
+
+The datapath of Liu, Li and Shen.
 
 The words :class:`DoubleExpCompensator` stores are the fit's coefficients in fixed point
 (:func:`qfa_ros.calibration.tempfit.fit_double_exponential`); ``e^z`` is

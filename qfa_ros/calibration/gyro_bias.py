@@ -30,9 +30,9 @@ import numpy as np
 
 from qfa_ros.calibration.schedule import EstimationError, require_closed, SensorPort
 from qfa_ros.model.checks import is_finite
+from qfa_ros.model.constants import DEG_PER_HOUR, MICRO_G
 from qfa_ros.model.earth import earth_rate_enu
 from qfa_ros.model.triad import AXES
-from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G
 
 BLOCK_S = 1.0
 """Averaging block of the motion check and the standard error [s]."""

@@ -2,7 +2,7 @@
 Kalibr's ``imu.yaml``: read one a participant names, write one of this sensor.
 
 Reading takes a stranger's file (``noise.imu_yaml`` of the node, ``qfa-sim --imu-yaml``):
-through :func:`~qfa_ros.model.files.read_regular_file` (a regular file of at most
+through :func:`~qfa_ros.model.safe_files.read_regular_file` (a regular file of at most
 :data:`MAX_BYTES`), PyYAML's safe loader, and errors that name the file and the key, never
 its content (PyYAML's own messages quote the offending line; they are replaced). The four
 noise figures (:data:`~qfa_ros.model.imu_noise.KEYS`) must be there, as numbers within
@@ -19,8 +19,8 @@ import os
 
 import yaml
 
-from qfa_ros.model.files import read_regular_file
 from qfa_ros.model.imu_noise import ImuNoiseFigures, KEYS
+from qfa_ros.model.safe_files import read_regular_file
 
 MAX_BYTES = 64 * 1024
 """Largest ``imu.yaml`` read [bytes] (Kalibr's are a few hundred)."""

@@ -25,8 +25,8 @@ from qfa_ros.calibration.schedule import (
     require_closed,
     SensorPort,
 )
+from qfa_ros.model.constants import PPM
 from qfa_ros.model.triad import AXES
-from qfa_ros.model.units import PPM
 
 
 @dataclass(frozen=True)

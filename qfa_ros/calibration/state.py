@@ -12,7 +12,7 @@ from qfa_ros.model.triad import AXES
 @dataclass
 class AxisReference:
     """
-    Reference gains of one axis (seed 1 §IV-A step 1).
+    Reference gains of one axis (Ran et al. 2019, §IV-A step 1).
 
     Attributes
     ----------

@@ -7,7 +7,7 @@ chamber; the chamber steps through plateaus from the ambient down to ``low_c``, 
 positions +x, +y, +z, -z, -y, -x (a palindrome: every axis's +-g pair and zero-input
 blocks are centred on the tumble's middle, so a linear temperature trend cancels).
 Per axis the zero bias and the scale factor against the on-board temperature reading
-are fitted by seed 2's double exponential (with a linear baseline) and evaluated on the
+are fitted by Liu, Li and Shen's double exponential (with a linear baseline) and evaluated on the
 fixed-point CORDIC path; the constant misalignment and K2 the tumble measures are kept
 too. With ``reference_steps`` (:func:`temperature_calibration`) the I_ref step is measured
 at the end of every plateau and its temperature coefficient fitted against the on-board
@@ -40,10 +40,10 @@ from qfa_ros.calibration.schedule import (
 )
 from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias, ThermalCompensation
 from qfa_ros.model.checks import is_finite
+from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
 from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 
 AMBIENT_FIELDS = ('ambient_profile', 'ambient_c', 'cycle_low_c', 'cycle_high_c',
                   'cycle_period_s', 'cycle_shape', 'cycle_dwell_fraction')
@@ -90,7 +90,7 @@ class TemperatureSettings:
     bins : int
         V_temp bins of the fits.
     m_bits : int
-        Fixed-point fraction bits of the zero-bias compensator (seed 2: 16).
+        Fixed-point fraction bits of the zero-bias compensator (Liu, Li and Shen: 16).
     sf_m_bits : int
         Fraction bits of the scale-factor compensator (24: its CORDIC error, 7.6e-8,
         is far below the 20 ppm the correction must reach; at 16 it is 2.4e-5 of each
@@ -427,7 +427,7 @@ def temperature_calibration(triad, state, settings=TemperatureSettings()):
 
 MAX_PROBE_LAG_S = 4.0
 """Longest lag of the on-board temperature reading behind the proof mass the fit looks for
-[s] (twice the datasheet-like 0.5-2 s of :mod:`qfa_ros.model.unit`)."""
+[s] (twice the datasheet-like 0.5-2 s of :mod:`qfa_ros.model.drawn_unit`)."""
 PROBE_LAG_STEP_S = 0.05
 """Resolution of the lag search [s]."""
 

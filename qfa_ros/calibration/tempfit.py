@@ -1,5 +1,5 @@
 r"""
-Zero-bias temperature model fitting (seed 2): the double exponential and its comparisons.
+Zero-bias temperature model fitting (Liu, Li and Shen): the double exponential and its comparisons.
 
 The zero bias is modelled as ``y = alpha1 e^(beta1 V) + alpha2 e^(beta2 V)`` (seed eq. 1)
 with ``V`` the on-board temperature-sensor voltage [V] and ``y`` the zero output (any
@@ -314,7 +314,7 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
     r"""
     Fit ``v_out = a1 e^(b1 v_temp) + a2 e^(b2 v_temp)`` by alternating iteration.
 
-    Seed 2 steps: (1) start exponents; (2) with the betas fixed, the alphas by linear
+    Liu, Li and Shen's steps: (1) start exponents; (2) with the betas fixed, the alphas by linear
     least squares; (3) a nonlinear update of the betas only; (4) the mean-square error;
     (5) repeat until its relative change is at most ``tol``.  Step 3 is a
     Levenberg-Marquardt step on the betas with the alphas projected out (Kaufman's

@@ -1,5 +1,5 @@
 """
-Temperature calibration of one axis and the triad's compensation built from it (seed 2).
+Temperature calibration of one axis and the triad's compensation built from it (Liu, Li and Shen).
 
 :func:`calibrate_zero_bias` bins a temperature cycle by V_temp, fits the double exponential
 and the comparison polynomials (:mod:`qfa_ros.calibration.tempfit`) and builds the

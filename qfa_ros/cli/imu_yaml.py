@@ -42,7 +42,7 @@ def config_figures(path):
     ``noise.imu_yaml`` the file names is read (relative to the working directory, as the
     node reads it) and emulated.
     """
-    from qfa_ros.model.files import read_regular_file
+    from qfa_ros.model.safe_files import read_regular_file
     from qfa_ros.ros.model_settings import load_imu_noise, triad_config
     from qfa_ros.ros.parameter_table import PARAMETERS
     try:

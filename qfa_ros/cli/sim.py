@@ -28,7 +28,9 @@ from qfa_ros.calibration.schedule import sensor_time_ns
 from qfa_ros.cli.interrupt import stops_quietly
 from qfa_ros.model import trajectories
 from qfa_ros.model.allan import allan_deviation_of_phase
+from qfa_ros.model.constants import DEG_PER_HOUR, MICRO_G
 from qfa_ros.model.design import LinearLoop
+from qfa_ros.model.drawn_unit import draw_unit
 from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom, sensor_config
 from qfa_ros.model.imu_noise import emulated_config
@@ -36,8 +38,6 @@ from qfa_ros.model.parallel import run_chains
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.unit import draw_unit
-from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G
 
 CHUNK_SECONDS = 30.0
 """Sensor time per chunk of the static and trajectory scenarios [s]: long enough for the
@@ -247,7 +247,7 @@ def run_trajectory(args, out=None):
 
 
 def run_paper_2019(args, out=None):
-    """Follow seed 1 section IV-A for ``args.trials`` trials and print its tables."""
+    """Follow Ran et al. 2019, section IV-A for ``args.trials`` trials and print its tables."""
     from qfa_ros.calibration.experiments import format_paper_tables, paper_experiment
     out = out or sys.stdout
     with scenario_bag(args, TriadConfig()) as bag:
@@ -393,7 +393,7 @@ def build_parser():
                              'trajectory: its length, at least 60)')
     parser.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
     parser.add_argument('--trials', type=int, default=6,
-                        help='paper-2019: number of trials (default 6, as seed 1)')
+                        help='paper-2019: number of trials (default 6, as Ran et al. 2019)')
     motion = parser.add_argument_group('trajectory scenario')
     motion.add_argument('--motion', choices=sorted(trajectories.SCRIPTS), default='drive',
                         help='built-in motion script (default drive)')

@@ -25,7 +25,7 @@ import pyarrow.parquet as pq
 
 from qfa_ros.fleet.study import StudyError
 from qfa_ros.fleet.unit import simulate_batch
-from qfa_ros.model.files import write_atomically
+from qfa_ros.model.safe_files import write_atomically
 
 STUDY_FILE = 'study.json'
 SIMULATING_PACKAGES = ('model', 'calibration', 'fleet')

@@ -22,17 +22,17 @@ A study is YAML with these keys (every one optional but ``units``)::
       room_c: 22.0                # mean room temperature
       seasonal_amplitude_c: 3.0   # annual sinusoid, phase drawn per unit
       wander_c: 1.0               # room wander amplitude (12 h correlation)
-      error_profile: paper        # paper | ideal: seed 1's temperature coefficients
+      error_profile: paper        # paper | ideal: Ran et al.'s temperature coefficients
       magnet_tc_ppm: null         # override the profile's k_t temperature coefficient
       component_tcs: type         # type: every unit the profile's coefficients; drawn:
                                   # each unit its own I_ref and forward-chain ones
-                                  # (qfa_ros.model.unit spreads)
+                                  # (qfa_ros.model.drawn_unit spreads)
 
 A Monte Carlo of one self-calibration after drifts of a given size is the study with one
 calibration a year after the reference and uniform aging of that size (the scenarios of
 ``bench/estimation_accuracy.py``).
 
-``kind: temperature`` is the other procedure: every unit (drawn by :mod:`qfa_ros.model.unit`
+``kind: temperature`` is the other procedure: every unit (drawn by :mod:`qfa_ros.model.drawn_unit`
 from a seed the study derives, reported in the rows) runs the temperature calibration
 (``~/calibrate_temperature``'s schedule) and is verified in eight attitudes at constant
 chamber temperatures off its 10 degC grid (:mod:`qfa_ros.calibration.verification`);
@@ -61,7 +61,7 @@ from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
 from qfa_ros.calibration.experiments import IMPROVED_SCHEDULE, PAPER_SCHEDULE
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model.errors import ERROR_PROFILES
-from qfa_ros.model.files import read_regular_file, UntrustedFileError
+from qfa_ros.model.safe_files import read_regular_file, UntrustedFileError
 
 SCHEDULES = {'paper': PAPER_SCHEDULE, 'improved': IMPROVED_SCHEDULE}
 AGING_DISTRIBUTIONS = ('normal', 'uniform')

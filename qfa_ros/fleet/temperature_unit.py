@@ -1,7 +1,7 @@
 """
 One unit of a temperature-calibration study: drawn, calibrated in the chamber, verified.
 
-The unit is :func:`~qfa_ros.model.unit.draw_unit` of a seed derived from the study's
+The unit is :func:`~qfa_ros.model.drawn_unit.draw_unit` of a seed derived from the study's
 (``SeedSequence([seed, index])``; reported as ``unit_seed``, the node's ``unit.seed``),
 with the study's error profile and its own component coefficients, on the study's sensor
 (``sensor.*``: body time constant, loop and output rates). It runs the temperature
@@ -22,12 +22,12 @@ from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_calibration
 from qfa_ros.calibration.verification import ATTITUDES, verify_attitudes
 from qfa_ros.model import streams
+from qfa_ros.model.constants import MICRO_G, PPM
+from qfa_ros.model.drawn_unit import draw_unit
 from qfa_ros.model.errors import error_profile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.unit import draw_unit
-from qfa_ros.model.units import MICRO_G, PPM
 
 SOAK_TIME_CONSTANTS = 10.0
 """Soak before each verification temperature, in body time constants."""

@@ -3,7 +3,7 @@ One unit of a fleet study: drawn from its seed, aged, recalibrated, scored.
 
 The unit is a default triad with the thermal model in a room (seasonal mean, wander with
 a 12 h correlation, self-heating, :class:`~qfa_ros.model.errors.PaperRoom`),
-seed 1's component temperature coefficients, and per-unit linear aging rates drawn from
+Ran et al.'s component temperature coefficients, and per-unit linear aging rates drawn from
 the study's spreads. As a lab would, the I_ref temperature coefficient is measured once
 in the chamber (when the schedule corrects for temperature), then the reference is
 captured in the room; at every calibration the aging so far acts, the room has its
@@ -37,12 +37,12 @@ from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.fleet.temperature_unit import simulate_temperature_unit
 from qfa_ros.model import streams
+from qfa_ros.model.constants import MICRO_G, PPM
+from qfa_ros.model.drawn_unit import draw_component_tcs, install_component_tcs
 from qfa_ros.model.errors import error_profile, PaperRoom
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.unit import draw_component_tcs, install_component_tcs
-from qfa_ros.model.units import MICRO_G, PPM
 
 DAYS_PER_YEAR = 365.25
 SECONDS_PER_DAY = 86400.0
@@ -133,7 +133,7 @@ def simulate_unit(study, index):
                                           schedule.reference_feedback))
     scale_reference = measure_scale(triad)
     reference = [loop.gains for loop in triad.axes]
-    # The open-loop readout dN_out/dN_FPGA includes k(D(z)) (seed 1 eq. 19-22), so the
+    # The open-loop readout dN_out/dN_FPGA includes k(D(z)) (Ran et al. 2019, eq. 19-22), so the
     # forward truth is the chain times the controller gain, relative to the reference.
     reference_gain = [loop.controller.gain for loop in triad.axes]
     rows = []

@@ -5,10 +5,10 @@ import functools
 import numpy as np
 
 from qfa_ros.model import kernel
+from qfa_ros.model.constants import STANDARD_GRAVITY
 from qfa_ros.model.design import design_controller, pendulum_matrices
 from qfa_ros.model.hardware import counts_to_accel, loop_gains
 from qfa_ros.model.parallel import ChainRun, start_chains
-from qfa_ros.model.units import STANDARD_GRAVITY
 
 PARALLEL_MIN_STEPS = 20_000
 """Loop steps per axis from which :func:`start_axes` spreads the axes over threads."""

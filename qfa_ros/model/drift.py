@@ -5,8 +5,8 @@ import math
 import numpy as np
 
 from qfa_ros.model import checks
+from qfa_ros.model.constants import PPM
 from qfa_ros.model.hardware import DRIFT_COMPONENTS
-from qfa_ros.model.units import PPM
 
 SECONDS_PER_YEAR = 365.25 * 86400.0
 
@@ -44,7 +44,7 @@ class DriftModel:
         self.clock = None
         self.aged = np.zeros((n_axes, len(DRIFT_COMPONENTS)))
         self.aged_at = 0.0
-        # Aging of the zero bias (a unit's, qfa_ros.model.unit) [m/s^2 per aged second]
+        # Aging of the zero bias (a unit's, qfa_ros.model.drawn_unit) [m/s^2 per aged second]
         # and the aged time accumulated up to aged_at [s].
         self.bias_rate = np.zeros(n_axes)
         self.aged_time = 0.0

@@ -1,5 +1,5 @@
 r"""
-The physical error sources of seed 1 §IV as switchable models: components and the room.
+The physical error sources of Ran et al. 2019, §IV as switchable models: components and the room.
 
 :class:`ErrorProfile` holds the temperature coefficients of the loop components and a
 torquer (k_t) step drift; :meth:`ErrorProfile.apply` writes them into a triad's
@@ -18,13 +18,13 @@ Values and sources (per axis, acting against the body temperature):
   resistor) [1];
 * magnet flux ``b`` (k_t) +10 ppm/degC, left after the magnet's compensation [1];
 * k_t step drift 0 ppm by default (the aging of ``b`` is the drawn unit's,
-  :mod:`qfa_ros.model.unit`);
-* room wander within +-1.5 degC (seed 1: the room "within 3 degC"), correlation 12 h
+  :mod:`qfa_ros.model.drawn_unit`);
+* room wander within +-1.5 degC (Ran et al. 2019: the room "within 3 degC"), correlation 12 h
   (a room following the day) [2]; self-heating 5 degC, warm-up 600 s, trial gap 600 s
   (the paper experiment only) [2].
 
 [1] Not given in the paper; each within a typical range for its part and chosen so that
-the paper experiment reproduces seed 1's forward 90 %, feedback 91 % and restrained 88 %.
+the paper experiment reproduces Ran et al.'s forward 90 %, feedback 91 % and restrained 88 %.
 [2] Chosen so that the mean temperature rise of a trial (0.59 degC) with [1] gives the
 paper's 90 %; the correlation sets the trial-to-trial scatter.
 """
@@ -32,9 +32,9 @@ paper's 90 %; the correlation sets the trial-to-trial scatter.
 import dataclasses
 from dataclasses import dataclass, field
 
+from qfa_ros.model.constants import PPM
 from qfa_ros.model.gyro import ERROR_TERMS
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.units import PPM
 
 N_AXES = 3
 ERROR_PROFILES = ('paper', 'ideal')
@@ -45,7 +45,7 @@ ZERO3 = (0.0, 0.0, 0.0)
 @dataclass(frozen=True)
 class ErrorProfile:
     """
-    The residual error sources seed 1 §IV names, as switchable physical models.
+    The residual error sources Ran et al. 2019, §IV names, as switchable physical models.
 
     Attributes
     ----------
@@ -98,7 +98,7 @@ def error_profile(name):
     """
     Return the :class:`ErrorProfile` called ``name``.
 
-    ``paper``: seed 1's error sources (the defaults of :class:`ErrorProfile`);
+    ``paper``: Ran et al.'s error sources (the defaults of :class:`ErrorProfile`);
     ``ideal``: every source off.
 
     :raises ValueError: ``name`` is not one of :data:`ERROR_PROFILES`.

@@ -34,8 +34,8 @@ from numba import njit
 import numpy as np
 
 from qfa_ros.model import checks, streams
+from qfa_ros.model.constants import ARCSEC, DEG_PER_HOUR, DEG_PER_ROOT_HOUR, PPM, STANDARD_GRAVITY
 from qfa_ros.model.noise import flicker_component_variance
-from qfa_ros.model.units import ARCSEC, DEG_PER_HOUR, DEG_PER_ROOT_HOUR, PPM, STANDARD_GRAVITY
 
 ERROR_TERMS = ('arw', 'bias_instability', 'rate_random_walk', 'turn_on_bias', 'scale_factor',
                'scale_factor_asymmetry', 'misalignment', 'g_sensitivity', 'bias_tc',

@@ -1,19 +1,19 @@
-"""Nominal hardware of one QFA axis and the loop gains it implies (seed 1, eq. 1-13)."""
+"""Nominal hardware of one QFA axis and the loop gains it implies (Ran et al. 2019, eq. 1-13)."""
 
 from dataclasses import asdict, dataclass, fields, replace
 import math
 import numbers
 
-from qfa_ros.model.units import STANDARD_GRAVITY
+from qfa_ros.model.constants import STANDARD_GRAVITY
 
 FORWARD_COMPONENTS = ('k1', 'c_ref', 'v_da1_ref', 'k_tz', 'k_amp', 'v_ad_ref')
-"""Forward-channel drift terms of seed 1 eq. 6-8 (relative, dimensionless)."""
+"""Forward-channel drift terms of Ran et al. 2019, eq. 6-8 (relative, dimensionless)."""
 
 FEEDBACK_COMPONENTS = ('v_da2_ref', 'k_vi', 'l_coil', 'b')
-"""Feedback-channel drift terms of seed 1 eq. 9-13 (relative, dimensionless)."""
+"""Feedback-channel drift terms of Ran et al. 2019, eq. 9-13 (relative, dimensionless)."""
 
 REFERENCE_COMPONENTS = ('i_ref',)
-"""Drift of the constant current source I_ref (seed 1 Fig. 7)."""
+"""Drift of the constant current source I_ref (Ran et al. 2019, Fig. 7)."""
 
 DRIFT_COMPONENTS = FORWARD_COMPONENTS + FEEDBACK_COMPONENTS + REFERENCE_COMPONENTS
 
@@ -24,7 +24,7 @@ class AxisHardware:
     Nominal hardware of one digital closed-loop QFA axis (SI units).
 
     The defaults are derived from the public figures of DESIGN.md section 2; the
-    derivation of each is in ``docs/model.md``. Signal path (seed 1 Fig. 2)::
+    derivation of each is in ``docs/model.md``. Signal path (Ran et al. 2019, Fig. 2)::
 
         M_in = K0 a                          K0 = m L            [kg m]
         J th'' + C th' + D th = M_in - M_fb  pendulum            [N m]
@@ -70,7 +70,7 @@ class AxisHardware:
     scale_factor : float
         Torquer current per input [A/(m/s^2)] (1.2 mA/g).
     i_ref : float
-        Constant current source [A] (seed 1 Fig. 7).
+        Constant current source [A] (Ran et al. 2019, Fig. 7).
     adsorption_g : float
         Electrostatic adsorption moment that latches the open-loop pendulum on its
         stop, as an equivalent input [g].
@@ -155,7 +155,7 @@ class AxisHardware:
 
     @property
     def k_pickoff(self):
-        """k1 = 2 C0 l / d [F/rad] (seed 1 section II-B-2)."""
+        """k1 = 2 C0 l / d [F/rad] (Ran et al. 2019, section II-B-2)."""
         return 2.0 * self.pickoff_c0 * self.pickoff_arm / self.pickoff_gap
 
     @property
@@ -224,7 +224,7 @@ def loop_gains(hw, drift, n_fpga, n_vref, open_loop_cref_sensitivity=1.0):
     """
     Return the effective :class:`LoopGains` of ``hw`` under relative ``drift``.
 
-    Every block carries its own ``(1 + delta)`` exactly as seed 1 writes it:
+    Every block carries its own ``(1 + delta)`` exactly as Ran et al. 2019 write it:
     ``k1 (1 + dk1)``, ``k_CV (1 + dC_ref)(1 + dV_DA1)(1 + dk_tz)(1 + dk_amp)``,
     ``k_AD / (1 + dV_AD)``, ``V_DA2_ref (1 + dV_DA2)``, ``k_VI (1 + dk_VI)``,
     ``L_coil (1 + dL)``, ``B (1 + dB)``.

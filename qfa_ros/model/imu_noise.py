@@ -58,13 +58,13 @@ from types import SimpleNamespace
 import numpy as np
 
 from qfa_ros.model.allan import allan_deviation
+from qfa_ros.model.constants import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G
 from qfa_ros.model.design import designed_loop
 from qfa_ros.model.noise import (
     ADC_QUANTIZATION_VARIANCE,
     flicker_component_variance,
     model_allan_deviation,
 )
-from qfa_ros.model.units import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G
 
 MIN_TAU = 0.1
 """Shortest averaging time of the fits [s] (allan_variance_ros's grid)."""

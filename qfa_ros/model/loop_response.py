@@ -29,10 +29,10 @@ import math
 import numpy as np
 
 from qfa_ros.model.axis import AxisLoop
+from qfa_ros.model.constants import STANDARD_GRAVITY
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.hardware import counts_to_accel
 from qfa_ros.model.noise import NoiseSource
-from qfa_ros.model.units import STANDARD_GRAVITY
 
 
 @dataclass(frozen=True)

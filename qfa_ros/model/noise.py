@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from qfa_ros.model import checks, streams
-from qfa_ros.model.units import MICRO_G
+from qfa_ros.model.constants import MICRO_G
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ class NoiseConfig:
     correlation_times : tuple of float
         Correlation times of the Gauss-Markov processes [s]. Default 60 s ... 60 000 s:
         the floor from about a minute to hours, the time scales a bias stability is
-        quoted over (seed 1 Table 2: 50 ug bias stability); below a few seconds the
+        quoted over (Ran et al. 2019, Table 2: 50 ug bias stability); below a few seconds the
         stream is white (ADEV(1 s) = 1.04 N, see :func:`allan_deviation_model`), so the
         published per-sample covariance describes it. Chosen, not from a source.
     adc_noise : float

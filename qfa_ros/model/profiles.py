@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from qfa_ros.model import checks
-from qfa_ros.model.units import STANDARD_GRAVITY
+from qfa_ros.model.constants import STANDARD_GRAVITY
 
 
 def gravity_in_sensor_frame(roll, pitch, gravity=STANDARD_GRAVITY):

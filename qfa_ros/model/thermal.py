@@ -14,7 +14,7 @@ import numba
 import numpy as np
 
 from qfa_ros.model import checks, streams
-from qfa_ros.model.units import MILLI_G, PPM
+from qfa_ros.model.constants import MILLI_G, PPM
 
 AMBIENT_PROFILES = ('constant', 'ramp', 'cycle', 'room')
 CYCLE_SHAPES = ('trapezoid', 'sine')
@@ -81,13 +81,13 @@ class ThermalConfig:
     Zero bias per axis ``i`` [m/s^2], a function of the body temperature through the
     noiseless sensor voltage ``V_s = tsensor_v0 + k_v (T_s - T0)``:
 
-    * ``double_exp`` (default, seed 2 eq. 1):
+    * ``double_exp`` (default, Liu, Li and Shen, eq. 1):
       ``b_i = bias_alpha[i,0] e^(bias_beta[i,0] V_s) + bias_alpha[i,1] e^(bias_beta[i,1] V_s)``;
       the defaults give 0.43 / 0.43 / 0.66 mg peak to peak over -40..+70 degC, curved,
       with temperature coefficients of at most 15 / 10 / 20 ug/degC (QA-2000 class:
       < 30 ug/degC);
     * ``polynomial``: ``b_i = sum_k bias_poly[i,k] (T_s - T0)^k`` [m/s^2/degC^k];
-    * ``mixed``: the sum of the two (a drawn unit, :mod:`qfa_ros.model.unit`: a curve that
+    * ``mixed``: the sum of the two (a drawn unit, :mod:`qfa_ros.model.drawn_unit`: a curve that
       is not the fitted model's own shape);
     * ``none``: 0;
 

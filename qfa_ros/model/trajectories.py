@@ -25,9 +25,9 @@ import warnings
 import numpy as np
 
 from qfa_ros.model import checks, earth
-from qfa_ros.model.files import read_regular_file
+from qfa_ros.model.constants import DEGREE
+from qfa_ros.model.safe_files import read_regular_file
 from qfa_ros.model.trajectory import quintic_coefficients, Trajectory
-from qfa_ros.model.units import DEGREE
 
 MAX_CSV_BYTES = 16 << 20
 """Largest trajectory file read [bytes]: 16 MiB, about 250 000 poses (7 h at 10 Hz)."""
@@ -265,7 +265,7 @@ def load_csv(path, max_bytes=MAX_CSV_BYTES):
     """
     Return the :class:`Trajectory` of a CSV pose file (see the module docstring).
 
-    The file is a stranger's: read by :func:`~qfa_ros.model.files.read_regular_file`
+    The file is a stranger's: read by :func:`~qfa_ros.model.safe_files.read_regular_file`
     (a regular file of at most ``max_bytes``), parsed in bounded memory, and no error
     quotes its content.
 

@@ -7,10 +7,10 @@ import numbers
 import numpy as np
 
 from qfa_ros.model import checks
+from qfa_ros.model.constants import MICRO_G, STANDARD_GRAVITY
 from qfa_ros.model.gyro import GyroConfig
 from qfa_ros.model.hardware import AxisHardware
 from qfa_ros.model.noise import NoiseConfig
-from qfa_ros.model.units import MICRO_G, STANDARD_GRAVITY
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,7 @@ class TriadConfig:
         Time after re-closing a loop during which its output is flagged invalid [s].
     thermal : ThermalConfig or None
         Thermal model (ambient, body lag, temperature sensor, zero bias and
-        scale-factor error versus temperature, seed 2); None keeps the sensor at the
+        scale-factor error versus temperature, Liu, Li and Shen); None keeps the sensor at the
         drift model's reference temperature with no thermal errors.
     gyro : GyroConfig or None
         Error model of the gyro triad beside the accelerometers

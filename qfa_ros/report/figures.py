@@ -1,22 +1,22 @@
 """Plot estimation traces and scenario bags like the source papers' figures.
 
 ``qfa-report BAG [BAG ...] [--out DIR]`` reads MCAP files of this project (trace
-files written by :func:`qfa_ros.bag.traces.write_estimation_trace`, scenario bags of
+files written by :func:`qfa_ros.bag.estimation_trace.write_estimation_trace`, scenario bags of
 ``qfa-sim``, or directories of them) and writes PNG figures:
 
-``forward_gain.png`` (seed 1 Fig. 11)
+``forward_gain.png`` (Ran et al. 2019, Fig. 11)
     Open-loop sweep ``N_out`` against ``dN_FPGA`` for the reference and every
     estimation run, with the fitted slopes, and the deviation from the reference
     line that makes a slope change of a few hundred ppm visible.
-``feedback_gain.png`` (seed 1 Fig. 12)
+``feedback_gain.png`` (Ran et al. 2019, Fig. 12)
     Segment means with ``I_ref`` off and on, and the step ``N_on - N_off``
     relative to the reference.
-``static_output.png`` (seed 1 Fig. 13)
+``static_output.png`` (Ran et al. 2019, Fig. 13)
     The static ``imu/data_raw`` output through the scenario phases (reference,
     drifted, compensated, ...), each phase's mean and its error in µg.
-``temperature_fit.png`` (seed 2 Fig. 3)
+``temperature_fit.png`` (Liu, Li and Shen, Fig. 3)
     Zero bias against ``V_temp`` with the fitted double exponential.
-``temperature_compensation.png`` (seed 2 Fig. 4)
+``temperature_compensation.png`` (Liu, Li and Shen, Fig. 4)
     Zero bias before and after the compensation.
 
 A figure is written only when its data are present. Runs from several files
@@ -37,10 +37,10 @@ from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 
 from qfa_ros.bag.reader import mcap_read_errors
-from qfa_ros.bag.trace import key_values_to_dict
-from qfa_ros.model.files import open_regular_file
+from qfa_ros.bag.trace_writer import key_values_to_dict
+from qfa_ros.model.constants import MICRO_G
+from qfa_ros.model.safe_files import open_regular_file
 from qfa_ros.model.triad import AXES
-from qfa_ros.model.units import MICRO_G
 
 # Headless: figures are only ever written to files.
 matplotlib.use('Agg')
@@ -77,7 +77,7 @@ class TraceRun:
     namespace : str
         Topic namespace of the run, e.g. ``/qfa/trace/reference``.
     settings, result : dict
-        Flat ``KeyValue`` dicts (see :func:`qfa_ros.bag.trace.key_values_to_dict`).
+        Flat ``KeyValue`` dicts (see :func:`qfa_ros.bag.trace_writer.key_values_to_dict`).
     tables : dict of str to dict of numpy arrays
         Relative table name (``'forward/points'``) to columns, plus ``time_ns`` (the
         log times).
@@ -292,7 +292,7 @@ def _finish(name, figure, data, title):
 
 
 def forward_figure(runs):
-    """Plot the forward sweeps (seed 1 Fig. 11); return a ReportFigure or None."""
+    """Plot the forward sweeps (Ran et al. 2019, Fig. 11); return a ReportFigure or None."""
     reference, estimates = _pick_runs(runs, ('delta_n', 'mean_x'))
     plotted = ([reference] if reference else []) + estimates
     if not plotted:
@@ -337,11 +337,11 @@ def forward_figure(runs):
         if reference_fit is None:
             bottom.set_visible(False)
     return _finish('forward_gain', figure, data, 'Forward gain: open-loop sweep N_out vs '
-                   'dN_FPGA, reference vs drifted (seed 1 Fig. 11)')
+                   'dN_FPGA, reference vs drifted (Ran et al. 2019, Fig. 11)')
 
 
 def feedback_figure(runs):
-    """Plot the I_ref on/off segments (seed 1 Fig. 12); return a ReportFigure or None."""
+    """Plot the I_ref on/off segments (Ran et al. 2019, Fig. 12); return a ReportFigure or None."""
     reference, estimates = _pick_runs(runs, ('reference_on', 'mean_x'))
     plotted = ([reference] if reference else []) + estimates
     if not plotted:
@@ -398,11 +398,11 @@ def feedback_figure(runs):
         bottom.set_ylabel('step N_on - N_off vs reference [ppm]')
         bottom.grid(alpha=0.3, axis='y')
     return _finish('feedback_gain', figure, data, 'Feedback gain: output with the reference '
-                   'current I_ref off/on, reference vs drifted (seed 1 Fig. 12)')
+                   'current I_ref off/on, reference vs drifted (Ran et al. 2019, Fig. 12)')
 
 
 def static_output_figure(contents, axis='z'):
-    """Plot the static IMU output through the scenario phases (seed 1 Fig. 13)."""
+    """Plot the static IMU output through the scenario phases (Ran et al. 2019, Fig. 13)."""
     with_imu = [c for c in contents if len(c.imu_time_ns)]
     if not with_imu:
         return None
@@ -436,7 +436,7 @@ def static_output_figure(contents, axis='z'):
         data['phases'][name] = {'mean_m_s2': float(values[inside].mean()),
                                 'error_ug': mean_ug, 'samples': int(inside.sum())}
     _label(plot, f'Static output, {axis} axis: '
-           f'{" / ".join(name for name, *_ in segments)} (seed 1 Fig. 13)', 'time [s]',
+           f'{" / ".join(name for name, *_ in segments)} (Ran et al. 2019, Fig. 13)', 'time [s]',
            f'{axis} output - {baseline_name or "first phase"} mean [µg]', loc='best')
     figure.tight_layout()
     return ReportFigure('static_output', figure, data)
@@ -476,7 +476,7 @@ def _temperature_panels(runs, *stems):
 
 
 def temperature_fit_figure(runs):
-    """Plot zero bias vs V_temp with the double-exponential fit (seed 2 Fig. 3)."""
+    """Plot zero bias vs V_temp with the double-exponential fit (Liu, Li and Shen, Fig. 3)."""
     panels = _temperature_panels(runs, 'bias')
     if panels is None:
         return None
@@ -503,11 +503,11 @@ def temperature_fit_figure(runs):
         _label(plot, f'{axis} axis', 'V_temp [V]', 'zero bias [µg]')
         data[axis] = entry
     return _finish('temperature_fit', figure, data, 'Zero bias vs temperature-sensor voltage '
-                   f'and double-exponential fit ({run.name}, seed 2 Fig. 3)')
+                   f'and double-exponential fit ({run.name}, Liu, Li and Shen, Fig. 3)')
 
 
 def temperature_compensation_figure(runs):
-    """Plot the zero bias before and after compensation (seed 2 Fig. 4)."""
+    """Plot the zero bias before and after compensation (Liu, Li and Shen, Fig. 4)."""
     panels = _temperature_panels(runs, 'bias', 'compensated')
     if panels is None:
         return None
@@ -528,7 +528,7 @@ def temperature_compensation_figure(runs):
                       'p2p_before_ug': p2p_before, 'p2p_after_ug': p2p_after}
     return _finish('temperature_compensation', figure, data, 'Zero drift over the temperature '
                    'cycle before and after the fixed-point double-exponential compensation '
-                   f'({run.name}, seed 2 Fig. 4)')
+                   f'({run.name}, Liu, Li and Shen, Fig. 4)')
 
 
 def build_figures(paths):

@@ -13,9 +13,9 @@ from pathlib import Path
 
 from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
+from qfa_ros.model.constants import PPM
 from qfa_ros.model.hardware import AxisHardware, nominal_gains
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.units import PPM
 
 # Ranges of the schedule parameters. They bound what one service call can cost, whoever
 # makes it: the sensor time it takes (imu/data_raw is withheld meanwhile) and the model

@@ -2,7 +2,7 @@
 The managed (REP-2004 lifecycle) variant of the node, ``qfa_lifecycle_node``.
 
 :class:`QfaLifecycleNode` runs the same unit as :class:`~qfa_ros.ros.node.QfaNode` (one
-wiring, :class:`~qfa_ros.ros.node.QfaUnit`), driven by the lifecycle transitions instead
+wiring, :class:`~qfa_ros.ros.node.SensorWiring`), driven by the lifecycle transitions instead
 of its construction:
 
 ``configure``
@@ -34,7 +34,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, TransitionCallbackReturn
 
-from qfa_ros.ros.node import QfaUnit
+from qfa_ros.ros.node import SensorWiring
 from qfa_ros.ros.parameter_checks import check_alone
 from qfa_ros.ros.parameter_table import OPERATOR, PARAMETERS, SPECS
 from qfa_ros.ros.runtime_parameters import declare_parameters
@@ -89,7 +89,7 @@ def _destroyers(node):
             (node.timers, node.destroy_timer), (node.guards, node.destroy_guard_condition))
 
 
-class QfaLifecycleNode(QfaUnit, LifecycleNode):
+class QfaLifecycleNode(SensorWiring, LifecycleNode):
     """
     The emulated IMU as a managed node: the unit wired at ``configure``, published while active.
 
@@ -122,8 +122,8 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         declare_parameters(self, managed=True, refused=self._refused)
         self.add_on_set_parameters_callback(self._check_by_state)
         self.add_post_set_parameters_callback(self._forget_refused)
-        # The unit's entities by kind (what wire_unit created), or None while unconfigured;
-        # the node attributes wire_unit set; its parameter checks. Executor thread only, as
+        # The unit's entities by kind (what wire_sensor created), or None while unconfigured;
+        # the node attributes wire_sensor set; its parameter checks. Executor thread only, as
         # is _active.
         self._unit_entities = None
         self._unit_attributes = ()
@@ -195,7 +195,7 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         values = {spec.name: self.get_parameter(spec.name).value for spec in PARAMETERS}
         before = [set(entities) for entities, _ in _destroyers(self)], set(vars(self))
         try:
-            self.wire_unit(values, self._process_tuning)
+            self.wire_sensor(values, self._process_tuning)
         except ValueError as error:
             self._keep_unit_entities(before)
             self._release_unit()
@@ -338,7 +338,7 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         return ERROR
 
     def _keep_unit_entities(self, before):
-        """Note what ``wire_unit`` made: its entities by kind and the attributes it set."""
+        """Note what ``wire_sensor`` made: its entities by kind and the attributes it set."""
         entities, attributes = before
         self._unit_entities = [set(now) - known
                                for (now, _), known in zip(_destroyers(self), entities)]
@@ -370,7 +370,7 @@ class QfaLifecycleNode(QfaUnit, LifecycleNode):
         if self._unit_entities is None:
             return None
         problem = None
-        if self._stream is not None:  # else wire_unit refused before it made anything
+        if self._stream is not None:  # else wire_sensor refused before it made anything
             self.close(TRANSITION_CLOSE_TIMEOUT_S)
             problem = self._keeper.problem if self._keeper.unsaved else None
         if self._parameter_changes is not None:

@@ -16,6 +16,8 @@ from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
 from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model import trajectories
+from qfa_ros.model.constants import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G
+from qfa_ros.model.drawn_unit import draw_unit
 from qfa_ros.model.errors import error_profile, sensor_config
 from qfa_ros.model.gyro import GyroConfig
 from qfa_ros.model.imu_noise import emulated_config
@@ -24,8 +26,6 @@ from qfa_ros.model.profiles import SineProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.model.unit import draw_unit
-from qfa_ros.model.units import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G
 
 _GYRO = GyroConfig()
 
@@ -74,7 +74,7 @@ def temperature_settings(values):
 
 
 def unit_of(values):
-    """Return the drawn :class:`~qfa_ros.model.unit.Unit` of ``unit.*``, or None.
+    """Return the drawn :class:`~qfa_ros.model.drawn_unit.Unit` of ``unit.*``, or None.
 
     None also for ``sensor.error_profile: ideal`` (an ideal sensor is no drawn unit).
     """

@@ -45,13 +45,13 @@ ANNOUNCE_AFTER_S = 1.0
 """The start-up lines are logged at the latest this long after construction [s, steady]."""
 
 
-class QfaUnit:
+class SensorWiring:
     """
     The emulated unit on a node: the model and its collaborators, wired in one place.
 
     Mixed into both nodes, so that there is one wiring: :class:`QfaNode` wires and starts
     it at construction, :class:`~qfa_ros.ros.lifecycle_node.QfaLifecycleNode` at its
-    ``configure`` transition. :meth:`wire_unit` creates every publisher, service, timer
+    ``configure`` transition. :meth:`wire_sensor` creates every publisher, service, timer
     and subscription of the unit on the node it is mixed into.
 
     The node wires small collaborators: :class:`SampleStream` (the sensor thread that
@@ -65,9 +65,9 @@ class QfaUnit:
     """
 
     _stream = None
-    """The :class:`SampleStream` once :meth:`wire_unit` made it (None before)."""
+    """The :class:`SampleStream` once :meth:`wire_sensor` made it (None before)."""
 
-    def wire_unit(self, values, process_tuning=None):
+    def wire_sensor(self, values, process_tuning=None):
         """
         Build the model from ``values`` and wire the collaborators; the stream is not started.
 
@@ -215,7 +215,7 @@ class QfaUnit:
                 self._lock.release()
 
 
-class QfaNode(QfaUnit, Node):
+class QfaNode(SensorWiring, Node):
     """
     Emulated self-calibrating IMU of three digital closed-loop QFA.
 
@@ -223,7 +223,7 @@ class QfaNode(QfaUnit, Node):
     ``~/is_calibrated``; serves ``~/capture_reference``, ``~/estimate_forward_gain``,
     ``~/estimate_feedback_gain``, ``~/self_calibrate``, ``~/calibrate_temperature``,
     ``~/calibrate_gyros``, ``~/set_compensation`` and ``~/cancel``. The unit
-    (:class:`QfaUnit`) is wired and started at construction, and runs until :meth:`close`.
+    (:class:`SensorWiring`) is wired and started at construction, and runs until :meth:`close`.
 
     :param node_name: Node name.
     :param process_tuning: The process's interpreter settings, applied by the sensor thread
@@ -235,7 +235,7 @@ class QfaNode(QfaUnit, Node):
 
     def __init__(self, node_name='qfa_node', *, process_tuning=None, **kwargs):
         super().__init__(node_name, **kwargs)
-        self.wire_unit(declare_parameters(self), process_tuning)
+        self.wire_sensor(declare_parameters(self), process_tuning)
         # The start-up lines are logged (executor thread) once the first samples are out,
         # or ANNOUNCE_AFTER_S of steady time after construction should none come (a topic
         # input not yet arrived, no /clock): rclpy's logger finds its caller through

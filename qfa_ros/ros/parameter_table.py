@@ -21,11 +21,11 @@ from qfa_ros.calibration.estimation import (
 from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model import trajectories
+from qfa_ros.model.constants import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G, STANDARD_GRAVITY
 from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom
 from qfa_ros.model.gyro import GyroConfig
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.thermal import ThermalConfig
-from qfa_ros.model.units import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G, STANDARD_GRAVITY
 from qfa_ros.ros.bounds import (
     CHAMBER_BOUND,
     CHAMBER_MAX_CYCLES,
@@ -58,10 +58,10 @@ MAX_SHOWN = 64
 """Most characters of a refused value a refusal quotes back."""
 
 FORWARD_COMPONENT = 'k_amp'
-"""Drift component behind ``drift.forward_ppm``: the in-amp gain resistor (seed 1 §IV)."""
+"""Drift component behind ``drift.forward_ppm``: the in-amp gain resistor (Ran et al. §IV)."""
 
 FEEDBACK_COMPONENT = 'k_vi'
-"""Drift component behind ``drift.feedback_ppm``: the V/I sense resistor (seed 1 §IV)."""
+"""Drift component behind ``drift.feedback_ppm``: the V/I sense resistor (Ran et al. 2019, §IV)."""
 
 _NOISE = NoiseConfig()
 _FORWARD = ForwardSettings()
@@ -190,13 +190,14 @@ PARAMETERS = (
                   'temperature)', RUNTIME, -60.0, 125.0),
     ParameterSpec('thermal.enabled', True,
                   'Thermal model: body lag, on-board temperature sensor, zero bias and '
-                  'scale-factor error versus temperature (seed 2)', CONFIGURE, why=SENSOR),
+                  'scale-factor error versus temperature (Liu, Li and Shen)', CONFIGURE,
+                  why=SENSOR),
     ParameterSpec('sensor.error_profile', 'paper',
                   "Error sources of the sensor (qfa_ros.model.errors, docs/ins.md): paper, the "
                   "sensor with its errors (the drawn unit, noise.*, gyro.*, the thermal curves "
-                  "and seed 1's component temperature coefficients: DA1 reference +20, k_tz +7, "
-                  'in-amp +6, I_ref +30, magnet/k_t +10 ppm/degC); ideal, every source off '
-                  '(no unit draw, no noise, ideal gyros, no thermal curves or coefficients; '
+                  "and Ran et al.'s component temperature coefficients: DA1 reference +20, "
+                  'k_tz +7, in-amp +6, I_ref +30, magnet/k_t +10 ppm/degC); ideal, every source '
+                  'off (no unit draw, no noise, ideal gyros, no thermal curves or coefficients; '
                   'model.* and drift.* still add what they set)', CONFIGURE,
                   choices=ERROR_PROFILES, why=SENSOR),
     ParameterSpec('thermal.ambient_profile', 'room',
@@ -212,8 +213,8 @@ PARAMETERS = (
     ParameterSpec('thermal.cycle_period_s', _THERMAL.cycle_period_s,
                   'Period of the trapezoid cycle profile [s]', RUNTIME, 1.0, 1.0e7),
     ParameterSpec('thermal.room_amplitude_c', _ROOM.room_amplitude_c,
-                  'Bound of the room profile wander around temperature_c [degC] (seed 1: the '
-                  'room within 3 degC)', RUNTIME, 0.0, 50.0),
+                  'Bound of the room profile wander around temperature_c [degC] (Ran et al. '
+                  '2019: the room within 3 degC)', RUNTIME, 0.0, 50.0),
     ParameterSpec('thermal.room_correlation_s', _ROOM.room_correlation_s,
                   'Correlation time of the room profile wander [s] (12 h: a room following '
                   'the day; chosen)', RUNTIME, 1.0, 1.0e7),
@@ -221,8 +222,8 @@ PARAMETERS = (
                   'Thermal time constant of the sensor body [s]', CONFIGURE, 1.0, 1.0e5,
                   why=SENSOR),
     ParameterSpec('thermal.bias_model', _THERMAL.bias_model,
-                  'Zero bias versus temperature: the double exponential of seed 2 eq. 1 or '
-                  'none', CONFIGURE, choices=THERMAL_BIAS_MODELS, why=SENSOR),
+                  'Zero bias versus temperature: the double exponential of Liu, Li and Shen, '
+                  'eq. 1 or none', CONFIGURE, choices=THERMAL_BIAS_MODELS, why=SENSOR),
     ParameterSpec('diagnostics_rate_hz', 1.0, 'Rate of /diagnostics [Hz]', OPERATOR, 0.1, 10.0,
                   why=CPU_RATE),
     ParameterSpec('noise.density_ug_per_rthz', _NOISE.noise_density / MICRO_G,
@@ -244,8 +245,8 @@ PARAMETERS = (
                   OPERATOR, why=FILE_READ),
     ParameterSpec('unit.draw', True,
                   'Draw the sensor as one unit within the datasheet spreads (turn-on bias, '
-                  'thermal curves, aging, K2, misalignment; qfa_ros.model.unit); false: the '
-                  'nominal sensor (seed 2 default curves, no turn-on bias)', CONFIGURE,
+                  'thermal curves, aging, K2, misalignment; qfa_ros.model.drawn_unit); false: the '
+                  'nominal sensor (Liu, Li and Shen, default curves, no turn-on bias)', CONFIGURE,
                   why=SENSOR),
     ParameterSpec('unit.seed', -1,
                   'Seed of the drawn unit: the same seed, the same unit; -1: the unit of seed',
@@ -422,10 +423,10 @@ PARAMETERS = (
                   'and store its temperature coefficient (what '
                   'estimation.feedback.temperature_correction needs)'),
     ParameterSpec('temperature_calibration.m_bits', _CHAMBER.m_bits,
-                  'Fraction bits M of the fixed-point CORDIC zero-bias compensator (seed 2: '
-                  '16; the scale factor uses 24); at least these: an axis whose fitted terms '
-                  'cancel gets the bits they take beyond the 4 guard bits, up to 27', RUNTIME,
-                  8, 30),
+                  'Fraction bits M of the fixed-point CORDIC zero-bias compensator (Liu, Li and '
+                  'Shen: 16; the scale factor uses 24); at least these: an axis whose fitted '
+                  'terms cancel gets the bits they take beyond the 4 guard bits, up to 27',
+                  RUNTIME, 8, 30),
     ParameterSpec('output_dir', '~/.ros/qfa_ros',
                   'Base directory of every trace and recording the node writes (~ expanded '
                   'once, at start); trace_dir and recorder.directory must stay inside it',

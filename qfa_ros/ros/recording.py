@@ -7,8 +7,8 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.serialization import serialize_message
 
-from qfa_ros.bag.files import make_durable, RecorderError
-from qfa_ros.model.files import system_reason
+from qfa_ros.bag.part_files import make_durable, RecorderError
+from qfa_ros.model.safe_files import system_reason
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.bounds import confined_directory
 

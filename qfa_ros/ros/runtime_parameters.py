@@ -12,8 +12,8 @@ import collections
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, ParameterException
 
+from qfa_ros.model.constants import PPM
 from qfa_ros.model.triad import AXES
-from qfa_ros.model.units import PPM
 from qfa_ros.ros.model_settings import ambient_settings, input_profile
 from qfa_ros.ros.parameter_checks import as_declared_type, check_all, descriptor
 from qfa_ros.ros.parameter_table import (

@@ -17,10 +17,10 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.task import Future
 
 from qfa_ros.calibration.schedule import EstimationError
-from qfa_ros.model.files import system_reason
+from qfa_ros.model.constants import DEG_PER_HOUR
+from qfa_ros.model.safe_files import system_reason
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.triad_output import concatenate
-from qfa_ros.model.units import DEG_PER_HOUR
 from qfa_ros.ros.bounds import confined_directory
 from qfa_ros.ros.model_settings import feedback_settings, forward_settings
 from qfa_ros.ros.recording import FreeSpaceGuard
@@ -221,7 +221,7 @@ class ScheduleService:
             if shortfall:
                 raise OSError(errno.ENOSPC, shortfall)
             # Imported here: the MCAP writer's packages load only when a trace is written.
-            from qfa_ros.bag.traces import trace_path, write_estimation_trace
+            from qfa_ros.bag.estimation_trace import trace_path, write_estimation_trace
             self.last_trace = write_estimation_trace(
                 trace_path(directory, kind, node.get_clock().now().nanoseconds), kind, results,
                 source=node.get_fully_qualified_name())

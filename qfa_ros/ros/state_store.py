@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 from qfa_ros.calibration.state import CalibrationState, StateFormatError
-from qfa_ros.model.files import (
+from qfa_ros.model.safe_files import (
     fsync_directory,
     read_regular_file,
     UntrustedFileError,

@@ -29,10 +29,10 @@ import numpy as np
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
 from qfa_ros.bag.qos import QOS_LATCHED, QOS_TRUTH, QosProfile
+from qfa_ros.model.constants import DEG_PER_HOUR, MICRO_G, PPM
 from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.loop_response import CORRECTION_SETTLE_BAND, feedback_step_transient
 from qfa_ros.model.triad import NS_PER_S
-from qfa_ros.model.units import DEG_PER_HOUR, MICRO_G, PPM
 from qfa_ros.ros.stream import ros_qos
 
 TRUTH_FRAME_ID = 'enu_origin'

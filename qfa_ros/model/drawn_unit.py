@@ -8,7 +8,7 @@ that the same seed drives) within :class:`UnitSpread`; :meth:`Unit.configure` wr
 them into a :class:`~qfa_ros.model.triad_config.TriadConfig`. The same seed gives the same
 unit; two seeds, two units.
 
-Spreads (``DESIGN.md`` table, QA-2000-class datasheets, seed 1) and, where no public
+Spreads (``DESIGN.md`` table, QA-2000-class datasheets, Ran et al. 2019) and, where no public
 figure exists, this project's estimate (marked *estimate*):
 
 =============================  =============================================  ============
@@ -22,8 +22,8 @@ thermal bias shape              two exponentials of V_temp plus linear,         
 scale-factor slope              max \|de/dT| uniform in [0.2, 0.8] x 180        datasheet
                                 ppm/degC; quadratic and cubic terms              < 180 ppm/degC
 scale factor at 25 degC         normal, sigma 300 ppm, clipped to +-1000 ppm    estimate
-bias aging                      uniform in +-100 ug/year                        seed 1; < 160 ug
-scale-factor aging              uniform in +-100 ppm/year (magnet, ``b``)       seed 1; < 310 ppm
+bias aging                      uniform in +-100 ug/year                        Ran 2019; < 160 ug
+scale-factor aging              uniform in +-100 ppm/year (magnet, ``b``)       Ran 2019; < 310 ppm
 K2                              magnitude uniform in [10, 30] ug/g^2,           datasheet
                                 random sign
 misalignment (off-diagonal)     normal, sigma 0.3 mrad, clipped to +-1 mrad     estimate
@@ -53,9 +53,9 @@ import numpy as np
 from numpy.polynomial.polynomial import polyval
 
 from qfa_ros.model import streams
+from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
-from qfa_ros.model.units import MICRO_G, PPM, STANDARD_GRAVITY
 
 UNIT_STREAM = 0x756E6974
 """First word of the unit draw's seed sequence (keeps it apart from the noise streams)."""

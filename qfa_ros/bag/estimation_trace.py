@@ -4,7 +4,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qfa_ros.bag.trace import TraceWriter
+from qfa_ros.bag.trace_writer import TraceWriter
 from qfa_ros.model.triad import AXES
 
 

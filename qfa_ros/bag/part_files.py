@@ -15,7 +15,7 @@ import fcntl
 import os
 import stat
 
-from qfa_ros.model.files import write_atomically
+from qfa_ros.model.safe_files import write_atomically
 
 PART_SUFFIX = '.part'
 METADATA_FILE = 'metadata.yaml'
