@@ -447,7 +447,8 @@ PARAMETERS = (
                   'compensation, no references); the next saved calibration replaces it',
                   OPERATOR, why=STATE_READ),
     ParameterSpec('recorder.enabled', False,
-                  'Record imu/data_raw, imu/temperature and /diagnostics to MCAP'),
+                  'Record the published imu/data_raw, imu/temperature, /diagnostics, '
+                  '~/calibration_events and truth topics to MCAP'),
     ParameterSpec('recorder.directory', 'recordings',
                   'Directory of the flight recordings, created when needed: relative to '
                   'output_dir, or absolute inside it (symlinks and .. resolved; ~ not '
