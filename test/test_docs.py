@@ -107,6 +107,13 @@ def test_the_figures_table_is_what_bench_results_say():
         'docs/figures.md is stale: python docs/figures_table.py > docs/figures.md')
 
 
+def test_no_page_states_a_figure_differently_from_the_table():
+    table = _figures_table()
+    figures = table.load()
+    assert any(figure.get('stated') for figure in figures)
+    assert table.stated_differently(table.pages(), figures) == []
+
+
 def test_a_page_that_states_a_figure_differently_is_found(tmp_path):
     table = _figures_table()
     figures = table.load()
