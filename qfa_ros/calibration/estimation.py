@@ -153,6 +153,17 @@ REFERENCE_SETTING_TOLERANCE_PPM = 1.0
 """How far a setting may move a drift-free estimate before it must match [ppm]."""
 
 
+def forward_sensor_time_s(settings, settle_time_s):
+    """Return the sensor time of one forward schedule [s] (sweep plus the loops' settling)."""
+    return len(settings.sequence()) * (settings.settle_s + settings.average_s) + settle_time_s
+
+
+def feedback_sensor_time_s(settings, settle_time_s):
+    """Return the sensor time of one feedback schedule [s] (segments plus the settling)."""
+    return (len(settings.sequence()) * (settings.settle_s + settings.average_s)
+            + settings.settle_s + settle_time_s)
+
+
 def reference_settings(kind, settings, sensor):
     """
     Return what a ``kind`` estimate must share with its reference (stored at capture).

@@ -14,6 +14,7 @@ import numpy as np
 
 from qfa_ros.calibration.estimation import (
     check_seconds,
+    feedback_sensor_time_s,
     FeedbackSettings,
     fit_line,
     measure_segment,
@@ -175,8 +176,7 @@ PLATEAU_SWITCHING = FeedbackSettings(cycles=2, settle_s=0.25, average_s=0.25, or
 
 def plateau_step_time_s(settle_time_s, settings=PLATEAU_SWITCHING):
     """Return the sensor time of one :func:`plateau_step` [s] (segments, settling)."""
-    return (len(settings.sequence()) * (settings.settle_s + settings.average_s)
-            + settings.settle_s + settle_time_s)
+    return feedback_sensor_time_s(settings, settle_time_s)
 
 
 def plateau_step(sensor, index=None, chamber_c=None, settings=PLATEAU_SWITCHING):
