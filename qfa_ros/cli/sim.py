@@ -338,11 +338,9 @@ def run_temperature_cycle(args, out=None):
     settings = TemperatureSettings(period_s=args.duration)
     verify_s = 4.0 * args.duration / 3.0
     with scenario_bag(args, triad.config) as bag:
-        with tqdm(total=round(args.duration), unit='s', desc='calibration (sensor time)',
-                  disable=None, file=sys.stderr) as bar:
-            result = run_schedule(triad, temperature_schedule(triad, CalibrationState(),
-                                                              settings),
-                                  progress=bar.update)
+        # The schedule's own phases and fraction (its length depends on the soaks).
+        result = run_schedule(triad, temperature_schedule(triad, CalibrationState(), settings),
+                              progress='calibration')
         verify_ns = triad.stamp_ns(triad.sample_index)
         with tqdm(total=round(verify_s), unit='s', desc='verification (sensor time)',
                   disable=None, file=sys.stderr) as bar:

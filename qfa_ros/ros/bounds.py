@@ -11,7 +11,12 @@ import math
 import os
 from pathlib import Path
 
-from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
+from qfa_ros.calibration.estimation import (
+    feedback_sensor_time_s,
+    FeedbackSettings,
+    forward_sensor_time_s,
+    ForwardSettings,
+)
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model.constants import PPM
 from qfa_ros.model.hardware import AxisHardware, nominal_gains
@@ -85,17 +90,6 @@ def forward_sweep_problem(settings, hardware, forward_drift_ppm=(0.0,)):
             f'(N_FPGA {hardware.n_fpga} + the span stays under the ADC full scale with '
             f'{FORWARD_HEADROOM - 1:.0%} headroom; a positive drift.forward_ppm raises the '
             f'open-loop output and narrows it)')
-
-
-def forward_sensor_time_s(settings, settle_time_s):
-    """Return the sensor time of one forward schedule [s] (sweep plus the loops' settling)."""
-    return len(settings.sequence()) * (settings.settle_s + settings.average_s) + settle_time_s
-
-
-def feedback_sensor_time_s(settings, settle_time_s):
-    """Return the sensor time of one feedback schedule [s] (segments plus the settling)."""
-    return (len(settings.sequence()) * (settings.settle_s + settings.average_s)
-            + settings.settle_s + settle_time_s)
 
 
 LARGEST_FORWARD = ForwardSettings(points=FORWARD_MAX_POINTS,

@@ -31,6 +31,7 @@ from qfa_ros.ros.pacing import (
     RecordingQueue,
     STALE_NS,
 )
+from qfa_ros.ros.progress import withheld_note
 
 FAST_CHUNK_SAMPLES = 1000
 FAST_SLICE_S = 0.02
@@ -533,6 +534,11 @@ class SampleStream:
         # skips and drops since are counted in the values.
         if self.pause_reason:
             level, message = DiagnosticStatus.WARN, f'paused: {self.pause_reason}'
+            if self.schedule is not None:
+                # Why, since when and how long still (the schedule's own progress).
+                note = withheld_note(self.schedule, self._now_ns())
+                values.append(('imu/data_raw', note))
+                message += f'; imu/data_raw {note}'
         elif self._last_skip is not None and time.monotonic() - self._last_skip < SKIP_WARN_S:
             level, message = DiagnosticStatus.WARN, \
                 f'{self.skip_note}; {self.skipped} samples skipped since start'
