@@ -156,7 +156,11 @@ def test_a_schedule_says_its_phase_progress_and_time_left(setup, mode, service):
     assert sensor_left == sorted(sensor_left, reverse=True), sensor_left
     wall_left = [float(s['values']['wall time left [s]']) for s in during
                  if s['values']['wall time left [s]'] != 'unknown']
-    assert wall_left and wall_left[-1] <= wall_left[0], wall_left
+    assert wall_left and min(wall_left) >= 0.0, wall_left
+    if mode == 'realtime':
+        # At the node clock the pace is steady; as fast as the CPU allows, the wall time
+        # left follows the machine's load and may rise between two reports.
+        assert wall_left[-1] <= wall_left[0], wall_left
     if len(during) >= 2:
         assert sensor_left[-1] < sensor_left[0], sensor_left
 

@@ -98,9 +98,9 @@ class TemperatureSettings:
         is far below the 20 ppm the correction must reach; at 16 it is 2.4e-5 of each
         term).
     stable_c_per_tumble : float
-        The extreme plateaus (``low_c``, ``high_c``) hold until the on-board reading
-        moves less than this from one tumble to the next (at most ten holds) [degC]: the
-        fits then cover the whole range instead of extrapolating to it.
+        The turning points (the first plateau at ``low_c`` and at ``high_c``) hold until
+        the on-board reading moves less than this from one tumble to the next (at most ten
+        holds) [degC]: the fits then cover the whole range instead of extrapolating to it.
     return_tolerance_c : float
         The soak at the end lasts until the on-board reading (tumble mean) is within
         this of where it was at the start [degC].
@@ -161,19 +161,37 @@ class TemperatureSettings:
 
     def max_sensor_time_s(self):
         """
-        Return the longest sensor time one calibration may take [s].
+        Return the longest sensor time one calibration may take [s], whatever the ambient.
 
-        Every plateau holds ``period_s / plateaus`` (whole tumbles), the two extremes soak
-        at most ten holds each, the soak back lasts at most ``max_soak_s``; the most
-        plateaus are those of an ambient at ``low_c`` (the way down is longest). With
-        ``reference_steps``, every plateau adds one I_ref step measurement.
+        The longest of :meth:`program_time_s` over the ambients: per cycle it is
+        ``period_s (1 + 18 / n) + n T`` for ``n`` plateaus of ``T`` [s] of tumbles and
+        I_ref steps each (the two turning points soak up to ten holds of ``period_s / n``),
+        convex in ``n``, so the longest is at the fewest plateaus (an ambient at ``high_c``
+        or above) or at the most (at ``low_c`` or below).
         """
-        plateaus = len(self.plateaus(self.low_c))
-        hold = self.period_s / plateaus
+        return max(self.program_time_s(self.low_c), self.program_time_s(self.high_c))
+
+    def program_time_s(self, ambient_c):
+        """
+        Return the longest sensor time of the program that starts at ``ambient_c`` [s].
+
+        A tumble at the start and one at the end, every plateau at its longest
+        (:meth:`plateau_limits_s`) in every cycle, and the soak back at its longest
+        (``max_soak_s``).
+        """
         tumble = len(POSITIONS) * self.block_s
-        per_cycle = ((plateaus - 2) * self.plateau_time_s(hold, False)
-                     + 2 * self.plateau_time_s(hold, True))
-        return tumble + self.cycles * per_cycle + self.max_soak_s + tumble
+        plateaus = self.plateau_limits_s(self.plateaus(ambient_c))
+        return tumble + self.cycles * sum(plateaus) + self.max_soak_s + tumble
+
+    def plateau_limits_s(self, plateaus):
+        """
+        Return the longest sensor time of each of ``plateaus`` [s].
+
+        Each holds ``period_s / len(plateaus)``, the :meth:`turning_points` up to ten
+        times that (:meth:`plateau_time_s`).
+        """
+        hold = self.period_s / len(plateaus)
+        return [self.plateau_time_s(hold, extreme) for extreme in self.turning_points(plateaus)]
 
     def plateau_time_s(self, hold_s, extreme):
         """
@@ -186,6 +204,17 @@ class TemperatureSettings:
         if self.reference_steps:
             seconds += plateau_step_time_s(TriadConfig.settle_time)
         return seconds
+
+    def turning_points(self, plateaus):
+        """
+        Return which of ``plateaus`` soak until the reading is stable: the turning points.
+
+        The first plateau (``low_c``) and the first at ``high_c``; a later plateau at the
+        same temperature (the way back ending at an ambient of ``low_c`` or ``high_c``)
+        holds like any other, so no program has more than two.
+        """
+        top = plateaus.index(self.high_c)
+        return [index in (0, top) for index in range(len(plateaus))]
 
     def plateaus(self, ambient_c):
         """Return the chamber plateaus [degC]: low, up to high, down to ``ambient_c``."""
@@ -426,8 +455,8 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
     hold = settings.period_s / len(plateaus)
     tumble_s = len(POSITIONS) * settings.block_s
     # The longest sensor time of each plateau: the phases say what is left, at most.
-    limits = [settings.plateau_time_s(hold, c in (settings.low_c, settings.high_c))
-              for c in plateaus]
+    turning = settings.turning_points(plateaus)
+    limits = settings.plateau_limits_s(plateaus)
     with chamber_program(triad) as previous:
         soak = previous['ambient_profile'] == 'constant'
         left_s = (tumble_s + settings.cycles * sum(limits)
@@ -442,7 +471,7 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
                 name = (f'cycle {cycle + 1} of {settings.cycles}, ' if settings.cycles > 1
                         else '') + f'plateau {index + 1} of {len(plateaus)} at {chamber_c:g} degC'
                 yield from hold_plateau(triad, settings, blocks, tumbles, Phase(name, '', left_s),
-                                        hold, chamber_c in (settings.low_c, settings.high_c))
+                                        hold, turning[index])
                 left_s -= limits[index]
                 if at_plateau is not None:
                     # --- per-plateau hook: extra measurements at this chamber plateau ---

@@ -35,13 +35,15 @@ FEEDBACK_MAX_SETTLE_S = 0.5
 FEEDBACK_MAX_AVERAGE_S = 20.0
 CHAMBER_MAX_PERIOD_S = 4500.0
 CHAMBER_MAX_CYCLES = 1
-MAX_SCHEDULE_LOOP_STEPS = 144_000_000
-"""Model loop steps one call may compute: 14400 s of sensor time at the default 10 kHz loop."""
-CHAMBER_MAX_SENSOR_S = 14_400.0
-"""Sensor time one calibrate_temperature call may take [s], whatever the loop rate. The
-ranges alone do not bound it tightly: fewer plateaus (``low_c`` and ``high_c`` close
-together) hold longer each, and the extremes soak up to ten holds, so the settings are
-checked as a whole (:meth:`TemperatureSettings.max_sensor_time_s`)."""
+MAX_SCHEDULE_LOOP_STEPS = 180_000_000
+"""Model loop steps one call may compute: 18000 s of sensor time at the default 10 kHz loop."""
+CHAMBER_MAX_SENSOR_S = 18_000.0
+"""Sensor time one calibrate_temperature call may take [s], whatever the loop rate and the
+ambient: the default chamber limits at the longest period take 16 877 s from an ambient at
+``high_c``. The ranges alone do not bound it tightly: fewer plateaus (``low_c`` and
+``high_c`` close together, or an ambient near ``high_c``) hold longer each, and the turning
+points soak up to ten holds, so the settings are checked as a whole
+(:meth:`TemperatureSettings.max_sensor_time_s`)."""
 SETTLE_TIME_S = TriadConfig.settle_time
 """Settling of the re-closed loops that ends every estimation schedule [s]."""
 
