@@ -46,10 +46,11 @@ OPERATOR_ONLY = frozenset({
     'output_dir', 'state_file', 'state.fresh', 'noise.imu_yaml', 'input.trajectory_file',
     'sample_rate_hz', 'loop_rate_hz', 'temperature_rate_hz', 'diagnostics_rate_hz',
     'truth.rate_hz', 'stream.lead_s', 'stream.batch_s', 'min_free_bytes',
-    'input.stamp_window_s'})
+    'input.stamp_window_s', 'recorder.keep_s', 'recorder.keep_bytes'})
 """What no participant sets in any state (issue 43): the parameters that name a file or a
 directory the node reads or writes (``state.fresh`` decides whether the state file is
-read), or bound its CPU, memory or disk, or the stall one message can cause. The tests'
+read), or bound its CPU, memory or disk, or the stall one message can cause, or how much of
+the recordings is kept (a stranger could have them deleted). The tests'
 own list (the boundary's, test_node_fuzz.py): a defect in the parameter table cannot move
 their expectation; test_node_params.py checks that the table agrees."""
 
