@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
 from lifecycle_msgs.srv import ChangeState, GetAvailableTransitions, GetState
 import node_fork
@@ -16,6 +17,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
+from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -466,3 +468,16 @@ def counted_after(items, after_ns, stamp=lambda item: item):
         looked[0] = len(items)
         return looked[1]
     return count
+
+
+class RecordingNode:
+    """What :class:`~qfa_ros.ros.recording.StreamRecording` uses of a node: name, logger, clock."""
+
+    def get_name(self):
+        return NODE
+
+    def get_logger(self):
+        return get_logger('test_recording')
+
+    def get_clock(self):
+        return SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=time.time_ns()))

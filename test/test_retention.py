@@ -3,7 +3,8 @@
 Driven through :class:`~qfa_ros.bag.retention.Retention` and the
 :class:`~qfa_ros.bag.flight_recorder.FlightRecorder` with 1 s splits of a 100 Hz IMU stream
 (small files, no node), every bag read back by ``rosbags`` and the mcap seeking reader
-(``crash_helpers.read_bag``). A writer killed with SIGKILL inside deletions closes it.
+(``crash_helpers.read_bag``). A writer killed with SIGKILL inside deletions, the free-space
+floor behind retention, and one short node run with a stranger on the domain close it.
 """
 
 import fcntl
@@ -14,9 +15,12 @@ import signal
 import subprocess
 import sys
 import textwrap
+from types import SimpleNamespace
 
 from crash_helpers import (
+    ENCODER,
     feed_imu,
+    IMU_TOPIC,
     read_bag,
     read_mcap,
     recorded_session,
@@ -27,7 +31,9 @@ from crash_helpers import (
     SESSION_T0,
     stop_when,
 )
+from diagnostic_msgs.msg import DiagnosticArray
 from mcap.writer import Writer
+from node_helpers import Client, domain_id, NodeProcess, RecordingNode
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
@@ -37,6 +43,9 @@ from qfa_ros.bag import part_files
 from qfa_ros.bag.part_files import delete_finished_file, DELETION_SUFFIX
 from qfa_ros.bag.recovery import needs_recovery, recover
 from qfa_ros.bag.retention import Retention
+from qfa_ros.ros import recording as recording_module
+from qfa_ros.ros.parameter_table import PARAMETERS
+from qfa_ros.ros.recording import FreeSpaceGuard, GUARD_BAND_BYTES, StreamRecording
 
 
 def listed(bag):
@@ -276,3 +285,97 @@ def test_kill_9_inside_deletions_leaves_every_recording_readable(tmp_path):
                               * (SECOND // SESSION_RATE))
         assert len(newest) >= 150
     assert inside >= 2, f'only {inside} of 6 kills inside a deletion'
+
+
+class ShrinkingDisk:
+    """
+    ``shutil.disk_usage`` of a disk ``room`` bytes above the floor less what ``directory`` holds.
+
+    Deleting recordings frees space.
+    """
+
+    def __init__(self, directory, floor, room):
+        self.directory, self.free_at_start = directory, floor + GUARD_BAND_BYTES + room
+
+    def __call__(self, path):
+        used = sum(p.stat().st_size for p in Path(self.directory).rglob('*') if p.is_file())
+        return SimpleNamespace(total=1 << 40, used=used, free=self.free_at_start - used)
+
+
+@pytest.mark.parametrize('keep_files, stops', [(3, False), (10, True)])
+def test_the_free_space_floor_comes_after_retention(tmp_path, monkeypatch, keep_files, stops):
+    # Room for 8 files above the floor: retention keeping 3 makes room when the floor is
+    # near; keeping 10 it deletes nothing (its limit is not passed), and the floor stops
+    # the recording instead of retention deleting beyond its limit. Only the pass the
+    # floor runs: the passes after each file (a thread's) are left out.
+    monkeypatch.setattr(recording_module, 'FREE_SPACE_CHECK_S', 0.0)
+    monkeypatch.setattr(StreamRecording, '_retain_soon', lambda self: None)
+    file_bytes = 20_000
+    values = {spec.name: spec.default for spec in PARAMETERS}
+    values.update({'output_dir': str(tmp_path), 'recorder.enabled': True,
+                   'recorder.max_bytes': file_bytes, 'recorder.keep_s': 0.0,
+                   'recorder.keep_bytes': keep_files * file_bytes})
+    floor = 1 << 30
+    recording = StreamRecording(RecordingNode(), values, {}, FreeSpaceGuard(
+        floor, ShrinkingDisk(tmp_path / 'recordings', floor, 8 * file_bytes)))
+    recording.restart()
+    data = ENCODER.encode(np.array([SESSION_T0]), np.array([[0.0, 0.0, 9.81]]))[0]
+    for index in range(40 * file_bytes // len(data)):  # 40 files' worth
+        recording.record(IMU_TOPIC, 'sensor_msgs/msg/Imu', data,
+                         SESSION_T0 + index * SECOND // SESSION_RATE)
+        if not recording.active:
+            break
+    stopped, problem = not recording.active, recording.problem
+    recording.close()
+    # The passes after the last files (on their thread, or the next start's), done here.
+    summary = recording.retention.apply()
+    kept = sum(path.stat().st_size for path in (tmp_path / 'recordings').rglob('*.mcap'))
+    assert stopped == stops and ('min_free_bytes' in (problem or '')) == stops, problem
+    if stops:
+        assert summary.deleted == 0 and kept > 6 * file_bytes
+    else:
+        assert summary.deleted_bytes + kept > 8 * file_bytes  # more than the room
+        assert kept == summary.kept_bytes <= keep_files * file_bytes
+    for bag in (tmp_path / 'recordings').iterdir():
+        assert_whole(bag)
+
+
+def test_the_node_keeps_its_limits_over_restarts_and_from_strangers(tmp_path):
+    output = tmp_path / 'output'
+    recordings = output / 'recordings'
+    recordings.mkdir(parents=True)
+    earlier = recorded_session(recordings, 0, 3.5).bag_directory  # an earlier run of this node
+    stranger = recordings / 'notes.txt'
+    stranger.write_text("not the recorder's\n")
+    domain = domain_id('retention')
+    node = NodeProcess(domain, tmp_path, {
+        'output_dir': str(output), 'state_file': '', 'recorder.enabled': True,
+        'recorder.max_duration_s': 1.0, 'recorder.keep_s': 3.0, 'diagnostics_rate_hz': 10.0})
+    client = Client(domain)
+    try:
+        statuses = []
+        client.subscribe(DiagnosticArray, '/diagnostics', lambda message: statuses.extend(
+            {v.key: v.value for v in status.values} for status in message.status
+            if status.name.endswith(': stream')), depth=50)
+
+        def deleted():
+            return statuses and int(statuses[-1].get('retention deleted', '0').split()[0]) >= 6
+        client.spin_until(deleted, 60.0, 'the earlier run and a file of this one deleted')
+        assert not earlier.exists() and stranger.read_text() == "not the recorder's\n"
+        assert 'keeps 3 s of recording' in statuses[-1]['retention']
+        assert 'since 20' in statuses[-1]['retention kept']
+        for name, value in (('recorder.keep_s', 0.0), ('recorder.keep_bytes', 1)):
+            result, = client.set_parameters({name: value})
+            assert not result.successful and name in result.reason
+        # Moved elsewhere by a participant: recorded there, nothing deleted there.
+        result, = client.set_parameters({'recorder.directory': 'elsewhere'})
+        assert result.successful, result.reason
+        count = len(statuses)
+        client.spin_until(lambda: len(statuses) > count + 2, 30.0, 'diagnostics')
+        assert 'not the one the node started with' in statuses[-1]['retention']
+    finally:
+        client.close()
+        assert node.stop() == 0, node.log()[-2000:]
+    for bag in recordings.iterdir():
+        if bag.is_dir():
+            assert_whole(bag)
