@@ -96,7 +96,7 @@ LONGEST_FIRST = (
     'test_distributions.py', 'test_launch.py', 'test_bags.py', 'test_replay.py',
     'test_recorder.py', 'test_report.py',
     'test_node_stream.py', 'test_node_delivery.py', 'test_imu_yaml.py', 'test_node_ins.py',
-    'test_node_security.py', 'test_trust_boundary.py', 'test_node_truth.py',
+    'test_node_security.py', 'test_trust_boundary.py', 'test_node_truth.py', 'test_retention.py',
     'test_temperature_calibration.py', 'test_loop_model.py', 'test_recovery.py',
     'test_tempfit.py', 'test_docs.py')
 """The files that take longest, longest first (bench/results/suite_time.md): started first,

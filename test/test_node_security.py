@@ -18,10 +18,10 @@ from node_helpers import (
     largest_schedule_values,
     node_environment,
     NodeProcess,
+    RecordingNode,
     ROOT,
 )
 import pytest
-from rclpy.logging import get_logger
 from rosbags.highlevel import AnyReader
 from std_srvs.srv import Trigger
 
@@ -261,19 +261,6 @@ class FakeUsage:
 
     def __call__(self, path):
         return SimpleNamespace(total=1 << 40, used=0, free=self.free)
-
-
-class RecordingNode:
-    """What :class:`StreamRecording` uses of the node: name, logger, clock."""
-
-    def get_name(self):
-        return 'qfa_node'
-
-    def get_logger(self):
-        return get_logger('test_recording')
-
-    def get_clock(self):
-        return SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=time.time_ns()))
 
 
 def test_recorder_stops_before_the_free_space_floor(tmp_path, monkeypatch):

@@ -66,6 +66,10 @@ class SensorWiring:
 
     _stream = None
     """The :class:`SampleStream` once :meth:`wire_sensor` made it (None before)."""
+    _start_values = None
+    """The parameter values the node was started with, if :meth:`wire_sensor` runs later
+    (the managed node's ``configure``): the recording's retention applies in their
+    ``recorder.directory`` only."""
 
     def wire_sensor(self, values, process_tuning=None):
         """
@@ -122,7 +126,8 @@ class SensorWiring:
             imu_publisher.topic_name: offered_qos(imu_publisher.qos_profile),
             temperature_publisher.topic_name: offered_qos(temperature_publisher.qos_profile),
             '/diagnostics': QosProfile(depth=10),
-            self._calibrated_publisher.topic_name: QOS_LATCHED})
+            self._calibrated_publisher.topic_name: QOS_LATCHED},
+            operator_values=self._start_values or values)
 
         self._ground_truth = GroundTruthInput(values)
         variance = published_acceleration_variance(self._triad.config)

@@ -98,6 +98,8 @@ STATE_READ = ("decides whether the operator's calibration state is read at confi
 CPU_RATE = 'a rate or a wake-up period: it sets the CPU the node spends'
 COMPUTED_AHEAD = 'how far ahead the model is computed: it sets the memory and CPU of each batch'
 DISK = 'the free space the node leaves on the disk'
+RETENTION = ('how much of the flight recordings the node keeps, deleting the oldest: a '
+             'participant who could set it could have the recordings deleted')
 STALL = ("how long one stranger's message stamped ahead may hold the honest input back")
 SENSOR = ('which sensor is emulated (its unit, errors and noise): it changes what the stream '
           'says, as drift.* does at any time; no file, and no more CPU or memory than the '
@@ -458,6 +460,23 @@ PARAMETERS = (
                   1 << 20, 1 << 34),
     ParameterSpec('recorder.max_duration_s', 600.0,
                   'Start a new recording file after this long [s]', RUNTIME, 1.0, 86400.0),
+    ParameterSpec('recorder.keep_s', 86400.0,
+                  'Recording time the flight recorder keeps [s]: the newest finished files '
+                  'are kept while the time they cover adds up to less than this (the one that '
+                  'reaches it too), older ones are deleted, the bags of earlier runs in '
+                  'recorder.directory included; the file being written is never deleted. '
+                  '0: no limit. 86400: the last day of recording, as a flight data recorder '
+                  'keeps its last hours of operation (the disk it takes: docs/node.md, '
+                  'Retention)',
+                  OPERATOR, 0.0, 3.1536e7, why=RETENTION),
+    ParameterSpec('recorder.keep_bytes', 10 << 30,
+                  'Most bytes of finished recording files the flight recorder keeps [bytes]: '
+                  'beyond it the oldest are deleted (the file being written comes on top, at '
+                  'most recorder.max_bytes). 0: no limit. 10 GiB: more than a day at the '
+                  'default rates (bench/results/recorder_disk_rate.md), so that '
+                  'recorder.keep_s decides there and this one at higher rates; min_free_bytes '
+                  'still stops the recorder when neither frees enough', OPERATOR, 0, 2 ** 50,
+                  why=RETENTION),
 )
 
 SPECS = {spec.name: spec for spec in PARAMETERS}

@@ -526,6 +526,7 @@ class SampleStream:
             values.append(('recording', recording.current_path or 'between files'))
         if recording.problem:
             values.append(('recorder problem', recording.problem))
+        values += recording.retention_values()
         if self.sensor_error:
             values.append(('sensor thread error', self.sensor_error))
         level, message = DiagnosticStatus.OK, 'publishing'
