@@ -213,8 +213,8 @@ def check_int(name, value, low, high):
 
 def check_seconds(name, value, allow_zero=False):
     """Raise ValueError naming ``name`` unless ``value`` is a time [s] > 0 (>= 0 if allowed)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+    if not is_finite(value, bool_ok=False, types=(int, float)) or value < 0 \
+            or (value == 0 and not allow_zero):
         raise ValueError(f'{name} must be a {"non-negative" if allow_zero else "positive"} '
                          f'number of seconds, got {value!r}')
 

@@ -19,6 +19,7 @@ import os
 
 import yaml
 
+from qfa_ros.model.checks import is_finite
 from qfa_ros.model.imu_noise import ImuNoiseFigures, KEYS
 from qfa_ros.model.safe_files import read_regular_file
 
@@ -88,7 +89,7 @@ def _number(value):
             number = float(value)
         except ValueError:
             return None
-        return number if math.isfinite(number) else None
+        return number if is_finite(number) else None
     return None
 
 

@@ -133,7 +133,7 @@ class TemperatureSettings:
         for name in ('low_c', 'high_c', 'period_s', 'block_s', 'step_c', 'settle_s',
                      'stable_c_per_tumble', 'return_tolerance_c', 'max_soak_s'):
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not is_finite(value, bool_ok=False):
+            if not is_finite(value, bool_ok=False, types=(int, float)):
                 raise ValueError(f'{name} must be a finite number, got {value!r}')
         if not -60.0 <= self.low_c < self.high_c <= 125.0:
             raise ValueError('low_c and high_c must satisfy -60 <= low_c < high_c <= 125 degC')

@@ -16,6 +16,8 @@ import math
 
 import numpy as np
 
+from qfa_ros.model.checks import is_finite
+
 _START_GRID = np.linspace(-6.0, 6.0, 25)
 """Scaled exponents ``beta * half_range`` tried for the automatic start values."""
 
@@ -350,11 +352,10 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
     -------
     DoubleExpFit
     """
-    if not (math.isfinite(tol) and tol > 0):
+    if not (is_finite(tol) and tol > 0):
         raise ValueError(f'tol must be finite and > 0, got {tol!r}')
     if max_cancellation_bits is not None and not (
-            isinstance(max_cancellation_bits, (int, float))
-            and math.isfinite(max_cancellation_bits) and max_cancellation_bits >= 0):
+            is_finite(max_cancellation_bits, types=(int, float)) and max_cancellation_bits >= 0):
         raise ValueError('max_cancellation_bits must be a finite number >= 0, got '
                          f'{max_cancellation_bits!r}')
     if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:

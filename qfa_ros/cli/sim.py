@@ -28,6 +28,7 @@ from qfa_ros.calibration.schedule import sensor_time_ns
 from qfa_ros.cli.interrupt import stops_quietly
 from qfa_ros.model import trajectories
 from qfa_ros.model.allan import allan_deviation_of_phase
+from qfa_ros.model.checks import is_finite
 from qfa_ros.model.constants import DEG_PER_HOUR, MICRO_G
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.drawn_unit import draw_unit
@@ -443,7 +444,7 @@ def parse_start_time(text):
 
 def option_problem(args):
     """Return what is wrong with the numeric options of ``args`` (one line), or None."""
-    if args.duration is not None and not 0 < args.duration < math.inf:
+    if args.duration is not None and not (is_finite(args.duration) and args.duration > 0):
         return f'--duration must be a positive finite number of seconds, got {args.duration}'
     if args.start_ns + (args.duration or 0.0) * 1e9 >= 2 ** 63:
         return (f'--duration {args.duration:g} s from --start-time ends after 2262 (int64 '
@@ -463,9 +464,9 @@ def option_problem(args):
             TriadConfig(sample_rate_hz=args.rate)
         except ValueError as error:
             return f'--rate: {error}'
-        if not 0 < args.truth_rate < math.inf:
+        if not (is_finite(args.truth_rate) and args.truth_rate > 0):
             return f'--truth-rate must be a positive finite number of Hz, got {args.truth_rate}'
-        if not math.isfinite(args.yaw):
+        if not is_finite(args.yaw):
             return f'--yaw must be a finite number of degrees, got {args.yaw}'
     return None
 

@@ -162,7 +162,7 @@ class GyroTriad:
     """
 
     def __init__(self, config, sample_rate_hz, rng):
-        if not math.isfinite(sample_rate_hz) or sample_rate_hz <= 0:
+        if not checks.is_finite(sample_rate_hz) or sample_rate_hz <= 0:
             raise ValueError(f'sample_rate_hz must be positive, got {sample_rate_hz!r}')
         if not isinstance(rng, np.random.Generator):
             rng = np.random.default_rng(rng)

@@ -235,11 +235,7 @@ class QfaTriad:
 
         The bound keeps every int64 product of the kernel below 2^62 at full-scale ADC.
         """
-        try:
-            valid = math.isfinite(gain) and 0 < gain < MAX_CONTROLLER_GAIN
-        except TypeError:
-            valid = False
-        if not valid:
+        if not (checks.is_finite(gain) and 0 < gain < MAX_CONTROLLER_GAIN):
             raise ValueError(f'controller gain must be in (0, {MAX_CONTROLLER_GAIN}), '
                              f'got {gain!r}')
         loop = self.axes[checks.index('axis', axis, len(AXES))]
