@@ -511,9 +511,9 @@ def fit_multiposition(blocks, tumbles, settings):
     the tumble's mean reading, the scale-factor error at the pair's, where the pair's
     difference fixes it whatever ``s'`` (at the tumble's mean it would be carried there by
     ``s'``, which two blocks read at almost one temperature leave undetermined: thousands
-    of ppm at a plateau's end, issue 45). Last, seed
-    2's double exponential (linear baseline) through the tumbles' bias and through the
-    scale-factor correction ``1/(1 + s) - 1``, and their fixed-point compensators.
+    of ppm at a plateau's end). Last, Liu, Li and Shen's double exponential (linear
+    baseline) through the tumbles' bias and through the scale-factor correction
+    ``1/(1 + s) - 1``, and their fixed-point compensators.
     """
     if len(tumbles) < 10:
         raise EstimationError(f'only {len(tumbles)} tumbles: lengthen period_s')

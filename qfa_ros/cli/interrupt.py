@@ -55,7 +55,7 @@ def one_line_on_interrupt(kind, value, traceback):
 
 
 def program_name():
-    """Return the running command's name, also for ``python -m qfa_ros.cli.MODULE``."""
+    """Return the running command's name, also for ``python -m qfa_ros.cli.<module>``."""
     argv = sys.orig_argv
     if '-m' in argv[:-1]:
         module = argv[argv.index('-m') + 1]

@@ -141,7 +141,7 @@ class ProcessTuning:
         The frozen objects go back to the collector and a full collection runs at once:
         the removed unit's collaborators reference each other, and :meth:`warmed` collects
         only the young generations before it freezes again, so without it every removed
-        unit stayed, frozen, for good (+0.12 MiB per configure/cleanup cycle, issue 43).
+        unit stayed, frozen, for good (``bench/results/lifecycle_cycles.md``).
         Nothing is published meanwhile; it takes about as long as the collection
         :meth:`warmed` avoids (~0.1 s).
         """
