@@ -136,13 +136,9 @@ _SECOND_TERM_F = 10.0
 ``F = ((SSE1 - SSE2) / 2) / (SSE2 / (n - p))``, the MSE reduction the pair's two more
 parameters buy against its residual (``p`` parameters of the pair fit, ``n`` points):
 two parameters fitted to noise alone give ``F`` above 10 in about one fit of 10 000
-(``F(2, 50)``). Data one exponential explains (plus the baseline) leave the pair
-unidentifiable: every ``(beta2, alpha2)`` along a flat valley fits, and the alternation
-stops wherever the rounding of the linear algebra leaves it -- the second term vanishing
-with ``beta2`` at the grid's edge, or two near-equal exponents whose cancelling alphas
-cost the fixed-point words bits (seen for ``1e-3 e^(2V)``: from 0 to 7.4 cancelled bits
-with the OpenBLAS kernel). Such data get the single exponential (``alpha2 = 0``), the
-same on every machine."""
+(``F(2, 50)``). Data one exponential explains leave the pair unidentifiable, split
+wherever the BLAS kernel's rounding leaves it (``bench/results/tempfit_second_term.md``);
+such data get the single exponential (``alpha2 = 0``), the same on every machine."""
 
 _SSE_RESOLUTION = 1e-20
 """SSE differences below this many times the points are rounding (``y`` at unit rms)."""

@@ -132,12 +132,12 @@ class NoiseSource:
         # The bias instability steps once per block of samples (a tenth of the shortest
         # correlation time, at most GAUSS_MARKOV_BLOCK_S) and holds: its Allan deviation
         # is unchanged from the block on, where the white noise dwarfs it, and it costs
-        # 1/block of its random numbers (it was 14 % of the kernel's time per sample).
+        # 1/block of its random numbers (bench/results/sim_limit.md).
         self.gm_block = max(1, int(min(GAUSS_MARKOV_BLOCK_S,
                                        0.1 * min(config.correlation_times)) * sample_rate_hz))
         if config.random_walk > 0 and config.bias_instability == 0:
             # A random walk alone (an emulated imu.yaml) steps every sample, Kalibr's
-            # discrete model exactly: one normal a sample, about 5 % of the kernel's.
+            # discrete model exactly: one normal a sample (bench/results/sim_limit.md).
             self.gm_block = 1
         dt = self.gm_block / sample_rate_hz
         if config.bias_instability > 0:
