@@ -197,9 +197,9 @@ def format_paper_tables(trials, forward_ppm=-200.0, feedback_ppm=200.0):
               f'| output error restrained | {restrained:.2f} % |',
               '',
               f'forward drift estimated {100 - _residual(mean_f, forward_ppm):.2f} % '
-              f'(seed: 90.26 %); feedback {100 - _residual(mean_b, feedback_ppm):.2f} % '
-              f'(seed: 90.92 %); output error restrained {restrained:.2f} % '
-              '(seed: 87.56 %)']
+              f'(Ran et al. 2019: 90.26 %); feedback '
+              f'{100 - _residual(mean_b, feedback_ppm):.2f} % (Ran et al. 2019: 90.92 %); '
+              f'output error restrained {restrained:.2f} % (Ran et al. 2019: 87.56 %)']
     return '\n'.join(lines)
 
 

@@ -1,10 +1,10 @@
 r"""
 Zero-bias temperature model fitting (Liu, Li and Shen): the double exponential and its comparisons.
 
-The zero bias is modelled as ``y = alpha1 e^(beta1 V) + alpha2 e^(beta2 V)`` (seed eq. 1)
+The zero bias is modelled as ``y = alpha1 e^(beta1 V) + alpha2 e^(beta2 V)`` (eq. 1)
 with ``V`` the on-board temperature-sensor voltage [V] and ``y`` the zero output (any
 unit: V, m/s^2, counts; the alphas carry it, the betas are in 1/V).  It is fitted by
-the seed's alternating iteration and compared with 3rd/4th-order polynomials (seed
+their alternating iteration and compared with 3rd/4th-order polynomials (their
 Tables 1-2). :mod:`qfa_ros.calibration.fixed_point_compensator` evaluates a fit on the
 fixed-point CORDIC path; :mod:`qfa_ros.calibration.thermal_compensation` bins a
 temperature cycle, fits it and builds the compensation.
@@ -191,7 +191,7 @@ class DoubleExpFit:
         persisted by :meth:`TemperatureCalibration.to_dict`, not compared by ``==``).
     offset, slope : float
         Linear baseline ``offset + slope V`` added to the two exponentials (0 for the
-        seed's pure model; see ``baseline`` of :func:`fit_double_exponential`).
+        paper's pure model; see ``baseline`` of :func:`fit_double_exponential`).
     """
 
     alpha1: float
@@ -251,7 +251,7 @@ def _single_start(u, y, baseline):
 
 def _refine(u, y, s, baseline, tol, max_iter, max_cancellation_bits=None):
     """
-    Refine the scaled exponents ``s`` (one or two) by the seed's alternation.
+    Refine the scaled exponents ``s`` (one or two) by Liu, Li and Shen's alternation.
 
     With the exponents fixed, the alphas by linear least squares; then a
     Levenberg-Marquardt step on the exponents only, the alphas projected out (Kaufman's
@@ -412,7 +412,7 @@ def fit_double_exponential_reference(v_temp, v_out, beta0=None):
 @dataclass(frozen=True)
 class PolynomialFit:
     """
-    Least-squares polynomial ``y = sum c_k v^k`` (seed Tables 1-2 comparison).
+    Least-squares polynomial ``y = sum c_k v^k`` (Liu, Li and Shen's Tables 1-2 comparison).
 
     Attributes
     ----------

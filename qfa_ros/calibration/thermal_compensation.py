@@ -50,7 +50,7 @@ class TemperatureCalibration:
     fit : DoubleExpFit
         Double-exponential model of the binned zero output vs V_temp.
     poly3, poly4 : PolynomialFit
-        3rd/4th-order comparison fits on the same bins (seed Tables 1-2).
+        3rd/4th-order comparison fits on the same bins (Liu, Li and Shen, Tables 1-2).
     m_bits, n_bits, guard_bits, output_frac_bits : int
         Fixed-point format of the compensator.
     v_range : tuple of float
