@@ -2,8 +2,11 @@
 
 import os
 from pathlib import Path
+import shutil
 import subprocess
 import sys
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -32,3 +35,37 @@ def test_no_merge_conflict_marker_is_left_in_the_sources_or_docs():
                 if line.startswith(markers):
                     found.append(f'{path.relative_to(ROOT)}:{number + 1}')
     assert not found, found
+
+
+FIRST_CHECKED_COMMIT = 'e659f9b'
+"""The first commit held to :data:`MAX_SUBJECT` (those before it are history as it is)."""
+MAX_SUBJECT = 72
+"""Longest commit subject: what ``git log --oneline`` shows whole in 80 columns."""
+
+
+def _git(*args):
+    return subprocess.run(['git', *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=60)
+
+
+def long_subjects(*revisions):
+    """Return ``hash subject`` of each commit of ``revisions`` whose subject is too long."""
+    log = _git('log', '--format=%h %s', *revisions)
+    assert log.returncode == 0, log.stderr
+    return [line for line in log.stdout.splitlines()
+            if len(line.split(' ', 1)[1]) > MAX_SUBJECT]
+
+
+def test_commit_subjects_fit_on_one_line():
+    # The why and the measurements go to the body; the subject says what changed.
+    top = _git('rev-parse', '--show-toplevel') if shutil.which('git') else None
+    if top is None or top.returncode != 0 or Path(top.stdout.strip()).resolve() != ROOT:
+        pytest.skip('no git history of this tree (an sdist, an export): no commits to check')
+    if _git('rev-parse', '--verify', '--quiet', f'{FIRST_CHECKED_COMMIT}^{{commit}}').returncode:
+        pytest.skip(f'{FIRST_CHECKED_COMMIT} is not in this history (a shallow clone)')
+    offences = long_subjects(f'{FIRST_CHECKED_COMMIT}..HEAD')
+    assert not offences, f'subjects over {MAX_SUBJECT} characters:\n' + '\n'.join(offences)
+    # The check sees one where there is one: the commit before the first checked has a
+    # subject of 198 characters.
+    if _git('rev-parse', '--verify', '--quiet', f'{FIRST_CHECKED_COMMIT}~1').returncode == 0:
+        assert len(long_subjects('-1', f'{FIRST_CHECKED_COMMIT}~1')) == 1
