@@ -1,7 +1,9 @@
 """Run the linter configured like ament_flake8 / ament_pep257 (ruff.toml)."""
 
+import ast
 import os
 from pathlib import Path
+import re
 import shutil
 import subprocess
 import sys
@@ -69,3 +71,40 @@ def test_commit_subjects_fit_on_one_line():
     # subject of 198 characters.
     if _git('rev-parse', '--verify', '--quiet', f'{FIRST_CHECKED_COMMIT}~1').returncode == 0:
         assert len(long_subjects('-1', f'{FIRST_CHECKED_COMMIT}~1')) == 1
+
+
+NUMPYDOC_LAYERS = ('model', 'calibration', 'bag', 'report', 'fleet', 'cli')
+"""The layers of ``qfa_ros`` whose docstrings are numpydoc only (``ros`` joins once converted)."""
+REST_FIELD = re.compile(
+    r'^[ \t]*:(param|type|returns?|rtype|raises?|yields?|var|ivar|cvar)\b[^:]*:', re.MULTILINE)
+
+
+def rest_fields(paths):
+    """Return ``file:line: :field`` for each reST field of the docstrings in ``paths``."""
+    found = []
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef,
+                                     ast.AsyncFunctionDef)):
+                continue
+            docstring = ast.get_docstring(node, clean=False)
+            if not docstring:
+                continue
+            first = node.body[0].lineno
+            where = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path.name
+            found += [f'{where}:{first + docstring.count(chr(10), 0, match.start())}: '
+                      f':{match.group(1)}' for match in REST_FIELD.finditer(docstring)]
+    return found
+
+
+def test_docstrings_are_numpydoc_not_rest_field_lists(tmp_path):
+    # The README and docs/conf.py (napoleon, numpy style) say numpydoc: Parameters,
+    # Returns, Raises sections, not :param: fields.
+    paths = sorted(path for layer in NUMPYDOC_LAYERS
+                   for path in (ROOT / 'qfa_ros' / layer).rglob('*.py'))
+    found = rest_fields(paths)
+    assert not found, 'reST fields where numpydoc sections belong:\n' + '\n'.join(found)
+    planted = tmp_path / 'planted.py'
+    planted.write_text('def f(x):\n    """\n    Do.\n\n    :param x: A value.\n'
+                       '    :raises ValueError: Never.\n    """\n')
+    assert rest_fields([planted]) == ['planted.py:5: :param', 'planted.py:6: :raises']

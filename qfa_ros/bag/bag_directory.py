@@ -67,8 +67,12 @@ class BagMetadata:
     added, and only the head (counts, time span, topics) is rendered again; the two lists
     come last in the mapping, which readers take by key (rosbag2, rosbags).
 
-    :param custom_data: rosbag2 ``custom_data`` (mapping), or None.
-    :param ros_distro: The distribution named in the document.
+    Parameters
+    ----------
+    custom_data : dict or None
+        rosbag2 ``custom_data`` (mapping), or None.
+    ros_distro : str
+        The distribution named in the document.
     """
 
     def __init__(self, custom_data=None, ros_distro=ROS_DISTRO):

@@ -36,8 +36,11 @@ def load_imu_yaml(path, max_bytes=MAX_BYTES):
     """
     Return the :class:`~qfa_ros.model.imu_noise.ImuNoiseFigures` of a Kalibr ``imu.yaml``.
 
-    :raises ValueError: The file cannot be read or is not one; the message names the path
-        and the key, never the content.
+    Raises
+    ------
+    ValueError
+        The file cannot be read or is not one; the message names the path and the key, never
+        the content.
     """
     return parse_imu_yaml(read_regular_file(path, max_bytes), os.fspath(path))
 

@@ -259,7 +259,10 @@ def _refine(u, y, s, baseline, tol, max_iter, max_cancellation_bits=None):
     after re-solving the alphas does not increase, the exponents stay evaluable
     (:func:`_well_separated`) and, if bounded, the cancellation within the bound.
 
-    :returns: ``(s, alpha, mse, iterations, converged, history)`` on the scaled problem.
+    Returns
+    -------
+    tuple
+        ``(s, alpha, mse, iterations, converged, history)`` on the scaled problem.
     """
     count = len(s)
     alpha, residual, basis = _solve_alpha(u, y, s, baseline)

@@ -20,7 +20,10 @@ def stops_quietly(prog):
     A command that has more to say (what was kept, how to resume) catches
     :class:`KeyboardInterrupt` itself and returns :data:`INTERRUPTED_STATUS`.
 
-    :param prog: The command's name, the start of the line.
+    Parameters
+    ----------
+    prog : str
+        The command's name, the start of the line.
     """
     def wrap(main):
         @functools.wraps(main)

@@ -183,7 +183,10 @@ def emulated_config(config, figures):
     loop, its ADC noise, the unit's errors, the gyros' quantization) stays:
     ``config_figures(emulated_config(config, f)) == f`` within rounding.
 
-    :raises ValueError: The accelerometer density is below the loop's own floor.
+    Raises
+    ------
+    ValueError
+        The accelerometer density is below the loop's own floor.
     """
     floor = loop_white_floor(config)
     density = figures.accelerometer_noise_density
