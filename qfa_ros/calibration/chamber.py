@@ -14,7 +14,7 @@ import numpy as np
 
 from qfa_ros.model.checks import is_finite
 from qfa_ros.model.constants import STANDARD_GRAVITY
-from qfa_ros.model.profiles import StaticProfile
+from qfa_ros.model.input_profiles import StaticProfile
 
 DIAGONAL = np.ones(3) / math.sqrt(3.0)
 """Fixture axis: every sensor axis at 54.7 deg from vertical, g / sqrt(3) each."""

@@ -5,8 +5,8 @@ Reading takes a stranger's file (``noise.imu_yaml`` of the node, ``qfa-sim --imu
 through :func:`~qfa_ros.model.safe_files.read_regular_file` (a regular file of at most
 :data:`MAX_BYTES`), PyYAML's safe loader, and errors that name the file and the key, never
 its content (PyYAML's own messages quote the offending line; they are replaced). The four
-noise figures (:data:`~qfa_ros.model.imu_noise.KEYS`) must be there, as numbers within
-:data:`~qfa_ros.model.imu_noise.LIMITS`; ``update_rate`` and ``rostopic`` are not used (the
+noise figures (:data:`~qfa_ros.model.noise_figures.KEYS`) must be there, as numbers within
+:data:`~qfa_ros.model.noise_figures.LIMITS`; ``update_rate`` and ``rostopic`` are not used (the
 densities are continuous-time: the emulated sensor publishes them at its own rate, on its
 own topic); other keys are ignored, as Kalibr ignores them.
 
@@ -20,7 +20,7 @@ import os
 import yaml
 
 from qfa_ros.model.checks import is_finite
-from qfa_ros.model.imu_noise import ImuNoiseFigures, KEYS
+from qfa_ros.model.noise_figures import ImuNoiseFigures, KEYS
 from qfa_ros.model.safe_files import read_regular_file
 
 MAX_BYTES = 64 * 1024
@@ -34,7 +34,7 @@ UNITS = {'accelerometer_noise_density': 'm/s^2/sqrt(Hz)',
 
 def load_imu_yaml(path, max_bytes=MAX_BYTES):
     """
-    Return the :class:`~qfa_ros.model.imu_noise.ImuNoiseFigures` of a Kalibr ``imu.yaml``.
+    Return the :class:`~qfa_ros.model.noise_figures.ImuNoiseFigures` of a Kalibr ``imu.yaml``.
 
     Raises
     ------

@@ -41,7 +41,7 @@ from qfa_ros.calibration.schedule import (
 from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias, ThermalCompensation
 from qfa_ros.model.checks import is_finite
 from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
-from qfa_ros.model.profiles import StaticProfile
+from qfa_ros.model.input_profiles import StaticProfile
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED
 from qfa_ros.model.triad_config import TriadConfig
 

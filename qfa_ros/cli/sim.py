@@ -26,15 +26,15 @@ from tqdm import tqdm
 
 from qfa_ros.calibration.schedule import sensor_time_ns
 from qfa_ros.cli.interrupt import stops_quietly
-from qfa_ros.model import trajectories
+from qfa_ros.model import motion_scripts
 from qfa_ros.model.allan import allan_deviation_of_phase
 from qfa_ros.model.checks import is_finite
 from qfa_ros.model.constants import DEG_PER_HOUR, MICRO_G
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.drawn_unit import draw_unit
+from qfa_ros.model.error_profiles import ERROR_PROFILES, PaperRoom, sensor_config
 from qfa_ros.model.error_truth import error_truth
-from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom, sensor_config
-from qfa_ros.model.imu_noise import emulated_config
+from qfa_ros.model.noise_figures import emulated_config
 from qfa_ros.model.parallel import run_chains
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
@@ -81,7 +81,7 @@ def static_sensor():
     # The node's room correlation too (unused by a constant ambient): the node's config.
     return (TriadConfig(thermal=ThermalConfig(ambient_profile='constant',
                                               room_correlation_s=PaperRoom.room_correlation_s)),
-            trajectories.static(45.0, 0.0, 0.0, yaw=0.0))
+            motion_scripts.static(45.0, 0.0, 0.0, yaw=0.0))
 
 
 def with_imu_noise(config, args):
@@ -166,8 +166,8 @@ def run_static(args, out=None):
 def build_trajectory(args):
     """Return the :class:`~qfa_ros.model.trajectory.Trajectory` the arguments name."""
     if args.trajectory_file:
-        return trajectories.load_csv(args.trajectory_file)
-    return trajectories.SCRIPTS[args.motion](
+        return motion_scripts.load_csv(args.trajectory_file)
+    return motion_scripts.SCRIPTS[args.motion](
         latitude_deg=args.latitude, longitude_deg=args.longitude, height_m=args.height,
         yaw=math.radians(args.yaw))
 
@@ -396,7 +396,7 @@ def build_parser():
     parser.add_argument('--trials', type=int, default=6,
                         help='paper-2019: number of trials (default 6, as Ran et al. 2019)')
     motion = parser.add_argument_group('trajectory scenario')
-    motion.add_argument('--motion', choices=sorted(trajectories.SCRIPTS), default='drive',
+    motion.add_argument('--motion', choices=sorted(motion_scripts.SCRIPTS), default='drive',
                         help='built-in motion script (default drive)')
     motion.add_argument('--trajectory-file', metavar='POSES.csv',
                         help='CSV of time_s, latitude_deg, longitude_deg, height_m, '

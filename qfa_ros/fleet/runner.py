@@ -1,10 +1,11 @@
 """
 Run a fleet study on Dask, resumably, into Parquet.
 
-Each batch of units is one Dask task (:func:`~qfa_ros.fleet.unit.simulate_batch`). The
-client writes every finished batch to ``OUT.parts/batch-START-STOP.parquet`` at once
-(temporary file, then rename), so an interrupted run keeps what it finished and a
-restart computes only the missing batches. When all are there the parts are joined,
+Each batch of units is one Dask task
+(:func:`~qfa_ros.fleet.self_calibration_unit.simulate_batch`). The client writes every
+finished batch to ``OUT.parts/batch-START-STOP.parquet`` at once (temporary file, then
+rename), so an interrupted run keeps what it finished and a restart computes only the
+missing batches. When all are there the parts are joined,
 sorted by unit and calibration, into ``OUT`` (again written aside, then renamed). Unit
 results depend only on the study and the unit's seed, so the table is identical
 whatever the number of workers.
@@ -23,8 +24,8 @@ import time
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from qfa_ros.fleet.self_calibration_unit import simulate_batch
 from qfa_ros.fleet.study import StudyError
-from qfa_ros.fleet.unit import simulate_batch
 from qfa_ros.model.safe_files import write_atomically
 
 STUDY_FILE = 'study.json'

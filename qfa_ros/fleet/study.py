@@ -61,7 +61,7 @@ from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
 from qfa_ros.calibration.experiments import IMPROVED_SCHEDULE, PAPER_SCHEDULE
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model.checks import is_finite
-from qfa_ros.model.errors import ERROR_PROFILES
+from qfa_ros.model.error_profiles import ERROR_PROFILES
 from qfa_ros.model.safe_files import read_regular_file, UntrustedFileError
 
 SCHEDULES = {'paper': PAPER_SCHEDULE, 'improved': IMPROVED_SCHEDULE}

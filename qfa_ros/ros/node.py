@@ -17,9 +17,9 @@ from std_msgs.msg import Bool
 from qfa_ros.bag.qos import QOS_LATCHED, QosProfile
 from qfa_ros.model.design import published_acceleration_variance
 from qfa_ros.ros.bounds import output_directory
-from qfa_ros.ros.calibration import CalibrationKeeper
+from qfa_ros.ros.calibration_keeper import CalibrationKeeper
 from qfa_ros.ros.diagnostics import Diagnostics, temperature_status
-from qfa_ros.ros.ground_truth import GroundTruthInput
+from qfa_ros.ros.input_queue import GroundTruthInput
 from qfa_ros.ros.input_topic import InputSubscription
 from qfa_ros.ros.model_settings import (
     input_profile,

@@ -1,8 +1,8 @@
 """
-One unit of a fleet study: drawn from its seed, aged, recalibrated, scored.
+One unit of a self-calibration fleet study: drawn from its seed, aged, recalibrated, scored.
 
 The unit is a default triad with the thermal model in a room (seasonal mean, wander with
-a 12 h correlation, self-heating, :class:`~qfa_ros.model.errors.PaperRoom`),
+a 12 h correlation, self-heating, :class:`~qfa_ros.model.error_profiles.PaperRoom`),
 Ran et al.'s component temperature coefficients, and per-unit linear aging rates drawn from
 the study's spreads. As a lab would, the I_ref temperature coefficient is measured once
 in the chamber (when the schedule corrects for temperature), then the reference is
@@ -37,10 +37,10 @@ from qfa_ros.calibration.reference_tc import reference_tc_schedule
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.fleet.temperature_unit import simulate_temperature_unit
-from qfa_ros.model import streams
+from qfa_ros.model import random_streams
 from qfa_ros.model.constants import MICRO_G, PPM
 from qfa_ros.model.drawn_unit import draw_component_tcs, install_component_tcs
-from qfa_ros.model.errors import error_profile, PaperRoom
+from qfa_ros.model.error_profiles import error_profile, PaperRoom
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
@@ -92,7 +92,7 @@ def simulate_unit(study, index):
         ``schedule_s`` (sensor time of the self-calibration).
     """
     root = np.random.SeedSequence([study.seed, index])
-    rng = streams.generator(root, 'unit.draws')
+    rng = random_streams.generator(root, 'unit.draws')
     environment = study.environment
     room = PaperRoom()
     season_c = partial(_season_c, environment, rng.uniform(0.0, 2.0 * math.pi))
@@ -135,10 +135,11 @@ def _unit_triad(environment, root, season_c, room):
         ambient_profile='room', ambient_c=season_c(0.0) + room.self_heating_c,
         room_amplitude_c=environment.wander_c, room_correlation_s=room.room_correlation_s,
         initial_sensor_c=season_c(0.0)))
-    triad = QfaTriad(config, rng=streams.generator(root, 'unit.model'))
+    triad = QfaTriad(config, rng=random_streams.generator(root, 'unit.model'))
     if environment.component_tcs == 'drawn':
         # The unit's own coefficients, from a stream keyed apart from the others.
-        i_ref, forward = draw_component_tcs(streams.seed_sequence(root, 'unit.component_tcs'))
+        i_ref, forward = draw_component_tcs(
+            random_streams.seed_sequence(root, 'unit.component_tcs'))
         install_component_tcs(triad, _profile(environment), i_ref, forward)
     else:
         _profile(environment).apply(triad)
