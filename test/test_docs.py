@@ -75,7 +75,7 @@ def test_docs_site_builds_with_warnings_as_errors(tmp_path):
     objects = {sig_id: desc['objtype'] for desc in api.findall(addnodes.desc)
                for sig in desc.findall(addnodes.desc_signature) for sig_id in sig['ids']}
     assert objects.get('qfa_ros.model.triad.QfaTriad') == 'class', sorted(objects)[:20]
-    assert objects.get('qfa_ros.ros.calibration.CalibrationKeeper') == 'class'
+    assert objects.get('qfa_ros.ros.calibration_keeper.CalibrationKeeper') == 'class'
     assert 'function' in objects.values() and 'method' in objects.values()
     assert '.. py:' not in api.astext()
     assert b'state.fresh' in (doctrees / 'node.doctree').read_bytes()

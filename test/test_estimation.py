@@ -26,8 +26,8 @@ from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.schedule import EstimationError, run_schedule, ScheduleProgress
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
+from qfa_ros.model.input_profiles import SineProfile, StaticProfile, StepProfile
 from qfa_ros.model.noise import NoiseConfig
-from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
 

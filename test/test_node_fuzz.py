@@ -61,7 +61,7 @@ from rclpy.qos import (
 from sensor_msgs.msg import Imu
 from std_srvs.srv import SetBool, Trigger
 
-from qfa_ros.model.trajectories import CSV_COLUMNS, SCRIPTS
+from qfa_ros.model.motion_scripts import CSV_COLUMNS, SCRIPTS
 from qfa_ros.ros.parameter_table import PARAMETERS, SPECS
 
 CASES = int(os.environ.get('QFA_FUZZ_CASES', '160'))

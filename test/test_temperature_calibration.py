@@ -21,9 +21,9 @@ from qfa_ros.calibration.verification import verify_attitudes, verify_cycle
 from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.model.constants import MICRO_G, STANDARD_GRAVITY
 from qfa_ros.model.drawn_unit import draw_unit
-from qfa_ros.model.errors import ErrorProfile
+from qfa_ros.model.error_profiles import ErrorProfile
+from qfa_ros.model.input_profiles import StaticProfile
 from qfa_ros.model.noise import NoiseConfig
-from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig

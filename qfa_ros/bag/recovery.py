@@ -271,8 +271,11 @@ def recover(path, should_stop=None, depth=2):
     directory holding them, ``depth`` levels down: ``recorder.directory``, ``trace_dir``
     or ``output_dir``. A symlink given here is followed; none found inside is.
 
-    :raises OSError: ``path`` is missing, another file than a ``.mcap.part``, or neither a
-        regular file nor a directory.
+    Raises
+    ------
+    OSError
+        ``path`` is missing, another file than a ``.mcap.part``, or neither a regular file
+        nor a directory.
     """
     path = Path(path).resolve()
     if path.is_file():

@@ -136,21 +136,20 @@ class FeedbackSettings:
 
 
 FORWARD_MATCHED = ()
-"""Forward settings an estimate must share with its reference: none. The open-loop chain
-has no transient that outlasts a sample, so points, step, settle, averaging time and order
-move a drift-free estimate by less than 0.1 ppm (``bench/results/schedule_settings.md``); the loop
-rate must match (the forward gain of k(D(z)) is per loop step: +4086 ppm at twice the
-rate)."""
+"""Forward settings an estimate must share with its reference: none.
+
+The open-loop chain has no transient that outlasts a sample; only the loop rate must match
+(the forward gain of k(D(z)) is per loop step). Measured:
+``bench/results/schedule_settings.md``."""
 FEEDBACK_MATCHED = ('settle_s', 'average_s', 'order')
-"""Feedback settings an estimate must share with its reference: a segment mean includes
-what is left of the closed loop's transient after an I_ref switch (about 1700 ppm of the
-step 20 ms after it, decaying with about 5 ms), so the step depends on the settle and
-averaging times and on the share of segments that follow a switch (the order); a reference
-at 0.28 s and an estimate at 1.12 s read +25 ppm. ``cycles`` must match too in the
-``single`` order (its first segment follows no switch, so the share depends on the count;
-in the ``chopped`` order it is a half for every count). ``motion_limit``,
-``bias_instability`` and ``temperature_correction`` change refusals, the standard error or
-the correction for the temperature, not what the step measures."""
+"""Feedback settings an estimate must share with its reference.
+
+A segment mean includes what is left of the closed loop's transient after an I_ref
+switch, so the step depends on the settle and averaging times and on the share of
+segments that follow a switch (the order; and ``cycles`` in the ``single`` order, whose
+first segment follows none). Measured: ``bench/results/schedule_settings.md``.
+``motion_limit``, ``bias_instability`` and ``temperature_correction`` change refusals, the
+standard error or the correction for the temperature, not what the step measures."""
 REFERENCE_SETTING_TOLERANCE_PPM = 1.0
 """How far a setting may move a drift-free estimate before it must match [ppm]."""
 
@@ -226,8 +225,8 @@ def check_int(name, value, low, high):
 
 def check_seconds(name, value, allow_zero=False):
     """Raise ValueError naming ``name`` unless ``value`` is a time [s] > 0 (>= 0 if allowed)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+    if not is_finite(value, bool_ok=False, types=(int, float)) or value < 0 \
+            or (value == 0 and not allow_zero):
         raise ValueError(f'{name} must be a {"non-negative" if allow_zero else "positive"} '
                          f'number of seconds, got {value!r}')
 

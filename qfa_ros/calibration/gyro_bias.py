@@ -160,7 +160,10 @@ def gyro_bias_schedule(sensor, state, settings=GyroBiasSettings()):
     Yields the number of samples it needs and receives them; returns a
     :class:`GyroBiasResult`. Stores the correction in ``state.gyro_bias`` [rad/s].
 
-    :raises EstimationError: No gyros, a loop open, or the input moved.
+    Raises
+    ------
+    EstimationError
+        No gyros, a loop open, or the input moved.
     """
     port = SensorPort.of(sensor)
     if not port.has_gyros:

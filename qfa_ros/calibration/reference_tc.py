@@ -234,8 +234,10 @@ def fit_plateau_steps(steps, state, apply=True, start_ns=0, end_ns=0):
     ``points``: per plateau the reading and the step per axis; ``residuals``: relative
     departure of each step from the fitted line).
 
-    :raises EstimationError: Fewer than three plateaus, or their readings span less
-        than 1 degC.
+    Raises
+    ------
+    EstimationError
+        Fewer than three plateaus, or their readings span less than 1 degC.
     """
     if len(steps) < 3:
         raise EstimationError(f'I_ref steps at {len(steps)} plateaus: at least three are '

@@ -43,7 +43,7 @@ from qfa_ros.calibration.schedule import (
 from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias, ThermalCompensation
 from qfa_ros.model.checks import is_finite
 from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
-from qfa_ros.model.profiles import StaticProfile
+from qfa_ros.model.input_profiles import StaticProfile
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED
 from qfa_ros.model.triad_config import TriadConfig
 
@@ -135,7 +135,7 @@ class TemperatureSettings:
         for name in ('low_c', 'high_c', 'period_s', 'block_s', 'step_c', 'settle_s',
                      'stable_c_per_tumble', 'return_tolerance_c', 'max_soak_s'):
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not is_finite(value, bool_ok=False):
+            if not is_finite(value, bool_ok=False, types=(int, float)):
                 raise ValueError(f'{name} must be a finite number, got {value!r}')
         if not -60.0 <= self.low_c < self.high_c <= 125.0:
             raise ValueError('low_c and high_c must satisfy -60 <= low_c < high_c <= 125 degC')
@@ -538,9 +538,9 @@ def fit_multiposition(blocks, tumbles, settings):
     the tumble's mean reading, the scale-factor error at the pair's, where the pair's
     difference fixes it whatever ``s'`` (at the tumble's mean it would be carried there by
     ``s'``, which two blocks read at almost one temperature leave undetermined: thousands
-    of ppm at a plateau's end, issue 45). Last, seed
-    2's double exponential (linear baseline) through the tumbles' bias and through the
-    scale-factor correction ``1/(1 + s) - 1``, and their fixed-point compensators.
+    of ppm at a plateau's end). Last, Liu, Li and Shen's double exponential (linear
+    baseline) through the tumbles' bias and through the scale-factor correction
+    ``1/(1 + s) - 1``, and their fixed-point compensators.
     """
     if len(tumbles) < 10:
         raise EstimationError(f'only {len(tumbles)} tumbles: lengthen period_s')

@@ -20,9 +20,9 @@ from qfa_ros.calibration.estimation import (
 )
 from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
-from qfa_ros.model import trajectories
+from qfa_ros.model import motion_scripts
 from qfa_ros.model.constants import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G, STANDARD_GRAVITY
-from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom
+from qfa_ros.model.error_profiles import ERROR_PROFILES, PaperRoom
 from qfa_ros.model.gyro import GyroConfig
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.thermal import ThermalConfig
@@ -42,7 +42,7 @@ from qfa_ros.ros.bounds import (
 )
 
 INPUT_MODES = ('static', 'profile', 'trajectory', 'topic')
-INPUT_TRAJECTORIES = tuple(sorted(trajectories.SCRIPTS)) + ('file',)
+INPUT_TRAJECTORIES = tuple(sorted(motion_scripts.SCRIPTS)) + ('file',)
 INPUT_PROFILES = ('sine', 'tumble', 'steps')
 INPUT_TOPIC_TYPES = ('imu', 'accel', 'odometry')
 AMBIENT_PROFILES = ('constant', 'ramp', 'cycle', 'room')
@@ -195,11 +195,12 @@ PARAMETERS = (
                   'scale-factor error versus temperature (Liu, Li and Shen)', CONFIGURE,
                   why=SENSOR),
     ParameterSpec('sensor.error_profile', 'paper',
-                  "Error sources of the sensor (qfa_ros.model.errors, docs/ins.md): paper, the "
-                  "sensor with its errors (the drawn unit, noise.*, gyro.*, the thermal curves "
-                  "and Ran et al.'s component temperature coefficients: DA1 reference +20, "
-                  'k_tz +7, in-amp +6, I_ref +30, magnet/k_t +10 ppm/degC); ideal, every source '
-                  'off (no unit draw, no noise, ideal gyros, no thermal curves or coefficients; '
+                  "Error sources of the sensor (qfa_ros.model.error_profiles, docs/ins.md): "
+                  "paper, the sensor with its errors (the drawn unit, noise.*, gyro.*, the "
+                  "thermal curves and Ran et al.'s component temperature coefficients: DA1 "
+                  'reference +20, k_tz +7, in-amp +6, I_ref +30, magnet/k_t +10 ppm/degC); '
+                  'ideal, every source off (no unit draw, no noise, ideal gyros, no thermal '
+                  'curves or coefficients; '
                   'model.* and drift.* still add what they set)', CONFIGURE,
                   choices=ERROR_PROFILES, why=SENSOR),
     ParameterSpec('thermal.ambient_profile', 'room',
@@ -324,7 +325,7 @@ PARAMETERS = (
                   'CSV pose file of input.trajectory file: time_s, latitude_deg, '
                   'longitude_deg, height_m, roll_deg, pitch_deg, yaw_deg. Read once, at '
                   'start (a managed node: at each configure; a regular file of at most '
-                  f'{trajectories.MAX_CSV_BYTES >> 20} MiB, ~ expanded); set by the operator '
+                  f'{motion_scripts.MAX_CSV_BYTES >> 20} MiB, ~ expanded); set by the operator '
                   'only, so no participant can make the node read a file', OPERATOR,
                   why=FILE_READ),
     ParameterSpec('input.profile', 'sine', 'Scripted profile of input.mode profile',

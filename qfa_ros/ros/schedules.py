@@ -45,7 +45,7 @@ class SensorSnapshot:
     """
     What a schedule may change, taken before it starts: loop words and calibration state.
 
-    :param keeper: :class:`~qfa_ros.ros.calibration.CalibrationKeeper`.
+    :param keeper: :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
     """
 
     def __init__(self, keeper):
@@ -150,7 +150,7 @@ class ScheduleService:
     :param lock: The node lock.
     :param values: The node's live parameter values.
     :param stream: :class:`~qfa_ros.ros.stream.SampleStream` that drives the schedule.
-    :param keeper: :class:`~qfa_ros.ros.calibration.CalibrationKeeper`.
+    :param keeper: :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
     """
 
     def __init__(self, node, lock, values, stream, keeper):

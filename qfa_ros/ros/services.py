@@ -29,7 +29,7 @@ class CalibrationServices:
         under it).
     :param values: The node's live parameter values (read, never written).
     :param schedules: :class:`~qfa_ros.ros.schedules.ScheduleService`.
-    :param keeper: :class:`~qfa_ros.ros.calibration.CalibrationKeeper`.
+    :param keeper: :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
     :param truth: :class:`~qfa_ros.ros.truth.TruthPublisher` (marks applied corrections).
     :param publish_calibrated: Callable publishing ``~/is_calibrated``.
     """

@@ -101,7 +101,7 @@ class SampleStream:
     :param lock: The node lock.
     :param triad: The model.
     :param values: The node's live parameter values.
-    :param ground_truth: :class:`~qfa_ros.ros.ground_truth.GroundTruthInput`.
+    :param ground_truth: :class:`~qfa_ros.ros.input_queue.GroundTruthInput`.
     :param recording: :class:`~qfa_ros.ros.recording.StreamRecording`.
     :param imu_publisher: Publisher of ``imu/data_raw``.
     :param temperature_publisher: Publisher of ``imu/temperature``.
