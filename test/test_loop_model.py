@@ -885,6 +885,7 @@ def test_docs_state_the_designed_controller_and_defaults():
     assert f'{triad.config.noise.bias_instability / MICRO_G:g} µg Allan floor' in text
     crossover, phase_margin, gain_margin, bandwidth = LinearLoop(
         hw, controller, triad.config.loop_rate_hz).margins()
-    assert f'phase margin | {phase_margin:.1f}°' in text
-    assert f'gain margin | {gain_margin:.1f} dB' in text
-    assert f'bandwidth | {bandwidth:.0f} Hz' in text
+    assert f'phase margin | {phase_margin:.2f}°' in text
+    assert f'gain margin | {gain_margin:.2f} dB' in text
+    assert f'bandwidth | {bandwidth:.1f} Hz' in text
+    assert f'crossover | {crossover:.2f} Hz' in text
