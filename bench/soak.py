@@ -4,7 +4,8 @@ The node is started as a user starts it (``python -m qfa_ros.cli.node --ros-args
 --params-file config/qfa.yaml -p ...``; its own process group, its own domain) with the
 flight recorder on and splitting (``--split-s``, ``--max-bytes``), its retention when
 asked (``--keep-s``, ``--keep-bytes``: :data:`RETENTION`), self-calibrations in fast mode
-(``estimation.realtime: false``). Three other processes meet it over real DDS:
+(``estimation.realtime: false``). Two other processes meet it over real DDS, a third reads
+what it recorded:
 
 - this one, a participant that changes a writable parameter every ``--param-every``
   seconds through the node's SetParameters service (rotating over drift, orientation,
@@ -16,7 +17,8 @@ asked (``--keep-s``, ``--keep-bytes``: :data:`RETENTION`), self-calibrations in 
 - a subscriber process (``--subscriber``, ``soak_stream.py``) with ``SensorDataQoS`` (best
   effort, keep last 5) that counts every ``imu/data_raw`` sample, its gaps, stamps off the
   grid and the offset of the stamps from its system clock (receive time - stamp);
-- after each restart, a checker at niceness 19 (``--check-restart``, ``soak_recording.py``).
+- after each restart, a checker at niceness 19 (``--check-restart``,
+  ``soak_recording.py``).
 
 **Kills** (``--kill-every S``, with jitter of +-:data:`KILL_JITTER`): the node is stopped
 (SIGSTOP) at an instant chosen in turn by :data:`KILL_MODES` (right then; the moment the
@@ -39,18 +41,21 @@ held (``docs/node.md``, *Estimation schedules*; the ``stream`` diagnostic counts
 sent to answer received, 0.5 s either side) is a schedule pause, one from a kill to the
 restarted node's first sample the kill's; every other missing sample is a loss.
 
-Run (at least two hours; on a quiet machine)::
+Run (at least two hours, on a quiet machine)::
 
     .venv/bin/python bench/soak.py --hours 2 --domain 60 --out bench/results/soak.md
 
-Days of operation: ``--split-s 60 --keep-s 300 --calibrate-every 180 --kill-every 600``
-(``bench/results/soak_days.md`` has the command). A try: ``--minutes 10 --out
-/tmp/soak/soak.md``. The report again from the CSV files: ``--report --out
-bench/results/soak.md`` (``--readback`` first reads what the run left, e.g. after the
-bench itself died). Memory growth by allocation site: ``--tracemalloc`` (snapshots of
-the node every ``--snapshot-every`` s via ``bench/soak_hook/sitecustomize.py``; slows the
-node, so not for slopes), then ``--snapshots DIR`` prints the largest growths between the
-first snapshot after the warm-up and the last.
+Days of operation, simulated (retention small, a kill -9 every 10 minutes)::
+
+    .venv/bin/python bench/soak.py --hours 2 --domain 60 --split-s 60 --keep-s 300 \
+        --calibrate-every 180 --kill-every 600 --out bench/results/soak_days.md
+
+A try: ``--minutes 10 --out /tmp/soak/soak.md``. The report again from the CSV files:
+``--report --out bench/results/soak.md`` (``--readback`` first reads what the run left,
+e.g. after the bench itself died). Memory growth by allocation site: ``--tracemalloc``
+(snapshots of the node every ``--snapshot-every`` s via ``bench/soak_hook/sitecustomize.py``;
+slows the node, so not for slopes), then ``--snapshots DIR`` prints the largest growths
+between the first snapshot after the warm-up and the last.
 """
 
 import argparse
@@ -568,6 +573,9 @@ class Driver:
                     self.checker.wait()
                 if self.checker.poll() is None:
                     return
+                if self.checker.returncode:  # its row is missing: the report says so
+                    print(f'soak: the check after a restart failed (status '
+                          f'{self.checker.returncode})', flush=True)
                 self.checker = None
             if not self.restarts or not (wait or self.restarts[0].recovered()):
                 return

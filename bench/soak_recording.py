@@ -224,7 +224,7 @@ def check_bag(bag, check, bags_log):
         if not problem or attempt == SETTLE_TRIES - 1:
             break
         time.sleep(SETTLE_S)
-    listed_messages = sum(c for c, _ in (listed or {}).values())
+    listed_messages = sum(value[0] for value in (listed or {}).values())
     bags_log.write([check, bag.name, len(listed or {}), len(finished), listed_messages,
                     summaries, opens, int(not problem), problem])
     return not problem, set(finished), listed or {}
