@@ -127,8 +127,9 @@ def header(run, node_rows, t_h):
                   f'{np.median(load):.2f}, min {load.min():.2f}, max {load.max():.2f} on '
                   f'{os.cpu_count()} CPUs.', '']
     retention = run.get('retention', {})
-    keep = [f'`{retention[k]}` {run[k]:g}' for k in ('keep_s', 'keep_bytes')
-            if run.get(k) is not None]
+    keep = [f'`{retention["keep_s"]}` {run["keep_s"]:g} s'] if run.get('keep_s') else []
+    if run.get('keep_bytes'):
+        keep.append(f'`{retention["keep_bytes"]}` {run["keep_bytes"] / MIB:.1f} MiB')
     kills = (f"a kill -9 of the node's process group and a restart every "
              f'{run["kill_every_s"]:g} s (±{100 * run["kill_jitter"]:g} %)'
              if run.get('kill_every_s') else 'no kill')
@@ -359,20 +360,20 @@ def disk_section(run, node_rows, t_h, files):
              f'({"within" if largest <= run["max_bytes"] else "**over**"}); {by_size} of '
              f'{len(sizes)} files read ended within 10 % of the size limit.']
     if run.get('keep_bytes'):
-        bound = run['keep_bytes'] + run['max_bytes']
+        bound = run['keep_bytes'] + largest
         over = int(np.sum(whole > bound))
-        lines.append(f'- Against `{run["retention"]["keep_bytes"]}` plus one split '
-                     f'({bound / MIB:.1f} MiB): {"within" if not over else "**over**"} '
-                     f'({over} of {len(whole)} samples over).')
+        lines.append(f'- Against `{run["retention"]["keep_bytes"]}` plus one split (the '
+                     f'largest file; {bound / MIB:.1f} MiB): '
+                     f'{"within" if not over else "**over**"} ({over} of {len(whole)} '
+                     'samples over).')
     if run.get('keep_s'):
-        oldest = column(node_rows, 'oldest_start_ns')
-        age = (column(node_rows, 'wall_ns') - oldest) / NS_PER_S
+        span = (column(node_rows, 'newest_end_ns') - column(node_rows, 'oldest_start_ns')) / 1e9
         bound = run['keep_s'] + run['split_s']
-        over = int(np.nansum(age > bound))
-        lines.append(f'- Age of the oldest file kept (its start to the sample): at most '
-                     f'{np.nanmax(age):.0f} s against `{run["retention"]["keep_s"]}` plus one '
-                     f'split ({bound:g} s): {"within" if not over else "**over**"} ({over} '
-                     f'samples over).')
+        over = int(np.nansum(span > bound))
+        lines.append(f"- Recording kept (the oldest finished file's start to the newest's "
+                     f'end): at most {np.nanmax(span):.0f} s against '
+                     f'`{run["retention"]["keep_s"]}` plus one split ({bound:g} s): '
+                     f'{"within" if not over else "**over**"} ({over} samples over).')
     recorded = column(node_rows, 'recorded_bytes') / MIB
     slope, _, _ = fit(t_h, recorded)
     if not run.get('keep_s') and not run.get('keep_bytes'):
