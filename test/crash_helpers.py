@@ -1,6 +1,7 @@
 """Kill a writer at an instant, read back what it left, and hold it against a witness.
 
-Used by ``test_recovery.py``, ``test_crash_recording.py`` and ``bench/crash_recording.py``:
+Used by ``test_recovery.py``, ``test_crash_recording.py``, ``test_soak.py``,
+``bench/crash_recording.py`` and ``bench/soak.py``:
 
 - :func:`killed_recording` runs a :class:`FlightRecorder` in a process of its own, fed
   ``sensor_msgs/Imu`` the way the node feeds it (a flush every 0.25 s of stream), and ends
@@ -11,12 +12,16 @@ Used by ``test_recovery.py``, ``test_crash_recording.py`` and ``bench/crash_reco
   received, against the instant of the kill;
 - :func:`recorded_session` records a short session of a 100 Hz IMU stream in 1 s files
   (:func:`feed_imu`), for retention (``test_retention.py``).
+- :func:`stop_when` with :func:`split_watch` or :func:`deletion_watch` stops a recording
+  node the moment its recorder splits or deletes a file (``test_soak.py``,
+  ``bench/soak.py``).
 """
 
 import collections
 import dataclasses
 import os
 from pathlib import Path
+import re
 import signal
 import struct
 import subprocess
@@ -307,3 +312,143 @@ def recorded_session(directory, start_s, seconds, close=True, prefix='qfa_node')
     if close:
         recorder.close()
     return recorder
+
+
+# --- a recorder directory, and the instants a kill waits for -----------------------------
+
+BAG_NAME_RE = re.compile(r'^(.*_\d{4}_\d\d_\d\d-\d\d_\d\d_\d\d)(?:_(\d+))?$')
+"""A flight recorder's bag directory: ``PREFIX_YYYY_MM_DD-HH_MM_SS`` and ``_N`` if taken."""
+
+
+def bag_directories(recordings):
+    """
+    Return the bag directories of a recorder directory, oldest first.
+
+    Parameters
+    ----------
+    recordings : str or os.PathLike
+        The recorder directory (none there: an empty list).
+
+    Returns
+    -------
+    list of pathlib.Path
+        By session start (the name), then by the ``_N`` a start in the same second adds.
+    """
+    def order(path):
+        match = BAG_NAME_RE.match(path.name)
+        return (match.group(1), int(match.group(2) or 1)) if match else (path.name, 0)
+    try:
+        return sorted((p for p in Path(recordings).iterdir() if p.is_dir()), key=order)
+    except FileNotFoundError:
+        return []
+
+
+def split_index(path):
+    """Return the split index ``i`` of a path ``NAME_i.mcap`` (or ``NAME_i.mcap.part``)."""
+    return int(Path(path).name.split('.mcap')[0].rsplit('_', 1)[1])
+
+
+def entries(bag):
+    """
+    Return a bag directory's MCAP files as they are now.
+
+    Parameters
+    ----------
+    bag : str or os.PathLike
+        The bag directory (gone: nothing).
+
+    Returns
+    -------
+    tuple of dict
+        ``(finished, parts)``: ``{name: os.stat_result}`` of the ``.mcap`` and the
+        ``.mcap.part`` files (a file deleted while looked at is left out).
+    """
+    finished, parts = {}, {}
+    try:
+        with os.scandir(bag) as iterator:
+            for entry in iterator:
+                try:
+                    if entry.name.endswith('.mcap'):
+                        finished[entry.name] = entry.stat()
+                    elif entry.name.endswith('.mcap.part'):
+                        parts[entry.name] = entry.stat()
+                except FileNotFoundError:
+                    pass
+    except FileNotFoundError:
+        pass
+    return finished, parts
+
+
+def live_bag(recordings):
+    """Return the newest bag directory with a ``.part`` not yet published, or None."""
+    for bag in reversed(bag_directories(recordings)):
+        finished, parts = entries(bag)
+        if any(name[:-len('.part')] not in finished for name in parts):
+            return bag
+    return None
+
+
+def split_watch(recordings):
+    """
+    Return a check for :func:`stop_when`: whether the recorder has finished a file since.
+
+    The moment a finished ``NAME_i.mcap`` appears beside the ``.part`` being written, the
+    recorder is in its split: the file published, ``metadata.yaml`` about to be replaced,
+    the next file not yet begun.
+
+    Parameters
+    ----------
+    recordings : pathlib.Path
+        The recorder directory; the bag watched is the one written into when the check is
+        first true to look at (:func:`live_bag`).
+
+    Returns
+    -------
+    callable
+        No arguments; true once a finished file appeared in that bag.
+    """
+    seen = {}
+
+    def check():
+        if 'bag' not in seen:
+            bag = live_bag(recordings)
+            if bag is None:
+                return False
+            seen['bag'], seen['names'] = bag, set(entries(bag)[0])
+        return bool(set(entries(seen['bag'])[0]) - seen['names'])
+    return check
+
+
+def deletion_watch(recordings):
+    """
+    Return a check for :func:`stop_when`: whether a finished file or bag was deleted since.
+
+    Retention deletes the oldest finished files first: the check looks at the bag holding
+    the oldest finished file now, and at the recorder directory's own entries.
+
+    Parameters
+    ----------
+    recordings : pathlib.Path
+        The recorder directory.
+
+    Returns
+    -------
+    callable
+        No arguments; true once a file of that bag or an entry of ``recordings`` is gone.
+    """
+    bags = [bag for bag in bag_directories(recordings) if entries(bag)[0]]
+    watched = bags[0] if bags else None
+    names = set(entries(watched)[0]) if watched else set()
+
+    def listed():
+        try:
+            return set(os.listdir(recordings))
+        except FileNotFoundError:
+            return set()
+    top = listed()
+
+    def check():
+        if watched is not None and names - set(entries(watched)[0]):
+            return True
+        return bool(top - listed())
+    return check

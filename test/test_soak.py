@@ -22,6 +22,15 @@ import time
 import tracemalloc
 import types
 
+from crash_helpers import (
+    bag_directories,
+    deletion_watch,
+    entries,
+    live_bag,
+    loss,
+    split_index,
+    stop_when,
+)
 from diagnostic_msgs.msg import DiagnosticArray
 from mcap.reader import make_reader
 from node_helpers import Client, domain_id, NODE, NodeProcess
@@ -35,6 +44,7 @@ import yaml
 
 from qfa_ros.bag.flight_recorder import FlightRecorder
 from qfa_ros.bag.qos import QOS_LATCHED, QosProfile
+from qfa_ros.bag.recovery import needs_recovery
 from qfa_ros.bag.types import encode_message
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.pacing import CATCH_UP_BURST, CATCH_UP_SPACING_NS, LATE_NS, Pacer
@@ -450,8 +460,160 @@ def test_splits_parameter_changes_and_a_calibration_of_the_live_node(tmp_path):
         f'{baseline[2]})')
     assert after[1] <= 1, f'{after[1]} recording files open'
 
-    # The recording: every file readable by both readers, as metadata.yaml lists it.
     bag, = (p for p in recordings.iterdir() if p.is_dir())
+    recorded, reports = read_recording(bag, MAX_BYTES)
+    assert json.loads((out / 'state.json').read_text())['compensation_enabled'] is True
+    published_at = assert_published_accounted(recorded, reports, windows)
+    assert_subscriber_losses_bounded(received.stamps, received.received, published_at,
+                                     windows)
+
+
+KEEP = {'recorder.keep_bytes': 192 << 10}
+"""Retention of the short days [bytes]: a few seconds of the 250 Hz recording."""
+DAYS_S = 2.0
+"""Node time of parameter changes in each run of the short days [s] (a change every 0.25 s)."""
+
+
+def recorder_bytes(recordings):
+    """Return ``(bytes of every MCAP file and part, the largest)`` in a recorder directory."""
+    sizes = [stat.st_size for bag in bag_directories(recordings)
+             for files in entries(bag) for stat in files.values()]
+    return sum(sizes), max(sizes, default=0)
+
+
+def test_a_kill_9_and_a_restart_keep_the_newest_recording_readable_and_bounded(tmp_path):
+    """
+    Days in seconds: a node that records and trims its recording, killed -9 and started again.
+
+    The node as a user runs it, its recording split every second and its retention tiny
+    (:data:`KEEP`), a capture, a self-calibration and a parameter change every 0.25 s; stopped
+    the moment its recorder deletes a file, killed -9 and
+    started again with the same parameters; its recovery at start finishes the killed run's
+    recording; more parameter changes, then SIGTERM. A SensorDataQoS subscriber in this
+    process throughout.
+
+    After the restart: the files finished at the kill are all there but the oldest that
+    retention deleted, every file readable as metadata.yaml lists it, and the killed run's
+    recording holds every sample the subscriber had a second before the kill (the crash
+    bound). Each run's recording accounted for by its own counters (nothing unpublished
+    outside the schedules that the node did not count), the subscriber's losses within
+    ``LOSS_BOUND`` where the recording tells what was published; at the end every bag and
+    file readable, no ``.part``; the recorder directory never larger than the retention limit
+    plus its largest file.
+    """
+    domain = domain_id('short days')
+    out = tmp_path / 'out'
+    recordings = out / 'recordings'
+    parameters = {
+        'sample_rate_hz': RATE, 'loop_rate_hz': 10 * RATE, 'output_dir': str(out),
+        'state_file': str(out / 'state.json'), 'estimation.realtime': False,
+        'recorder.enabled': True, 'recorder.max_duration_s': SPLIT_S,
+        'recorder.max_bytes': MAX_BYTES, **KEEP}
+    client = Client(domain)
+    received = RawStamps(client)
+    disk, windows, turns = [], [], [0]
+
+    def schedule(name):
+        sent = time.time_ns()
+        response = client.call(Trigger, f'/{NODE}/{name}', Trigger.Request(), timeout=300)
+        windows.append((sent, time.time_ns()))
+        assert response.success, response.message
+
+    def change_parameters(seconds):
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            name, value = ROTATION[turns[0] % len(ROTATION)]
+            result, = client.set_parameters({name: value(turns[0])})
+            assert result.successful, f'{name}: {result.reason}'
+            turns[0] += 1
+            for _ in range(5):
+                client.spin_for(0.05)
+                disk.append(recorder_bytes(recordings))
+
+    node = NodeProcess(domain, tmp_path / 'killed', parameters)
+    try:
+        client.spin_until(lambda: len(received.stamps) > 50, 120, 'the first samples')
+        schedule('capture_reference')
+        change_parameters(DAYS_S / 2)
+        schedule('self_calibrate')
+        change_parameters(DAYS_S / 2)
+        # Stopped (SIGSTOP) in a thread the moment retention deletes a file, while this one
+        # reads the stream: then SIGKILL, as a kill at that instant.
+        stopped = []
+        check = deletion_watch(recordings)
+        watch = threading.Thread(target=lambda: stopped.append(
+            stop_when(node.process, check, 60)))
+        watch.start()
+        client.spin_until(lambda: not watch.is_alive(), 120, 'a deletion')
+        kill_ns, = stopped
+        assert kill_ns, 'no deletion within 60 s'
+        at_kill = [(bag.name, name) for bag in bag_directories(recordings)
+                   for name in sorted(entries(bag)[0], key=split_index)]
+        killed = live_bag(recordings) or bag_directories(recordings)[-1]
+        os.kill(node.pid, signal.SIGKILL)
+        assert node.wait(30) == -signal.SIGKILL
+
+        restarted_ns = time.time_ns()
+        node = NodeProcess(domain, tmp_path / 'restarted', parameters)
+        client.spin_until(lambda: received.stamps[-1] >= restarted_ns, 120,
+                          "the restarted node's first samples")
+        client.spin_until(lambda: not needs_recovery(killed), 60,
+                          "the recovery at start of the killed run's recording")
+        present = {(bag.name, name) for bag in bag_directories(recordings)
+                   for name in entries(bag)[0]}
+        gone = [item for item in at_kill if item not in present]
+        assert gone == at_kill[:len(gone)], (
+            f'of the files finished at the kill, gone since: {gone}')
+        first_run = read_recording(killed, MAX_BYTES)
+        change_parameters(DAYS_S)
+        assert node.stop() == 0
+    finally:
+        client.close()
+        if node.process.poll() is None:
+            node.stop(signal.SIGKILL)
+
+    stamps = np.asarray(received.stamps, dtype=np.int64)
+    receipts = np.asarray(received.received, dtype=np.int64)
+    runs = {'killed': (first_run, stamps < kill_ns, windows),
+            'restarted': (read_recording(bag_directories(recordings)[-1], MAX_BYTES),
+                          stamps >= restarted_ns, [])}
+    for run, ((recorded, reports), mine, pauses) in runs.items():
+        assert len(recorded), f'nothing of the {run} run kept'
+        published_at = assert_published_accounted(recorded, reports, pauses)
+        assert_subscriber_losses_bounded(stamps[mine], receipts[mine], published_at, pauses)
+    # The crash bound: what the subscriber had a second before the kill is recorded.
+    kept = stamps[stamps < kill_ns] >= first_run[0][0, 0]
+    judged = loss(first_run[0][:, 0], list(zip(stamps[stamps < kill_ns][kept].tolist(),
+                                               receipts[stamps < kill_ns][kept].tolist())),
+                  kill_ns)
+    assert judged.missing_before_bound == 0, f'the kill lost more than its bound: {judged}'
+    for bag in bag_directories(recordings):  # every bag left as its users read it
+        read_recording(bag, MAX_BYTES)
+    largest = max(size for _, size in disk)
+    assert max(total for total, _ in disk) <= KEEP['recorder.keep_bytes'] + largest
+
+
+def read_recording(bag, max_bytes):
+    """
+    Read a bag directory back as its users would; return what the node published.
+
+    Asserts that no ``.part`` is left, that ``metadata.yaml`` lists exactly the finished
+    files, each within ``max_bytes`` and read by the mcap reader and ``AnyReader`` with the
+    count it lists, and that ``AnyReader`` opens the whole bag with the total.
+
+    Parameters
+    ----------
+    bag : pathlib.Path
+        The bag directory.
+    max_bytes : int
+        ``recorder.max_bytes``.
+
+    Returns
+    -------
+    tuple
+        ``(recorded, reports)``: ``(stamp, log time)`` of every ``imu/data_raw`` sample
+        [ns] (int64, shape (n, 2)) and the ``/diagnostics`` arrays, in recording order.
+    """
     assert not list(bag.glob('*.part'))
     listed = {Path(f['path']).name: f['message_count'] for f in yaml.safe_load(
         (bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']['files']}
@@ -459,7 +621,7 @@ def test_splits_parameter_changes_and_a_calibration_of_the_live_node(tmp_path):
     assert [f.name for f in files] == list(listed)
     recorded, reports = [], []
     for file in files:
-        assert file.stat().st_size <= MAX_BYTES
+        assert file.stat().st_size <= max_bytes
         with open(file, 'rb') as stream:
             messages = list(make_reader(stream).iter_messages())
         with AnyReader([file]) as reader:
@@ -470,15 +632,36 @@ def test_splits_parameter_changes_and_a_calibration_of_the_live_node(tmp_path):
                 recorded.append((sec * 1_000_000_000 + nanosec, message.log_time))
             elif channel.topic == '/diagnostics':
                 reports.append(deserialize_message(message.data, DiagnosticArray))
-    with AnyReader([bag]) as reader:
-        assert sum(1 for _ in reader.messages()) == sum(listed.values())
-    assert json.loads((out / 'state.json').read_text())['compensation_enabled'] is True
+    if files:
+        with AnyReader([bag]) as reader:
+            assert sum(1 for _ in reader.messages()) == sum(listed.values())
+    return np.asarray(recorded, dtype=np.int64).reshape(-1, 2), reports
 
-    # What the node published (its recording): on the grid and continuous across the
-    # splits; each hole accounted for by the node's counters, and outside a schedule's
-    # pause only if the node said it skipped or dropped samples. The counters are those of
-    # the last diagnostics recorded, up to the last sample published before they were read:
-    # the pacer publishes in stamp order, so every sample before it was decided by then.
+
+def assert_published_accounted(recorded, reports, windows):
+    """
+    Hold what the node published (its recording) against its own counters.
+
+    On the grid and continuous across the splits; each hole accounted for by the node's
+    counters, and outside a schedule's pause only if the node said it skipped or dropped
+    samples. The counters are those of the last diagnostics recorded, up to the last sample
+    published before they were read: the pacer publishes in stamp order, so every sample
+    before it was decided by then.
+
+    Parameters
+    ----------
+    recorded : numpy.ndarray
+        ``(stamp, log time)`` of the recorded samples [ns] (:func:`read_recording`).
+    reports : list of diagnostic_msgs.msg.DiagnosticArray
+        The diagnostics recorded with them.
+    windows : list of tuple
+        ``(sent, answered)`` of the schedule calls [ns].
+
+    Returns
+    -------
+    dict
+        ``{stamp: log time}``: when the node published each sample [ns].
+    """
     recorded = np.asarray(recorded, dtype=np.int64)
     stamps = recorded[:, 0]
     assert np.all(np.diff(stamps) > 0) and np.all(np.diff(stamps) % PERIOD_NS == 0)
@@ -515,17 +698,34 @@ def test_splits_parameter_changes_and_a_calibration_of_the_live_node(tmp_path):
     assert published_late <= int(counters[late_key]), (
         f'{published_late} samples recorded as published more than {LATE_NS / 1e6:g} ms '
         f'late, the node counts {counters[late_key]}')
+    return dict(zip(stamps.tolist(), recorded[:, 1].tolist()))
 
-    # What the subscriber saw: on the grid. Each sample it missed outside the pauses is one
-    # the node never published (accounted for above), one it published late in a catch-up
-    # after its own stall (counted by the node; paced: CATCH_UP_BURST back to back, then a
-    # spacing, which its recording shows), one published while this process took nothing
-    # for STARVED_NS after (its own loss), or lost: bounded.
-    received_stamps = np.asarray(received.stamps, dtype=np.int64)
-    assert np.all((received_stamps - received_stamps[0]) % PERIOD_NS == 0)
-    unique, first = np.unique(received_stamps, return_index=True)
-    read_at = dict(zip(unique.tolist(), np.asarray(received.received)[first].tolist()))
-    published_at = dict(zip(stamps.tolist(), recorded[:, 1].tolist()))
+
+def assert_subscriber_losses_bounded(stamps, receipts, published_at, windows):
+    """
+    Hold what the SensorDataQoS subscriber saw against what the node published.
+
+    On the grid. Each sample it missed outside the pauses is one the node never published
+    (accounted for by :func:`assert_published_accounted`), one it published late in a
+    catch-up after its own stall (counted by the node; paced: ``CATCH_UP_BURST`` back to
+    back, then a spacing, which its recording shows), one published while this process
+    took nothing for ``STARVED_NS`` after (its own loss), or lost: within ``LOSS_BOUND``.
+
+    Parameters
+    ----------
+    stamps, receipts : sequence of int
+        The stamps of one node's samples as the subscriber received them and when [ns].
+    published_at : dict
+        ``{stamp: log time}`` of that node's recording [ns]: the samples from its first to
+        its last are judged (those of files deleted by retention are not).
+    windows : list of tuple
+        ``(sent, answered)`` of the schedule calls [ns].
+    """
+    stamps = np.asarray(stamps, dtype=np.int64)
+    assert np.all((stamps - stamps[0]) % PERIOD_NS == 0)
+    unique, first = np.unique(stamps, return_index=True)
+    read_at = dict(zip(unique.tolist(), np.asarray(receipts)[first].tolist()))
+    unique = unique[(unique >= min(published_at)) & (unique <= max(published_at))]
     missed = {'not published': 0, 'published late': 0, 'while behind': 0, 'lost': 0}
     lost_holes = []
     for before, after, count in gaps(unique):
