@@ -431,14 +431,7 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
         _check_ready('feedback', settings, port, state, check_settings)
     correct = settings.temperature_correction and not capture
     if correct:
-        if not state.reference_tc_ppm:
-            raise EstimationError('temperature correction needs the I_ref temperature '
-                                  'coefficient: run the temperature calibration (its I_ref '
-                                  'steps at every plateau) or the reference_tc schedule first')
-        if any(r is None for r in state.reference_readings_c()) \
-                or not port.has_temperature_sensor:
-            raise EstimationError('temperature correction needs the on-board temperature '
-                                  'reading at the reference and now')
+        _check_temperature_correction(port, state)
     require_closed(port)
     start_ns = port.sensor_time_ns()
     sequence = settings.sequence()
@@ -446,16 +439,7 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
     on = np.asarray(sequence)
     if len(on) >= 4:
         _check_between_segments(port, settings, on, times, means, allan)
-    # Least squares of the segment means on [switch state, 1]: the step is the on/off
-    # difference, and for the ABBA order the linear drift cancels by symmetry.
-    step, residuals, step_se = fit_line(on.astype(float), means)
-    if len(on) <= 2:
-        # The sample scatter measures the white noise of each segment mean; the bias
-        # instability, correlated over a segment, adds its Allan floor (the datasheet
-        # figure of the settings), twice for the difference.
-        per_segment = np.asarray(stds) / math.sqrt(port.samples_for(settings.average_s))
-        floor = 2.0 * (settings.bias_instability / port.count_scale) ** 2
-        step_se = np.sqrt((per_segment ** 2).sum(axis=0) + floor)
+    step, residuals, step_se = _feedback_step(port, settings, on, means, stds)
     reading = float(np.mean(readings))
     words_before = np.array([port.n_vref(axis) for axis in range(port.n_axes)], dtype=float)
     points = {'time_ns': np.asarray(times, dtype=np.int64),
@@ -464,15 +448,9 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
     for axis, name in enumerate(AXES):
         points[f'mean_{name}'] = means[:, axis]
         points[f'std_{name}'] = np.asarray(stds)[:, axis]
-    if capture:
-        reference = np.full(len(AXES), np.nan)
-        ratio = np.ones(len(AXES))
-    else:
-        reference = np.array([r.feedback_step for r in state.references])
-        if correct:
-            shift = reading - np.asarray(state.reference_readings_c(), dtype=float)
-            reference = reference * (1.0 + np.asarray(state.reference_tc_ppm) * PPM * shift)
-        ratio = reference / step
+    reference = (np.full(len(AXES), np.nan) if capture
+                 else _feedback_reference(state, reading, correct))
+    ratio = np.ones(len(AXES)) if capture else reference / step
     std_error = np.abs(step_se / step) / PPM
     estimate = (ratio - 1.0) / PPM
     applied = False
@@ -492,6 +470,51 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
     return EstimationResult('feedback', asdict(settings), estimate, std_error, points,
                             residuals, step, reference, words_before, words_after, applied,
                             capture, start_ns, port.sensor_time_ns())
+
+
+def _check_temperature_correction(port, state):
+    """Refuse a temperature-corrected estimate without its coefficient or readings."""
+    if not state.reference_tc_ppm:
+        raise EstimationError('temperature correction needs the I_ref temperature '
+                              'coefficient: run the temperature calibration (its I_ref '
+                              'steps at every plateau) or the reference_tc schedule first')
+    if any(r is None for r in state.reference_readings_c()) \
+            or not port.has_temperature_sensor:
+        raise EstimationError('temperature correction needs the on-board temperature '
+                              'reading at the reference and now')
+
+
+def _feedback_step(port, settings, on, means, stds):
+    """
+    Return the I_ref step ``N_on - N_off`` per axis, the fit residuals and its standard error.
+
+    Least squares of the segment means on [switch state, 1]: the step is the on/off
+    difference, and for the ABBA order the linear drift cancels by symmetry [count].
+    """
+    step, residuals, step_se = fit_line(on.astype(float), means)
+    if len(on) <= 2:
+        # The sample scatter measures the white noise of each segment mean; the bias
+        # instability, correlated over a segment, adds its Allan floor (the datasheet
+        # figure of the settings), twice for the difference.
+        per_segment = np.asarray(stds) / math.sqrt(port.samples_for(settings.average_s))
+        floor = 2.0 * (settings.bias_instability / port.count_scale) ** 2
+        step_se = np.sqrt((per_segment ** 2).sum(axis=0) + floor)
+    return step, residuals, step_se
+
+
+def _feedback_reference(state, reading, correct):
+    """
+    Return the reference I_ref step per axis [count], moved to ``reading`` when ``correct``.
+
+    The step scales by ``1 + tc reading_shift`` with the I_ref temperature coefficient
+    ``tc`` [ppm/degC] of the calibration state and the shift of the on-board reading
+    since the reference [degC].
+    """
+    reference = np.array([r.feedback_step for r in state.references])
+    if correct:
+        shift = reading - np.asarray(state.reference_readings_c(), dtype=float)
+        reference = reference * (1.0 + np.asarray(state.reference_tc_ppm) * PPM * shift)
+    return reference
 
 
 def capture_reference(sensor, state, forward=ForwardSettings(), feedback=FeedbackSettings()):
