@@ -1,4 +1,4 @@
-"""The service table: complete, consistent, every schedule bounded by its row."""
+"""The topic and service tables: complete, consistent, every schedule bounded by its row."""
 
 from dataclasses import replace
 import inspect
@@ -14,6 +14,7 @@ from qfa_ros.ros.service_table import (
     SERVICES,
 )
 from qfa_ros.ros.services import CalibrationServices
+from qfa_ros.ros.topic_table import TOPICS
 
 DEFAULTS = {spec.name: spec.default for spec in PARAMETERS}
 
@@ -30,6 +31,11 @@ def test_every_row_is_whole_and_named_once():
         replace(SERVICE['~/calibrate_gyros'], pause='')
     with pytest.raises(ValueError, match='either schedule or handler'):
         replace(SERVICE['~/cancel'], schedule=lambda triad, state, values: None)
+    assert len({spec.name for spec in TOPICS}) == len(TOPICS)
+    for spec in TOPICS:
+        for named in (spec.rate, spec.frame, spec.only_if and spec.only_if[0]):
+            if named and ('.' in named or named.endswith('_id')) and ' ' not in named:
+                assert named in SPECS, (spec.name, named)
 
 
 def test_each_schedule_is_bounded_by_its_row():

@@ -29,25 +29,20 @@ from nav_msgs.msg import Odometry
 import numpy as np
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
-from qfa_ros.bag.qos import QOS_LATCHED, QOS_TRUTH, QosProfile
 from qfa_ros.model.constants import DEG_PER_HOUR, MICRO_G, PPM
 from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.loop_response import CORRECTION_SETTLE_BAND, feedback_step_transient
 from qfa_ros.model.triad import NS_PER_S
-from qfa_ros.ros.stream import ros_qos
+from qfa_ros.ros.topic_table import create_publisher, TOPIC, TRUTH_FRAME_ID
 
-TRUTH_FRAME_ID = 'enu_origin'
-"""Frame of ``truth/odometry``: the ENU tangent plane at ``truth/origin``."""
 POSE_MODES = ('static', 'trajectory')
 """Input modes with a pose on the Earth (``profile`` scripts a specific force only)."""
 UNATTRIBUTED = 'unattributed'
 """The kind of an event whose correction no service marked (none is known to)."""
-EVENT_DEPTH = 20
-"""Calibration events a late subscriber still gets (transient local)."""
-QOS_EVENTS = QosProfile(depth=EVENT_DEPTH, durability='transient_local')
-"""QoS of ``~/calibration_events``, in the node and in the flight recordings."""
-TYPES = {'events': 'diagnostic_msgs/msg/DiagnosticStatus', 'odometry': 'nav_msgs/msg/Odometry',
-         'origin': 'sensor_msgs/msg/NavSatFix', 'errors': 'sensor_msgs/msg/Imu'}
+TRUTH_TOPICS = {'events': '~/calibration_events', 'odometry': 'truth/odometry',
+                'origin': 'truth/origin', 'errors': 'truth/imu_errors'}
+"""The row in the topic table of each truth publisher."""
+TYPES = {key: TOPIC[name].type_name for key, name in TRUTH_TOPICS.items()}
 """The message type of each truth publisher, as the flight recorder writes it."""
 
 
@@ -103,14 +98,13 @@ class TruthPublisher:
         self._values = values
         self._stream = stream
         self.enabled = bool(values['truth.enabled'])
-        # One statement of the truth's QoS, shared with the bags (qfa_ros.bag.qos).
-        self.events = node.create_publisher(DiagnosticStatus, '~/calibration_events',
-                                            ros_qos(QOS_EVENTS))
+        # The QoS of each is its row's in the topic table (the bags' too: qfa_ros.bag.qos).
+        self.events = create_publisher(node, TRUTH_TOPICS['events'])
         self.odometry = self.origin = self.errors = None
         if self.enabled:
-            self.odometry = node.create_publisher(Odometry, 'truth/odometry', ros_qos(QOS_TRUTH))
-            self.origin = node.create_publisher(NavSatFix, 'truth/origin', ros_qos(QOS_LATCHED))
-            self.errors = node.create_publisher(Imu, 'truth/imu_errors', ros_qos(QOS_TRUTH))
+            self.odometry = create_publisher(node, TRUTH_TOPICS['odometry'])
+            self.origin = create_publisher(node, TRUTH_TOPICS['origin'])
+            self.errors = create_publisher(node, TRUTH_TOPICS['errors'])
         self._profile = None
         self._fingerprint = None
         self._before = None
@@ -227,12 +221,8 @@ class TruthPublisher:
 
     def offered_qos(self):
         """Return the QoS (:class:`~qfa_ros.bag.qos.QosProfile`) of each truth topic."""
-        topics = {self.events.topic_name: QOS_EVENTS}
-        if self.enabled:
-            topics[self.odometry.topic_name] = QOS_TRUTH
-            topics[self.errors.topic_name] = QOS_TRUTH
-            topics[self.origin.topic_name] = QOS_LATCHED
-        return topics
+        return {getattr(self, key).topic_name: TOPIC[name].qos
+                for key, name in TRUTH_TOPICS.items() if getattr(self, key) is not None}
 
     def _event(self, kind, words, truth, index):
         """
