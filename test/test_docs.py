@@ -82,7 +82,9 @@ def test_docs_site_builds_with_warnings_as_errors(tmp_path):
 
 def test_readme_is_short_and_its_links_exist():
     text = (ROOT / 'README.md').read_text()
-    assert len(text.splitlines()) <= 200
+    # 200 before the interface tables generated from the code (interface_docs: 26 lines
+    # with their markers) replaced a hand-kept table of 8.
+    assert len(text.splitlines()) <= 220
     assert '`make test`' in text or 'make test ' in text  # .ci/run runs the README's command
     links = re.findall(r'\]\(([^)#:]+)(?:#[^)]*)?\)', text)
     assert links

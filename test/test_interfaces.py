@@ -1,10 +1,12 @@
-"""The topic and service tables: complete, consistent, every schedule bounded by its row."""
+"""The topic and service tables: complete, consistent, and the docs generated from them."""
 
 from dataclasses import replace
 import inspect
+from pathlib import Path
 
 import pytest
 
+from qfa_ros.ros import interface_docs
 from qfa_ros.ros.bounds import MAX_SCHEDULE_LOOP_STEPS
 from qfa_ros.ros.parameter_table import PARAMETERS, SPECS
 from qfa_ros.ros.service_table import (
@@ -16,7 +18,31 @@ from qfa_ros.ros.service_table import (
 from qfa_ros.ros.services import CalibrationServices
 from qfa_ros.ros.topic_table import TOPICS
 
+ROOT = Path(__file__).resolve().parents[1]
 DEFAULTS = {spec.name: spec.default for spec in PARAMETERS}
+
+
+@pytest.mark.parametrize('path, name, generate', interface_docs.BLOCKS,
+                         ids=[f'{path}:{name}' for path, name, _ in interface_docs.BLOCKS])
+def test_generated_interface_blocks_are_current(path, name, generate):
+    text = (ROOT / path).read_text()
+    begin, end = f'<!-- {name}:begin -->\n', f'<!-- {name}:end -->'
+    assert text.count(begin) == 1 and text.count(end) == 1, f'{path}: the {name} markers'
+    block = text.split(begin, 1)[1].split(end, 1)[0]
+    assert block == generate(), \
+        f'{path}: the {name} block is stale; regenerate: {interface_docs.COMMAND}'
+
+
+def test_a_stale_block_is_found_and_rewritten(tmp_path):
+    for path, _, _ in interface_docs.BLOCKS:
+        (tmp_path / path).parent.mkdir(exist_ok=True)
+        (tmp_path / path).write_text((ROOT / path).read_text())
+    assert interface_docs.stale_blocks(tmp_path) == []
+    readme = tmp_path / 'README.md'
+    readme.write_text(readme.read_text().replace('reliable, depth 100', 'best effort, depth 5'))
+    assert interface_docs.stale_blocks(tmp_path) == ['README.md: interfaces']
+    assert interface_docs.write(tmp_path) == ['README.md: interfaces']
+    assert readme.read_text() == (ROOT / 'README.md').read_text()
 
 
 def test_every_row_is_whole_and_named_once():
