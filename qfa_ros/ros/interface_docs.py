@@ -10,6 +10,7 @@ one. ``test_interfaces.py`` fails when a block is stale.
 from pathlib import Path
 import sys
 
+from qfa_ros.ros.parameter_docs import print_output
 from qfa_ros.ros.parameter_table import PARAMETERS, SPECS
 from qfa_ros.ros.service_table import SERVICES, stream_effect, TIMING
 from qfa_ros.ros.topic_table import PUBLISHER, TOPICS
@@ -197,18 +198,10 @@ def write(root):
 def main(argv=None):
     """Print one block (``topics``, ``services``, ``readme``) or rewrite all (``write``)."""
     args = sys.argv[1:] if argv is None else argv
-    outputs = {'topics': topics_table, 'services': services_table, 'readme': readme_block}
-    if len(args) == 1 and args[0] == 'write':
-        for block in write(Path.cwd()):
-            print(f'rewrote {block}')
-        return 0
-    if len(args) != 1 or args[0] not in outputs:
-        print('usage: python -m qfa_ros.ros.interface_docs {write|topics|services|readme}',
-              file=sys.stderr)
-        return 2
-    print(outputs[args[0]](), end='')
-    return 0
-
+    return print_output(args, {
+        'write': lambda: ''.join(f'rewrote {block}\n' for block in write(Path.cwd())),
+        'topics': topics_table, 'services': services_table, 'readme': readme_block},
+        'qfa_ros.ros.interface_docs')
 
 if __name__ == '__main__':
     sys.exit(main())
