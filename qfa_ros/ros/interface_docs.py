@@ -48,14 +48,38 @@ def qos_text(qos):
 
 
 def rate_text(spec):
-    """Return the rate of a topic row: its parameter's default with the parameter's name."""
+    """
+    Return the rate of a topic row: its parameter's default with the parameter's name.
+
+    Parameters
+    ----------
+    spec : TopicSpec
+        The topic's row.
+
+    Returns
+    -------
+    str
+        ``1000 Hz (`sample_rate_hz`)``, or the row's words when no parameter sets it.
+    """
     if spec.rate in SPECS:
         return f'{_value(DEFAULTS[spec.rate])} Hz (`{spec.rate}`)'
     return spec.rate
 
 
 def frame_text(spec):
-    """Return the ``header.frame_id`` of a topic row: the parameter's default and name."""
+    """
+    Return the ``header.frame_id`` of a topic row: the parameter's default and name.
+
+    Parameters
+    ----------
+    spec : TopicSpec
+        The topic's row.
+
+    Returns
+    -------
+    str
+        ```imu_link` (`frame_id`)``, the frame itself, or a dash without a header.
+    """
     if not spec.frame:
         return '—'
     if spec.frame in SPECS:
@@ -64,7 +88,19 @@ def frame_text(spec):
 
 
 def condition_text(spec):
-    """Return when the node has a topic (``with `truth.enabled: true```), or ''."""
+    """
+    Return when the node has a topic.
+
+    Parameters
+    ----------
+    spec : TopicSpec
+        The topic's row.
+
+    Returns
+    -------
+    str
+        ``with `truth.enabled: true``` for a row with ``only_if``, else ''.
+    """
     if spec.only_if is None:
         return ''
     name, value = spec.only_if
@@ -171,6 +207,11 @@ def stale_blocks(root):
     -------
     list of str
         ``<file>: <marker name>`` of each stale block.
+
+    Raises
+    ------
+    ValueError
+        A file lacks the markers of its block.
     """
     stale = []
     for path, name, generate in BLOCKS:
@@ -182,7 +223,24 @@ def stale_blocks(root):
 
 
 def write(root):
-    """Rewrite every generated block under ``root`` in place; return the files written."""
+    """
+    Rewrite every generated block under ``root`` in place.
+
+    Parameters
+    ----------
+    root : pathlib.Path
+        The source tree.
+
+    Returns
+    -------
+    list of str
+        ``<file>: <marker name>`` of each block that changed.
+
+    Raises
+    ------
+    ValueError
+        A file lacks the markers of its block.
+    """
     written = []
     for path, name, generate in BLOCKS:
         file = Path(root) / path

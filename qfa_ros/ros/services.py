@@ -57,13 +57,42 @@ class CalibrationServices:
         self.schedule_done = node.create_guard_condition(self.schedule_done_callback)
 
     def _schedule_callback(self, spec):
-        """Return the service callback that runs the schedule of ``spec``."""
+        """
+        Return the service callback that runs the schedule of ``spec``.
+
+        Parameters
+        ----------
+        spec : ServiceSpec
+            The service's row.
+
+        Returns
+        -------
+        callable
+            A coroutine function ``(request, response)`` awaiting
+            :meth:`~qfa_ros.ros.schedules.ScheduleService.run`.
+        """
         async def run_schedule(request, response):
             return await self._schedules.run(response, spec)
         return run_schedule
 
     def set_compensation(self, spec, request, response):
-        """Apply (true) the stored corrections or restore the nominal words (false)."""
+        """
+        Apply (true) the stored corrections or restore the nominal words (false).
+
+        Parameters
+        ----------
+        spec : ServiceSpec
+            Its row: the ``kind`` of the calibration event it marks.
+        request : std_srvs.srv.SetBool.Request
+            ``data``: true to apply, false to restore.
+        response : std_srvs.srv.SetBool.Response
+            The answer to fill.
+
+        Returns
+        -------
+        std_srvs.srv.SetBool.Response
+            ``response``, answered (``busy: ...`` while a schedule runs).
+        """
         busy = self._schedules.busy_answer()
         if busy:
             response.success, response.message = False, busy
@@ -80,7 +109,23 @@ class CalibrationServices:
         return response
 
     def cancel(self, spec, request, response):
-        """Abort the running schedule, restore the sensor and let the stream resume."""
+        """
+        Abort the running schedule, restore the sensor and let the stream resume.
+
+        Parameters
+        ----------
+        spec : ServiceSpec
+            Its row.
+        request : std_srvs.srv.Trigger.Request
+            Empty.
+        response : std_srvs.srv.Trigger.Response
+            The answer to fill.
+
+        Returns
+        -------
+        std_srvs.srv.Trigger.Response
+            ``response``, answered (``no schedule running`` when there is none).
+        """
         if self._schedules.refusal is not None:
             response.success, response.message = False, self._schedules.refusal
             return response

@@ -87,7 +87,19 @@ class TopicSpec:
         return f'{self.msg_type.__module__.split(".")[0]}/msg/{self.msg_type.__name__}'
 
     def offered(self, values):
-        """Return whether the node has this topic with the parameter values ``values``."""
+        """
+        Return whether the node has this topic.
+
+        Parameters
+        ----------
+        values : dict
+            The node's parameter values (``only_if``'s parameter among them).
+
+        Returns
+        -------
+        bool
+            True without ``only_if``, or when its parameter has its value.
+        """
         return self.only_if is None or values[self.only_if[0]] == self.only_if[1]
 
 
