@@ -120,9 +120,11 @@ TOPICS = (
         '`gyro.enabled: false` marks it unknown, covariance[0] = -1); '
         '`orientation_covariance[0] = -1`; `angular_velocity_covariance` diagonal '
         '`N²/T + B² + (q/T)²/6` (`GyroTriad.variance`); `linear_acceleration_covariance` '
-        'diagonal: the variance of one sample of the noise white at the published rate, '
-        '`N² f_s` through the loop plus the ADC noise, without the bias instability '
-        '(`docs/model.md`); `header.stamp` = sample instant',
+        'diagonal: the variance of one published sample of the white noise through the loop '
+        'and the averaging decimator (`qfa_ros.model.design.published_acceleration_variance`;'
+        ' the bias instability is not in it: '
+        '[model](model.md#noise-and-the-published-covariance)); `header.stamp` = sample '
+        'instant',
         rate='sample_rate_hz', frame='frame_id', overridable=True),
     TopicSpec(
         'imu/temperature', PUBLISHER, Temperature, QOS_STREAM,
