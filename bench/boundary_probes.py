@@ -244,7 +244,8 @@ def parameter_probes(files, configured):
               ('state_file', str(files.victim)), ('output_dir', str(files.elsewhere)),
               ('noise.imu_yaml', str(files.imu_yaml)),
               ('input.trajectory_file', str(files.motion)), ('state.fresh', True),
-              ('min_free_bytes', 1 << 20), ('sample_rate_hz', 2000.0), ('seed', 7)]
+              ('min_free_bytes', 1 << 20), ('recorder.keep_s', 1.0),
+              ('recorder.keep_bytes', 1), ('sample_rate_hz', 2000.0), ('seed', 7)]
     if configured:
         # A recording running, then moved where it cannot start: the change is refused
         # and the recording goes on where it was.

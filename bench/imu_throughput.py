@@ -43,20 +43,20 @@ def main():
     args = parser.parse_args()
 
     from qfa_ros.cli.sim import CHUNK_SECONDS
-    from qfa_ros.model import trajectories
+    from qfa_ros.model import motion_scripts
     from qfa_ros.model.triad import QfaTriad
     from qfa_ros.model.triad_config import TriadConfig
 
-    drive = trajectories.vehicle_drive()
+    drive = motion_scripts.vehicle_drive()
     cases = {
         'static, accelerometers only': lambda: QfaTriad(TriadConfig(gyro=None), rng=0),
         'drive, full IMU (gyros + trajectory)': lambda: QfaTriad(TriadConfig(), rng=0,
                                                                  profile=drive),
         'static on the Earth, full IMU': lambda: QfaTriad(
-            TriadConfig(), rng=0, profile=trajectories.static(45.0)),
+            TriadConfig(), rng=0, profile=motion_scripts.static(45.0)),
         # The same input without the gyros: what the gyros cost, apart from the input.
         'static on the Earth, accelerometers only': lambda: QfaTriad(
-            TriadConfig(gyro=None), rng=0, profile=trajectories.static(45.0)),
+            TriadConfig(gyro=None), rng=0, profile=motion_scripts.static(45.0)),
     }
     results = {name: [] for name in cases}
     names = list(cases)

@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from qfa_ros.bag.imu_series import read_imu  # noqa: E402
 from qfa_ros.cli.sim import static_sensor  # noqa: E402
-from qfa_ros.model.imu_noise import (  # noqa: E402
+from qfa_ros.model.noise_figures import (  # noqa: E402
     emulated_config,
     ImuNoiseFigures,
     KEYS,

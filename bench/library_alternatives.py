@@ -17,14 +17,14 @@ is a test dependency).
 * Allan deviation: :func:`qfa_ros.model.allan.allan_deviation` (compiled) against
   ``allantools.oadev`` on one axis of a 1-hour 1 kHz series (3.6 M samples): the octave
   taus of ``qfa-sim``'s summary and the 144-tau grid of ``qfa-report imu-yaml``
-  (:func:`qfa_ros.model.imu_noise.tau_grid`, 360 s), the largest relative difference and
+  (:func:`qfa_ros.model.noise_figures.tau_grid`, 360 s), the largest relative difference and
   the time per axis; and the time importing allantools adds.
 * Binning by temperature: :func:`qfa_ros.calibration.tempfit.bin_by_temperature`
   (``numpy.bincount``) against ``scipy.stats.binned_statistic`` on a 2-cycle chamber
   program's 1 s samples, and the import ``scipy.stats`` adds.
 * Quintic Hermite pieces: :func:`qfa_ros.model.trajectory.quintic_coefficients` against
   ``scipy.interpolate.BPoly.from_derivatives`` (then ``PPoly.from_bernstein_basis``) on the
-  knots of :func:`qfa_ros.model.trajectories.vehicle_drive`: the largest difference of
+  knots of :func:`qfa_ros.model.motion_scripts.vehicle_drive`: the largest difference of
   the values and derivatives, and the time to build the drive's pieces.
 Prints Markdown tables.
 """
@@ -236,7 +236,7 @@ def allan(rng):
     import allantools
 
     from qfa_ros.model.allan import allan_deviation
-    from qfa_ros.model.imu_noise import tau_grid
+    from qfa_ros.model.noise_figures import tau_grid
 
     rate = 1000.0
     samples = rng.normal(size=3_600_000) + 1e-3 * np.cumsum(rng.normal(size=3_600_000))
@@ -293,7 +293,7 @@ def hermite(rng):
     """Print the quintic Hermite table."""
     from scipy.interpolate import BPoly, PPoly
 
-    from qfa_ros.model.trajectories import vehicle_drive
+    from qfa_ros.model.motion_scripts import vehicle_drive
     from qfa_ros.model.trajectory import quintic_coefficients
 
     drive = vehicle_drive()

@@ -47,9 +47,9 @@ from qfa_ros.calibration.estimation import capture_reference, self_calibrate  # 
 from qfa_ros.calibration.schedule import run_schedule  # noqa: E402
 from qfa_ros.calibration.state import CalibrationState  # noqa: E402
 from qfa_ros.calibration.temperature import temperature_calibration  # noqa: E402
-from qfa_ros.model import trajectories as tr  # noqa: E402
+from qfa_ros.model import motion_scripts as tr  # noqa: E402
 from qfa_ros.model.drawn_unit import draw_unit  # noqa: E402
-from qfa_ros.model.errors import ErrorProfile  # noqa: E402
+from qfa_ros.model.error_profiles import ErrorProfile  # noqa: E402
 from qfa_ros.model.thermal import ThermalConfig  # noqa: E402
 from qfa_ros.model.triad_config import TriadConfig  # noqa: E402
 

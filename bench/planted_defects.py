@@ -32,7 +32,7 @@ HEADING = '## Planted defects'
 
 DEFECTS = {
     'stamp window check removed': (
-        'qfa_ros/ros/ground_truth.py',
+        'qfa_ros/ros/input_queue.py',
         '        if abs(time_ns - now_ns) > window_ns:\n',
         '        if False:  # planted: no stamp window\n'),
     'array size check removed': (

@@ -42,7 +42,7 @@ from qfa_ros.calibration.temperature import (  # noqa: E402
     TemperatureSettings,
 )
 from qfa_ros.model.drawn_unit import draw_unit  # noqa: E402
-from qfa_ros.model.errors import ErrorProfile  # noqa: E402
+from qfa_ros.model.error_profiles import ErrorProfile  # noqa: E402
 from qfa_ros.model.thermal import ThermalConfig  # noqa: E402
 from qfa_ros.model.triad_config import TriadConfig  # noqa: E402
 from qfa_ros.ros.model_settings import make_triad, temperature_settings

@@ -80,9 +80,10 @@ def _cordic_inputs(cordic, rng):
 def cordic_table(rng):
     lines = ['## CORDIC e^z: max relative error over the whole input range [-2^N, 2^N)', '',
              'Relative error of `mantissa * 2^(Q - W)` against `exp(z_q / 2^M)` (exact input '
-             'word). `guard 0` is the seed datapath (every constant quantized to M bits); '
-             '`guard 4` the default.', '',
-             '| M | N | inputs | guard 0 (seed) | guard 4 (default) | ns/sample (guard 4) |',
+             'word). `guard 0` is the datapath of Liu, Li and Shen (every constant quantized to '
+             'M bits); `guard 4` the default.', '',
+             '| M | N | inputs | guard 0 (Liu, Li and Shen) | guard 4 (default) '
+             '| ns/sample (guard 4) |',
              '|---|---|---|---|---|---|']
     for n_bits in (6, 4):
         for m_bits in (12, 14, 16, 20, 24):
@@ -147,10 +148,10 @@ def fit_and_drift_tables(rng):
         '|---|---|---|---|---|---|---|---|---|---|']
     drift_lines = [
         '## Peak-to-peak zero drift before/after compensation', '',
-        "p2p over the 100 V_temp bin means (the seed's measure) and over 60-s means of the "
-        'time series (includes white noise and every effect that is not a function of '
-        'V_temp). Compensation = fixed-point double exponential, M = 16; poly4 = float '
-        '4th-order polynomial for comparison. Values in ug.', '',
+        'p2p over the 100 V_temp bin means (the measure of Liu, Li and Shen) and over 60-s '
+        'means of the time series (includes white noise and every effect that is not a '
+        'function of V_temp). Compensation = fixed-point double exponential, M = 16; '
+        'poly4 = float 4th-order polynomial for comparison. Values in ug.', '',
         '| scenario | axis | p2p before | after (bins) | reduction | poly4 after (bins) | '
         'before (60 s) | after (60 s) | reduction (60 s) |',
         '|---|---|---|---|---|---|---|---|---|']
@@ -226,9 +227,9 @@ def cost_table(v_temp, output, rng):
 
 NOTES = [
     '## Reading the tables', '',
-    '- CORDIC: with `guard 0` (the seed datapath) the error of the `2^M/ln2` constant is '
-    "multiplied by |z|, so the seed's 0.019 % at M = 16 holds only for small |z| "
-    '(N <= 4 region); the default 4 guard bits keep the whole [-2^6, 2^6) range within '
+    '- CORDIC: with `guard 0` (the datapath of Liu, Li and Shen) the error of the `2^M/ln2` '
+    "constant is multiplied by |z|, so Liu, Li and Shen's 0.019 % at M = 16 holds only for "
+    'small |z| (N <= 4 region); the default 4 guard bits keep the whole [-2^6, 2^6) range within '
     '0.02 % at M = 16 and 2e-6 at M = 24. The mantissa/exponent output keeps the relative '
     'error bounded for very negative z (Q down to -93).',
     '- Default scenario: the ground truth is itself a double exponential in V_temp, so the '
@@ -237,7 +238,7 @@ NOTES = [
     '- Probe lag: bins still flatten (heating and cooling average out in a bin) but the '
     'time series shows the lag as a heating/cooling split; hysteresis does the same '
     'without any lag. Neither is a function of V_temp, so no V_temp-only model removes '
-    "it: these set the practical >= 10x..30x limit, like the seed's tenfold result.",
+    "it: these set the practical >= 10x..30x limit, like Liu, Li and Shen's tenfold result.",
     '- Cubic (S-shaped) truth: a sum of two exponentials has at most one extremum and one '
     'inflection, their spacing tied to the betas; this curve is outside that family, the '
     'best fit is the degenerate limit (beta1 ~ beta2, opposite alphas of ~150), '

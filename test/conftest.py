@@ -91,11 +91,12 @@ def pytest_xdist_auto_num_workers(config):
 
 LONGEST_FIRST = (
     'test_node_services.py', 'test_soak.py', 'test_node_lifecycle.py', 'test_managed_node.py',
-    'test_node_fuzz.py', 'test_fleet.py', 'test_ins.py', 'test_crash_recording.py',
-    'test_node_gyro_bias.py', 'test_estimation_truth.py', 'test_distributions.py',
-    'test_launch.py', 'test_bags.py', 'test_replay.py', 'test_recorder.py', 'test_report.py',
+    'test_node_fuzz.py', 'test_fleet.py', 'test_ins.py', 'test_node_progress.py',
+    'test_crash_recording.py', 'test_node_gyro_bias.py', 'test_estimation_truth.py',
+    'test_distributions.py', 'test_launch.py', 'test_bags.py', 'test_replay.py',
+    'test_recorder.py', 'test_report.py',
     'test_node_stream.py', 'test_node_delivery.py', 'test_imu_yaml.py', 'test_node_ins.py',
-    'test_node_security.py', 'test_trust_boundary.py', 'test_node_truth.py',
+    'test_node_security.py', 'test_trust_boundary.py', 'test_node_truth.py', 'test_retention.py',
     'test_temperature_calibration.py', 'test_loop_model.py', 'test_recovery.py',
     'test_tempfit.py', 'test_docs.py')
 """The files that take longest, longest first (bench/results/suite_time.md): started first,

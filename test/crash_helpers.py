@@ -8,7 +8,9 @@ Used by ``test_recovery.py``, ``test_crash_recording.py`` and ``bench/crash_reco
 - :func:`read_bag` reads a bag directory back with ``rosbags``' ``AnyReader`` and every
   file of it with the mcap seeking reader (summary, CRCs), and says whether both agree;
 - :func:`loss` compares the IMU stamps of a bag with those an independent subscriber
-  received, against the instant of the kill.
+  received, against the instant of the kill;
+- :func:`recorded_session` records a short session of a 100 Hz IMU stream in 1 s files
+  (:func:`feed_imu`), for retention (``test_retention.py``).
 """
 
 import collections
@@ -29,12 +31,21 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 import yaml
 
+from qfa_ros.bag.flight_recorder import FlightRecorder
+from qfa_ros.bag.imu_cdr import ImuEncoder
+
 ROOT = Path(__file__).resolve().parents[1]
 IMU_TOPIC = '/imu/data_raw'
 STAMP = struct.Struct('<iI')
 """``header.stamp`` (sec, nanosec) right after the 4-byte CDR encapsulation header."""
 LOSS_BOUND_S = 1.0
 """What a kill may lose: messages published in the last second before it (issue 35)."""
+SECOND = 1_000_000_000
+SESSION_T0 = 1_767_225_600_000_000_000
+"""2026-01-01 00:00:00 UTC [ns]: when :func:`recorded_session` times start."""
+SESSION_RATE = 100
+"""IMU rate of :func:`recorded_session` [Hz]."""
+ENCODER = ImuEncoder('imu_link', [1e-6, 0, 0, 0, 1e-6, 0, 0, 0, 1e-6])
 
 KILLED_RECORDER = textwrap.dedent("""
     import os, sys
@@ -272,3 +283,27 @@ def stop_mid_file(process, recordings, timeout=60.0, retry_s=0.005):
         assert time.monotonic() < deadline, f'no .part in {recordings} in {timeout} s'
         os.kill(process.pid, signal.SIGCONT)
         time.sleep(retry_s)
+
+
+def feed_imu(recorder, start_ns, seconds):
+    """Record ``seconds`` of a :data:`SESSION_RATE` IMU stream stamped from ``start_ns``."""
+    stamps = start_ns + np.arange(int(seconds * SESSION_RATE), dtype=np.int64) * (
+        SECOND // SESSION_RATE)
+    accel = np.tile([0.0, 0.0, 9.81], (len(stamps), 1))
+    recorder.record_many(IMU_TOPIC, 'sensor_msgs/msg/Imu', ENCODER.encode(stamps, accel),
+                         stamps.tolist())
+
+
+def recorded_session(directory, start_s, seconds, close=True, prefix='qfa_node'):
+    """
+    Record a session of ``seconds`` of IMU stream split every second; return its recorder.
+
+    The session (its bag's name and its first stamp) starts ``start_s`` after
+    :data:`SESSION_T0`; ``close`` finishes it, otherwise its last file stays a ``.part``.
+    """
+    start = SESSION_T0 + int(start_s * SECOND)
+    recorder = FlightRecorder(directory, prefix, max_duration_ns=SECOND, session_time_ns=start)
+    feed_imu(recorder, start, seconds)
+    if close:
+        recorder.close()
+    return recorder

@@ -33,8 +33,8 @@ def run(part):
     if part == 'trajectory':
         import numpy as np
 
-        from qfa_ros.model import trajectories
-        drive = trajectories.vehicle_drive()
+        from qfa_ros.model import motion_scripts
+        drive = motion_scripts.vehicle_drive()
         drive.sample_means(0.0, 1e-3, 2000)
         drive.sample_means(100.0, 1e-2, 100)
         drive.kinematics(np.array([0.0, 1.0]))

@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
 from lifecycle_msgs.srv import ChangeState, GetAvailableTransitions, GetState
 import node_fork
@@ -16,6 +17,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
+from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -46,10 +48,11 @@ OPERATOR_ONLY = frozenset({
     'output_dir', 'state_file', 'state.fresh', 'noise.imu_yaml', 'input.trajectory_file',
     'sample_rate_hz', 'loop_rate_hz', 'temperature_rate_hz', 'diagnostics_rate_hz',
     'truth.rate_hz', 'stream.lead_s', 'stream.batch_s', 'min_free_bytes',
-    'input.stamp_window_s'})
+    'input.stamp_window_s', 'recorder.keep_s', 'recorder.keep_bytes'})
 """What no participant sets in any state (issue 43): the parameters that name a file or a
 directory the node reads or writes (``state.fresh`` decides whether the state file is
-read), or bound its CPU, memory or disk, or the stall one message can cause. The tests'
+read), or bound its CPU, memory or disk, or the stall one message can cause, or how much of
+the recordings is kept (a stranger could have them deleted). The tests'
 own list (the boundary's, test_node_fuzz.py): a defect in the parameter table cannot move
 their expectation; test_node_params.py checks that the table agrees."""
 
@@ -465,3 +468,16 @@ def counted_after(items, after_ns, stamp=lambda item: item):
         looked[0] = len(items)
         return looked[1]
     return count
+
+
+class RecordingNode:
+    """What :class:`~qfa_ros.ros.recording.StreamRecording` uses of a node: name, logger, clock."""
+
+    def get_name(self):
+        return NODE
+
+    def get_logger(self):
+        return get_logger('test_recording')
+
+    def get_clock(self):
+        return SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=time.time_ns()))

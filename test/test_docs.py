@@ -1,5 +1,6 @@
 """The documentation site builds without a warning; the README stays short and its links hold."""
 
+import importlib.util
 from pathlib import Path
 import pickle
 import re
@@ -74,7 +75,7 @@ def test_docs_site_builds_with_warnings_as_errors(tmp_path):
     objects = {sig_id: desc['objtype'] for desc in api.findall(addnodes.desc)
                for sig in desc.findall(addnodes.desc_signature) for sig_id in sig['ids']}
     assert objects.get('qfa_ros.model.triad.QfaTriad') == 'class', sorted(objects)[:20]
-    assert objects.get('qfa_ros.ros.calibration.CalibrationKeeper') == 'class'
+    assert objects.get('qfa_ros.ros.calibration_keeper.CalibrationKeeper') == 'class'
     assert 'function' in objects.values() and 'method' in objects.values()
     assert '.. py:' not in api.astext()
     assert b'state.fresh' in (doctrees / 'node.doctree').read_bytes()
@@ -93,3 +94,37 @@ def test_readme_is_short_and_its_links_exist():
     assert links
     for link in links:
         assert (ROOT / link).exists(), link
+
+
+def _figures_table():
+    path = ROOT / 'docs' / 'figures_table.py'
+    spec = importlib.util.spec_from_file_location('figures_table', path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_figures_table_is_what_bench_results_say():
+    # docs/figures.md is generated from the `figures` blocks of bench/results/*.md.
+    table = _figures_table()
+    written = (ROOT / 'docs' / 'figures.md').read_text()
+    assert written == table.render(table.load()), (
+        'docs/figures.md is stale: python docs/figures_table.py > docs/figures.md')
+
+
+def test_no_page_states_a_figure_differently_from_the_table():
+    table = _figures_table()
+    figures = table.load()
+    assert any(figure.get('stated') for figure in figures)
+    assert table.stated_differently(table.pages(), figures) == []
+
+
+def test_a_page_that_states_a_figure_differently_is_found(tmp_path):
+    table = _figures_table()
+    figures = table.load()
+    hour = next(figure for figure in figures if figure['id'] == 'sim_hour')
+    page = tmp_path / 'page.md'
+    page.write_text(f'An hour of the sensor takes about {hour["value"]} s on two cores.\n'
+                    'An hour of the sensor takes about\n4.3 s on two cores.\n')
+    assert table.stated_differently([page], figures) == [
+        f'page.md:3: sim_hour states 4.3, the table {hour["value"]} (sim_limit.md)']

@@ -11,8 +11,10 @@ from statistics_helpers import variance_ratio_bounds
 from qfa_ros.calibration.estimation import (
     capture_reference,
     feedback_schedule,
+    feedback_sensor_time_s,
     FeedbackSettings,
     forward_schedule,
+    forward_sensor_time_s,
     ForwardSettings,
     self_calibrate,
 )
@@ -21,11 +23,11 @@ from qfa_ros.calibration.experiments import (
     PAPER_SCHEDULE,
 )
 from qfa_ros.calibration.gyro_bias import GyroBiasSettings
-from qfa_ros.calibration.schedule import EstimationError, run_schedule
+from qfa_ros.calibration.schedule import EstimationError, run_schedule, ScheduleProgress
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
+from qfa_ros.model.input_profiles import SineProfile, StaticProfile, StepProfile
 from qfa_ros.model.noise import NoiseConfig
-from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
 
@@ -503,3 +505,35 @@ def test_old_state_without_reference_settings_is_refused_with_a_reason():
     with pytest.raises(ValueError, match='reference_settings.feedback must map names to '
                        'scalars'):
         CalibrationState.from_dict(bad)
+
+
+def test_a_schedule_announces_its_phases_and_the_sensor_time_left():
+    # The plan comes from the schedule: exact where the settings fix it, at every phase.
+    triad = QfaTriad(TriadConfig(noise=QUIET), rng=0)
+    forward = ForwardSettings(points=2, average_s=0.2, order='bidirectional')
+    feedback = FeedbackSettings(cycles=1, average_s=0.2, order='chopped')
+    seen = []
+    progress = ScheduleProgress('reference', triad.config.sample_rate_hz,
+                                lambda p, changed: seen.append((changed, str(p.phase),
+                                                                p.fraction, p.done_s, p.left_s)))
+    started = triad.time
+    run_schedule(triad, capture_reference(triad, CalibrationState(), forward, feedback),
+                 chunk_samples=50, progress=progress)
+    total = triad.time - started
+    settle = triad.config.settle_time
+    assert total == pytest.approx(forward_sensor_time_s(forward, settle)
+                                  + feedback_sensor_time_s(feedback, settle))
+    assert [phase for changed, phase, *_ in seen if changed] == [
+        'forward: loops open, point 1 of 6', 'forward: loops re-closed, settling',
+        'feedback: I_ref steps, segment 1 of 4, I_ref off']
+    assert seen[0][4] == pytest.approx(total)
+    # Done plus left is the whole plan at every block; the fraction climbs to 1.
+    assert all(done + left == pytest.approx(total) for *_, done, left in seen)
+    fractions = [fraction for _, _, fraction, _, _ in seen]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0 and progress.finished
+    # Without a progress (or with a bar's name) the result is the same.
+    again = QfaTriad(TriadConfig(noise=QUIET), rng=0)
+    result = run_schedule(again, capture_reference(again, CalibrationState(), forward,
+                                                   feedback), progress='reference')
+    assert again.time == pytest.approx(total)
+    assert result[0].captured and result[1].captured

@@ -188,9 +188,9 @@ def test_improved_schedule_meets_the_acceptance_on_paper_size_drifts():
     # The fleet layer needs pyarrow, which the library floor (.venv-jazzy) has not.
     pa = pytest.importorskip('pyarrow', reason='the fleet studies need pyarrow (numpy 2): '
                              'not on the library floor')
+    from qfa_ros.fleet.self_calibration_unit import simulate_batch
     from qfa_ros.fleet.study import Study
     from qfa_ros.fleet.summary import residual_metrics
-    from qfa_ros.fleet.unit import simulate_batch
     study = Study.one_calibration('improved', 200.0, torquer_drift=False, units=3, seed=11)
     rows = simulate_batch(study, 0, study.units)
     metrics = residual_metrics(pa.Table.from_pylist(rows))

@@ -27,9 +27,9 @@ from qfa_ros.fleet.runner import (  # noqa: E402
     parts_directory,
     run_study,
 )
+from qfa_ros.fleet.self_calibration_unit import simulate_unit  # noqa: E402
 from qfa_ros.fleet.study import Study, StudyError  # noqa: E402
 from qfa_ros.fleet.summary import format_summary  # noqa: E402
-from qfa_ros.fleet.unit import simulate_unit  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 # A short schedule keeps a unit at about a second of CPU.
@@ -245,9 +245,9 @@ def test_code_digest_follows_the_simulating_code_only(tmp_path):
 def test_drawn_component_coefficients_differ_per_unit_and_move_no_other_draw():
     # Issue 28: component_tcs drawn gives each unit its own I_ref and forward-chain
     # temperature coefficients; the aging draws (another stream) stay the same.
-    from qfa_ros.model import streams
+    from qfa_ros.model import random_streams
     from qfa_ros.model.drawn_unit import draw_component_tcs
-    draws = [draw_component_tcs(streams.seed_sequence([0, i], 'unit.component_tcs'))
+    draws = [draw_component_tcs(random_streams.seed_sequence([0, i], 'unit.component_tcs'))
              for i in range(3)]
     assert len({round(float(i_ref[0]), 6) for i_ref, _ in draws}) == 3
     drawn = Study.from_dict({**CHEAP, 'units': 1,

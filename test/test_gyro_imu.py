@@ -17,13 +17,13 @@ from qfa_ros.calibration.schedule import EstimationError, run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.cli import sim
 from qfa_ros.model import earth
-from qfa_ros.model import trajectories as tr
+from qfa_ros.model import motion_scripts as tr
 from qfa_ros.model.constants import DEG_PER_HOUR, PPM
 from qfa_ros.model.gyro import GyroConfig, GyroTriad
 from qfa_ros.model.trajectory import dcm_to_quaternion
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
-from qfa_ros.ros.ground_truth import GroundTruthInput
+from qfa_ros.ros.input_queue import GroundTruthInput
 from qfa_ros.ros.parameter_table import PARAMETERS
 
 

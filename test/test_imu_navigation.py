@@ -10,7 +10,7 @@ import pytest
 from statistics_helpers import allan_edf_flicker, allan_edf_white, assert_variance_ratios
 
 from qfa_ros.model import earth
-from qfa_ros.model import trajectories as tr
+from qfa_ros.model import motion_scripts as tr
 from qfa_ros.model.allan import allan_deviation
 from qfa_ros.model.gyro import GyroConfig, GyroTriad
 from qfa_ros.model.noise import (

@@ -22,7 +22,7 @@ from qfa_ros.bag import imu_series
 from qfa_ros.bag.imu_series import read_imu
 from qfa_ros.calibration.kalibr_yaml import load_imu_yaml, parse_imu_yaml
 from qfa_ros.cli import report, sim
-from qfa_ros.model.imu_noise import (
+from qfa_ros.model.noise_figures import (
     config_figures,
     emulated_config,
     ImuNoiseFigures,

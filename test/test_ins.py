@@ -14,10 +14,10 @@ from rosbags.highlevel import AnyReader
 
 from qfa_ros.bag.imu_series import read_imu
 from qfa_ros.cli import sim
-from qfa_ros.model import trajectories as tr
+from qfa_ros.model import motion_scripts as tr
 from qfa_ros.model.drawn_unit import draw_unit
+from qfa_ros.model.error_profiles import ERROR_PROFILES, ideal_config, sensor_config
 from qfa_ros.model.error_truth import error_truth
-from qfa_ros.model.errors import ERROR_PROFILES, ideal_config, sensor_config
 from qfa_ros.model.geodetic import enu_to_geodetic
 from qfa_ros.model.gyro import GyroConfig
 from qfa_ros.model.noise import NoiseConfig

@@ -16,7 +16,7 @@ from statistics_helpers import allan_edf_flicker, allan_edf_white, assert_varian
 from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.cli.sim import static_sensor
 from qfa_ros.model import axis as axis_module
-from qfa_ros.model import kernel, trajectories
+from qfa_ros.model import kernel, motion_scripts
 from qfa_ros.model.allan import allan_deviation, allan_deviation_of_phase
 from qfa_ros.model.constants import MICRO_G, STANDARD_GRAVITY
 from qfa_ros.model.design import LinearLoop, matrix_exponential, pendulum_matrices
@@ -29,9 +29,9 @@ from qfa_ros.model.hardware import (
     loop_gains,
     nominal_gains,
 )
+from qfa_ros.model.input_profiles import SineProfile, StaticProfile, StepProfile, tumble_profile
 from qfa_ros.model.noise import allan_deviation_model, NoiseConfig
 from qfa_ros.model.parallel import run_chains
-from qfa_ros.model.profiles import SineProfile, StaticProfile, StepProfile, tumble_profile
 from qfa_ros.model.thermal import ThermalConfig, ThermalModel
 from qfa_ros.model.triad import FLAG_DA2_CLIPPED, FLAG_OVER_RANGE, QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
@@ -344,7 +344,7 @@ def test_many_small_runs_keep_no_memory():
 @functools.cache
 def accelerating_drive():
     """Return the vehicle drive shifted to accelerate at 0, built once (0.25 CPU-s), read only."""
-    return trajectories.vehicle_drive().shifted(-20.0)
+    return motion_scripts.vehicle_drive().shifted(-20.0)
 
 
 @pytest.mark.parametrize('source', ['static', 'sine', 'per-sample array', 'at rest on the Earth',
@@ -356,7 +356,7 @@ def test_threaded_axes_equal_the_serial_run(monkeypatch, source):
     monkeypatch.setattr(axis_module, 'SLICE_STEPS', 2000)
     profile = {
         'sine': lambda: SineProfile(37.0, amplitude=(0.2, -0.1, 0.3), offset=(0.0, 0.0, G)),
-        'at rest on the Earth': lambda: trajectories.static(45.0, roll=0.2),
+        'at rest on the Earth': lambda: motion_scripts.static(45.0, roll=0.2),
         'drive': accelerating_drive,
     }.get(source, lambda: None)()
     force = None
@@ -445,7 +445,7 @@ def test_a_static_profile_equals_the_same_force_given_as_an_array(given):
 
 def test_a_trajectory_at_rest_held_per_chunk_equals_it_given_per_sample():
     # Held over the chunk (one value for the loops), or given per sample: the same stream.
-    profile = trajectories.static(30.0, roll=0.3, pitch=-0.2)
+    profile = motion_scripts.static(30.0, roll=0.3, pitch=-0.2)
     config = TriadConfig(thermal=ThermalConfig(ambient_profile='constant'))
     expected = QfaTriad(config, rng=6, profile=profile)
     triad = QfaTriad(config, rng=6, profile=profile)
@@ -885,6 +885,7 @@ def test_docs_state_the_designed_controller_and_defaults():
     assert f'{triad.config.noise.bias_instability / MICRO_G:g} µg Allan floor' in text
     crossover, phase_margin, gain_margin, bandwidth = LinearLoop(
         hw, controller, triad.config.loop_rate_hz).margins()
-    assert f'phase margin | {phase_margin:.1f}°' in text
-    assert f'gain margin | {gain_margin:.1f} dB' in text
-    assert f'bandwidth | {bandwidth:.0f} Hz' in text
+    assert f'phase margin | {phase_margin:.2f}°' in text
+    assert f'gain margin | {gain_margin:.2f} dB' in text
+    assert f'bandwidth | {bandwidth:.1f} Hz' in text
+    assert f'crossover | {crossover:.2f} Hz' in text

@@ -13,9 +13,9 @@ a stranger:
   only while the managed node is unconfigured, the refusals naming the parameter;
 - tries the known attacks (:data:`ATTACKS`: writes outside ``output_dir``, where paths
   lead, unbounded recordings and schedules, a wide stamp window, a stranger's megabytes,
-  the files the operator names), each refused with a short reason naming the parameter and
-  telling no path it did not send; and where a unit runs, a recorder change whose effect
-  fails, refused and undone;
+  the files the operator names, the recordings' retention), each refused with a short
+  reason naming the parameter and telling no path it did not send; and where a unit runs,
+  a recorder change whose effect fails, refused and undone;
 - runs seeded hypothesis cases: one to three parameters set, nine in ten writable, to
   values in range, on and past the edges (sizes and lengths too), NaN, infinities, other
   types, long strings, arrays of up to 200 000 elements and paths of every kind (a secret
@@ -61,7 +61,7 @@ from rclpy.qos import (
 from sensor_msgs.msg import Imu
 from std_srvs.srv import SetBool, Trigger
 
-from qfa_ros.model.trajectories import CSV_COLUMNS, SCRIPTS
+from qfa_ros.model.motion_scripts import CSV_COLUMNS, SCRIPTS
 from qfa_ros.ros.parameter_table import PARAMETERS, SPECS
 
 CASES = int(os.environ.get('QFA_FUZZ_CASES', '160'))
@@ -133,6 +133,8 @@ def attacks(root, out):
         ('input.trajectory_file', str(root / 'motion.csv')),
         ('min_free_bytes', 0), ('sample_rate_hz', 10000.0), ('loop_rate_hz', 1.0e6),
         ('stream.lead_s', 1.0),
+        # The operator's retention: keeping nothing would delete the recordings.
+        ('recorder.keep_s', 1.0), ('recorder.keep_bytes', 1), ('recorder.keep_s', 0.0),
         ('recorder.max_bytes', 0), ('recorder.max_bytes', -1), ('recorder.max_bytes', 2 ** 62),
         ('recorder.max_duration_s', 0.0), ('recorder.max_duration_s', 1.0e9),
         ('recorder.max_duration_s', math.inf),
@@ -510,7 +512,8 @@ class Stranger:
         assert not problems, '\n'.join(problems)
         names = ['trace_dir', 'recorder.directory', 'recorder.max_bytes',
                  'estimation.feedback.cycles', 'output_dir', 'input.stamp_window_s',
-                 'input.steps.times_s', 'state_file']
+                 'input.steps.times_s', 'state_file', 'recorder.keep_s',
+                 'recorder.keep_bytes']
         start = self.start_values()
         assert self.client.get_parameters(names) == [start[name] for name in names]
         if configured:

@@ -83,7 +83,7 @@ def test_bad_values_are_rejected_with_a_reason(name, value, words):
 
 def test_default_sensor_carries_the_paper_error_sources_in_the_paper_room():
     # One sensor: the node's default triad has Ran et al.'s component temperature
-    # coefficients (qfa_ros.model.errors) and sits in the paper's wandering room.
+    # coefficients (qfa_ros.model.error_profiles) and sits in the paper's wandering room.
     # The drawn unit (Ran et al. 2019) brings its own I_ref and forward-chain coefficients.
     paper = make_triad(defaults())
     drift = paper.drift

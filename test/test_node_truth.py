@@ -15,7 +15,7 @@ from sensor_msgs.msg import Imu, NavSatFix
 from std_srvs.srv import SetBool, Trigger
 
 from qfa_ros.bag.qos import QOS_TRUTH
-from qfa_ros.model import trajectories, trajectory
+from qfa_ros.model import motion_scripts, trajectory
 from qfa_ros.model.constants import MICRO_G
 from qfa_ros.ros.parameter_table import PARAMETERS as PARAMETERS_TABLE
 from qfa_ros.ros.service_table import SERVICES
@@ -174,7 +174,7 @@ def test_error_truth_predicts_the_published_output(setup):
     # One truth per batch of samples (stream.batch_s 0.1 s: 20 in the 2 s) at most, never
     # one sample's twice; fewer when the machine starves the sensor thread.
     assert len(window) >= 5
-    static = trajectories.static(45.0, roll=ROLL, pitch=PITCH, yaw=YAW)
+    static = motion_scripts.static(45.0, roll=ROLL, pitch=PITCH, yaw=YAW)
     force = static.kinematics(np.zeros(1))['specific_force'][0]
     predicted = []
     for message in window:

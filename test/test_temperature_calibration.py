@@ -21,9 +21,9 @@ from qfa_ros.calibration.verification import verify_attitudes, verify_cycle
 from qfa_ros.cli.sim import main as sim_main
 from qfa_ros.model.constants import MICRO_G, STANDARD_GRAVITY
 from qfa_ros.model.drawn_unit import draw_unit
-from qfa_ros.model.errors import ErrorProfile
+from qfa_ros.model.error_profiles import ErrorProfile
+from qfa_ros.model.input_profiles import StaticProfile
 from qfa_ros.model.noise import NoiseConfig
-from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
@@ -269,3 +269,25 @@ def test_unit_218566_is_compensated_in_eight_attitudes_off_the_calibration_grid(
         dict(zip(verification.names, verification.zero_drift_p2p / MICRO_G))
     assert np.all(verification.scale_max <= 20e-6), verification.scale_error / 1e-6
     assert np.all(verification.scale_p2p <= 20e-6)
+
+
+@pytest.mark.parametrize('low_c, high_c, step_c', [(-40.0, 70.0, 15.0), (0.0, 10.0, 10.0),
+                                                   (-60.0, 125.0, 7.0)])
+def test_no_ambient_takes_a_program_past_its_stated_longest(low_c, high_c, step_c):
+    # An ambient exactly at low_c or high_c ends the way back on that temperature again:
+    # that plateau holds like any other, so every program stays within max_sensor_time_s
+    # (the bound the node holds a stranger's settings to). Before, it soaked as a third
+    # extreme, up to nine holds past the bound.
+    settings = TemperatureSettings(low_c=low_c, high_c=high_c, step_c=step_c, period_s=4500.0,
+                                   reference_steps=True)
+    tumble_s = len(POSITIONS) * settings.block_s
+    for ambient_c in (low_c - 5.0, low_c, (low_c + high_c) / 2, high_c, high_c + 5.0):
+        plateaus = settings.plateaus(ambient_c)
+        turning = settings.turning_points(plateaus)
+        assert sum(turning) == 2, ambient_c
+        assert plateaus[turning.index(True)] == low_c
+        assert turning[plateaus.index(high_c)]
+        hold = settings.period_s / len(plateaus)
+        longest = (2 * tumble_s + settings.max_soak_s
+                   + sum(settings.plateau_time_s(hold, extreme) for extreme in turning))
+        assert longest <= settings.max_sensor_time_s() + 1e-9, ambient_c

@@ -296,7 +296,7 @@ def test_units_draw_their_own_component_coefficients_from_their_own_stream():
     # Issue 28: the I_ref and forward-chain temperature coefficients are per unit (the
     # estimators measure unknowns), drawn from their own stream: no other draw moved.
     from qfa_ros.model.drawn_unit import draw_unit, FORWARD_TC_COMPONENTS, UnitSpread
-    from qfa_ros.model.errors import ErrorProfile
+    from qfa_ros.model.error_profiles import ErrorProfile
     from qfa_ros.model.triad import QfaTriad
     from qfa_ros.model.triad_config import TriadConfig
     units = [draw_unit(seed) for seed in range(200)]

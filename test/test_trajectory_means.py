@@ -4,7 +4,7 @@ import numpy as np
 from numpy.testing import assert_allclose
 import pytest
 
-from qfa_ros.model import earth, trajectories, trajectory
+from qfa_ros.model import earth, motion_scripts, trajectory
 from qfa_ros.model.trajectory_means import (
     FAST_REACH,
     FORCE_TOLERANCE,
@@ -37,16 +37,16 @@ def reference_means(motion, start, period, n):
 
 def csv_drive(tmp_path):
     path = tmp_path / 'drive.csv'
-    trajectories.save_csv(path, trajectories.vehicle_drive().shifted(0.0), rate_hz=100.0)
-    return trajectories.load_csv(path)
+    motion_scripts.save_csv(path, motion_scripts.vehicle_drive().shifted(0.0), rate_hz=100.0)
+    return motion_scripts.load_csv(path)
 
 
 MOTIONS = {
-    'drive': trajectories.vehicle_drive,
-    'coning': lambda: trajectories.coning(duration_s=2.0),
-    'sculling': lambda: trajectories.sculling(duration_s=2.0),
-    'rate-table': trajectories.rate_table_turn,
-    'tumble': trajectories.six_position_tumble,
+    'drive': motion_scripts.vehicle_drive,
+    'coning': lambda: motion_scripts.coning(duration_s=2.0),
+    'sculling': lambda: motion_scripts.sculling(duration_s=2.0),
+    'rate-table': motion_scripts.rate_table_turn,
+    'tumble': motion_scripts.six_position_tumble,
 }
 
 
@@ -70,20 +70,20 @@ def test_sample_means_are_the_exact_means(name, tmp_path):
 
 
 def test_sample_means_do_not_depend_on_chunking():
-    motion = trajectories.vehicle_drive()
+    motion = motion_scripts.vehicle_drive()
     start, period = 29.9876, 1e-3
     force, rate = motion.sample_means(start, period, 2000)
-    again = trajectories.vehicle_drive()
+    again = motion_scripts.vehicle_drive()
     parts = [again.sample_means(start + k * 500 * period, period, 500) for k in range(4)]
     assert_allclose(np.concatenate([p[0] for p in parts]), force, rtol=0, atol=1e-12)
     assert_allclose(np.concatenate([p[1] for p in parts]), rate, rtol=0, atol=1e-15)
-    repeat = trajectories.vehicle_drive().sample_means(start, period, 2000)
+    repeat = motion_scripts.vehicle_drive().sample_means(start, period, 2000)
     assert np.array_equal(repeat[0], force) and np.array_equal(repeat[1], rate)
 
 
 def test_a_long_dwell_keeps_its_precision():
     # A 600 s dwell: 1 ms samples on one long segment, near its end.
-    motion = trajectories.six_position_tumble(dwell_s=600.0)
+    motion = motion_scripts.six_position_tumble(dwell_s=600.0)
     start = motion.start + 599.5
     force, rate = motion.sample_means(start, 1e-3, 200)
     expected_force, expected_rate = reference_means(motion, start, 1e-3, 200)
@@ -110,9 +110,9 @@ def test_mean_polynomials_equal_the_integrals(name):
     # 8-point reference agree with them, also on a 600 s dwell and a 1000 s piece.
     period, n = 1e-3, 200
     if name == 'drive':
-        motion, start = trajectories.vehicle_drive(), 30.0103
+        motion, start = motion_scripts.vehicle_drive(), 30.0103
     elif name == 'dwell':
-        motion = trajectories.six_position_tumble(dwell_s=600.0)
+        motion = motion_scripts.six_position_tumble(dwell_s=600.0)
         start = motion.start + 599.7
     else:
         motion = straight_drive()

@@ -16,7 +16,7 @@ import pytest
 from qfa_ros.calibration.estimation import capture_reference
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
-from qfa_ros.model import safe_files, trajectories
+from qfa_ros.model import motion_scripts, safe_files
 from qfa_ros.model.hardware import AxisHardware, nominal_gains
 from qfa_ros.model.safe_files import read_regular_file, UntrustedFileError, write_atomically
 from qfa_ros.model.triad import NS_PER_S
@@ -33,8 +33,8 @@ from qfa_ros.ros.bounds import (
     MAX_SCHEDULE_LOOP_STEPS,
     SETTLE_TIME_S,
 )
-from qfa_ros.ros.calibration import CalibrationKeeper
-from qfa_ros.ros.ground_truth import GroundTruthInput
+from qfa_ros.ros.calibration_keeper import CalibrationKeeper
+from qfa_ros.ros.input_queue import GroundTruthInput
 from qfa_ros.ros.model_settings import (
     input_profile,
     load_trajectory_file,
@@ -131,11 +131,11 @@ def test_a_directory_swapped_for_a_symlink_after_resolving_is_not_followed(tmp_p
 
 @pytest.mark.parametrize('content, expected', [
     (f'{SECRET}\n0,45,0,0,0,0,0\n', 'first line must be the header'),
-    (','.join(trajectories.CSV_COLUMNS) + f'\n0,45,0,0,0,0,0\n1,{SECRET},0,0,0,0\n',
+    (','.join(motion_scripts.CSV_COLUMNS) + f'\n0,45,0,0,0,0,0\n1,{SECRET},0,0,0,0\n',
      '7 comma-separated numbers'),
-    (','.join(trajectories.CSV_COLUMNS) + '\n0,45,0,0,0,0,0\n1,95.123456,0,0,0,0,0\n',
+    (','.join(motion_scripts.CSV_COLUMNS) + '\n0,45,0,0,0,0,0\n1,95.123456,0,0,0,0,0\n',
      'row 2: latitude, longitude or height out of range'),
-    (','.join(trajectories.CSV_COLUMNS) + '\n0,45,0,0,0,0,0\n', 'at least two rows'),
+    (','.join(motion_scripts.CSV_COLUMNS) + '\n0,45,0,0,0,0,0\n', 'at least two rows'),
     (b'\xff\xfe' + SECRET.encode(), 'not UTF-8'),
 ])
 def test_a_bad_trajectory_file_is_refused_without_quoting_it(tmp_path, content, expected):
@@ -148,7 +148,7 @@ def test_a_bad_trajectory_file_is_refused_without_quoting_it(tmp_path, content, 
 
 def test_the_trajectory_file_is_read_once_at_start_and_never_by_a_check(tmp_path):
     path = tmp_path / 'turn.csv'
-    trajectories.save_csv(path, trajectories.rate_table_turn(turns=1, dwell_s=2.0, ramp_s=2.0),
+    motion_scripts.save_csv(path, motion_scripts.rate_table_turn(turns=1, dwell_s=2.0, ramp_s=2.0),
                           rate_hz=20.0)
     values = defaults(**{'input.trajectory_file': str(path), 'input.mode': 'trajectory',
                          'input.trajectory': 'file'})

@@ -65,10 +65,16 @@ class BagMetadata:
     allocator that keeps them: the node's RSS grew with the bag). Here each file's
     ``relative_file_paths`` line and ``files`` entry are rendered once, when the file is
     added, and only the head (counts, time span, topics) is rendered again; the two lists
-    come last in the mapping, which readers take by key (rosbag2, rosbags).
+    come last in the mapping, which readers take by key (rosbag2, rosbags). Retention
+    removes the oldest files again (:meth:`remove`), from the recorder's own metadata or
+    from one read back (:meth:`from_mapping`).
 
-    :param custom_data: rosbag2 ``custom_data`` (mapping), or None.
-    :param ros_distro: The distribution named in the document.
+    Parameters
+    ----------
+    custom_data : mapping, optional
+        rosbag2 ``custom_data``.
+    ros_distro : str
+        The distribution named in the document.
     """
 
     def __init__(self, custom_data=None, ros_distro=ROS_DISTRO):
@@ -82,10 +88,57 @@ class BagMetadata:
         self._files = []
         self._rendered = {'relative_file_paths': [], 'files': []}
 
+    @classmethod
+    def from_mapping(cls, information):
+        """
+        Return the metadata a ``metadata.yaml`` holds (its ``rosbag2_bagfile_information``).
+
+        Parameters
+        ----------
+        information : mapping
+            The document's ``rosbag2_bagfile_information``, as ``yaml.safe_load`` gives it.
+
+        Returns
+        -------
+        BagMetadata
+            Its files (with their rendered lines), topics and counts, to remove files from.
+
+        Raises
+        ------
+        ValueError
+            It is not rosbag2 bag metadata as :meth:`text` writes it (a field missing or of
+            another type, ``files`` and ``relative_file_paths`` not alike).
+        """
+        try:
+            metadata = cls(information['custom_data'], str(information['ros_distro']))
+            files = [(str(entry['path']), int(entry['starting_time']['nanoseconds_since_epoch']),
+                      int(entry['duration']['nanoseconds']), int(entry['message_count']))
+                     for entry in information['files']]
+            topics = [(dict(item['topic_metadata']), int(item['message_count']))
+                      for item in information['topics_with_message_count']]
+            listed = [str(path) for path in information['relative_file_paths']]
+        except (KeyError, TypeError, ValueError, AttributeError) as error:
+            raise ValueError(f'not rosbag2 bag metadata ({type(error).__name__}: {error})') \
+                from None
+        if listed != [path for path, _, _, _ in files]:
+            raise ValueError('relative_file_paths and files differ')
+        for path, start, duration, count in files:
+            metadata.add({'files': [file_entry(path, start, duration, count)],
+                          'topics_with_message_count': []})
+        for topic_metadata, count in topics:
+            metadata._topics[str(topic_metadata.get('name'))] = {
+                'topic_metadata': topic_metadata, 'message_count': count}
+        return metadata
+
     @property
     def file_names(self):
         """Return the names of the files added, in order."""
         return [path for path, _, _, _ in self._files]
+
+    @property
+    def files(self):
+        """Return ``(name, start [ns], duration [ns], message count)`` of each file, in order."""
+        return list(self._files)
 
     def add(self, file_metadata):
         """Add a finished file: its own metadata (:meth:`McapBagWriter.bag_metadata`)."""
@@ -105,6 +158,40 @@ class BagMetadata:
             self._topics.setdefault(item['topic_metadata']['name'], {
                 'topic_metadata': dict(item['topic_metadata']), 'message_count': 0,
             })['message_count'] += item['message_count']
+
+    def remove(self, name, file_metadata):
+        """
+        Remove the file ``name``: its entry, its messages and its topics' counts.
+
+        Parameters
+        ----------
+        name : str
+            A file listed.
+        file_metadata : mapping
+            The file's own metadata (:meth:`McapBagWriter.bag_metadata`, or its summary's:
+            ``part_repair.finished_file_metadata``): what its topics count is subtracted;
+            a topic left with no message is no longer listed.
+
+        Raises
+        ------
+        ValueError
+            ``name`` is not listed.
+        """
+        index = self.file_names.index(name)
+        del self._files[index]
+        for rendered in self._rendered.values():
+            del rendered[index]
+        self._message_count = sum(count for _, _, _, count in self._files)
+        spans = [(start, start + duration) for _, start, duration, count in self._files
+                 if count]
+        self._start = min(start for start, _ in spans) if spans else None
+        self._end = max(end for _, end in spans) if spans else None
+        for item in file_metadata['topics_with_message_count']:
+            topic = item['topic_metadata']['name']
+            if topic in self._topics:
+                self._topics[topic]['message_count'] -= item['message_count']
+                if self._topics[topic]['message_count'] <= 0:
+                    del self._topics[topic]
 
     def _head(self):
         start = self._start or 0

@@ -8,7 +8,12 @@ import threading
 import time
 
 from qfa_ros.bag.bag_directory import BagMetadata, default_bag_name, split_file_name
-from qfa_ros.bag.part_files import lock_exclusively, os_error_with_context, RecorderError
+from qfa_ros.bag.part_files import (
+    delete_finished_file,
+    lock_exclusively,
+    os_error_with_context,
+    RecorderError,
+)
 from qfa_ros.bag.types import as_time_ns, canonical_type, definition_of
 from qfa_ros.bag.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE, McapBagWriter
 from qfa_ros.model.safe_files import fsync_directory
@@ -156,6 +161,63 @@ class FlightRecorder:
         """Final path of the file being written, or None between files."""
         return None if self._writer is None else self._writer.path
 
+    def finished_entries(self):
+        """
+        Return what retention counts of this recording: its finished files, oldest first.
+
+        Returns
+        -------
+        tuple
+            The bag directory's name (None before the first file), ``(name, start [ns],
+            duration [ns], message count)`` of each finished file, and the first message
+            of the file being written [ns] (None between files).
+        """
+        with self._lock:
+            name = None if self.bag_directory is None else self.bag_directory.name
+            start = None if self._writer is None else self._file_start_ns
+            return name, self._metadata.files, start
+
+    def delete_finished(self, name):
+        """
+        Delete the finished file ``name`` crash-safely (retention); never the file being written.
+
+        Its summary is read first (its topics' counts leave ``metadata.yaml``), then
+        :func:`~qfa_ros.bag.part_files.delete_finished_file` marks, unlists and unlinks it.
+
+        Parameters
+        ----------
+        name : str
+            A finished file of this recording.
+
+        Returns
+        -------
+        bool
+            Whether it was deleted: False once the recorder is closed (its bag is then an
+            earlier session's) or ``name`` is not a finished file of it.
+
+        Raises
+        ------
+        OSError
+            The deletion failed half way; what is on disk is a bag a recovery completes.
+        """
+        # Imported here: the recorder's own writing needs no summary reader.
+        from qfa_ros.bag.part_repair import finished_file_metadata
+
+        with self._lock:
+            if self._closed or name not in self._metadata.file_names:
+                return False
+            path = self.bag_directory / name
+        own = finished_file_metadata(path, recorder_only=True)
+        with self._lock:
+            if self._closed or name not in self._metadata.file_names:
+                return False
+
+            def unlist():
+                self._metadata.remove(name, own)
+                self._metadata.write(self.bag_directory)
+            delete_finished_file(self._directory_lock, name, unlist)
+            return True
+
     def record(self, topic, msgtype, data, time_ns):
         """Record one serialized message, starting a new file first if a limit is reached.
 
@@ -235,14 +297,22 @@ class FlightRecorder:
             except OSError as error:
                 raise os_error_with_context(error, 'cannot create bag directory', path) from None
             # Locked before any file is in it: a recovery that finds it unlocked finds it
-            # empty (and leaves it so).
-            descriptor = os.open(path, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW
-                                 | os.O_CLOEXEC)
+            # empty (and leaves it so); retention may have removed it meanwhile, as a bag
+            # left without a file (then the next name).
+            try:
+                descriptor = os.open(path, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW
+                                     | os.O_CLOEXEC)
+            except FileNotFoundError:
+                continue
             try:
                 lock_exclusively(descriptor, wait=True)
+                removed = os.fstat(descriptor).st_nlink == 0
             except BaseException:
                 os.close(descriptor)
                 raise
+            if removed:
+                os.close(descriptor)
+                continue
             self._directory_lock = descriptor
             fsync_directory(self.directory)
             self.bag_directory = path

@@ -114,7 +114,10 @@ def decode_imu(messages):
     stream whose ``header.frame_id`` keeps one length (every message of a stream from
     one sensor): the fields are read at their offsets with numpy, not message by message.
 
-    :raises ValueError: a message is not little-endian CDR or differs in size.
+    Raises
+    ------
+    ValueError
+        a message is not little-endian CDR or differs in size.
     """
     messages = list(messages)
     if not messages:

@@ -25,7 +25,10 @@ def read_imu(path, topic='/imu/data_raw'):
     sorted once: mcap's log-time merge costs 1.6x the CPU per message, 2.7 against
     1.7 CPU-s for a two-minute 1 kHz bag).
 
-    :raises ValueError: ``path`` is no regular MCAP file, is malformed, or ``topic`` is not
+    Raises
+    ------
+    ValueError
+        ``path`` is no regular MCAP file, is malformed, or ``topic`` is not
         ``sensor_msgs/msg/Imu``; the message names the file, never quotes it.
     """
     parts = []

@@ -7,7 +7,10 @@ it is written, so that no recovery (:mod:`qfa_ros.bag.recovery`) touches a file 
 is still writing; :func:`make_durable` fsyncs what was written so far without any lock of
 the writer's; :func:`publish_part` gives a finished file its final name without replacing
 anything; :func:`fsync_directory` makes that rename durable. What a crash leaves in a
-``.part`` is finished by :mod:`qfa_ros.bag.recovery`.
+``.part`` is finished by :mod:`qfa_ros.bag.recovery`. :func:`delete_finished_file` takes a
+finished file out of its bag directory (retention) so that a kill at any instant leaves
+the bag readable, and what it leaves half done is finished by the same recovery
+(:func:`finish_deletion`).
 """
 
 import errno
@@ -20,6 +23,8 @@ from qfa_ros.model.safe_files import write_atomically
 PART_SUFFIX = '.part'
 METADATA_FILE = 'metadata.yaml'
 """A rosbag2 bag directory's metadata file."""
+DELETION_SUFFIX = '.deleting'
+"""``NAME.mcap.deleting`` beside ``NAME.mcap``: the file is being deleted (retention)."""
 
 
 class RecorderError(OSError):
@@ -154,3 +159,51 @@ def write_text_atomically(path, text):
             part.encode('utf-8') for part in parts))
     except OSError as error:
         raise os_error_with_context(error, f'cannot write {path.name}', path) from None
+
+
+def delete_finished_file(directory_fd, name, unlist):
+    """
+    Delete the finished file ``name`` of a bag directory so that a kill leaves the bag whole.
+
+    The order: (1) the empty marker ``NAME.deleting`` is created and the directory
+    fsynced, so from here on the deletion is recorded on disk; (2) ``unlist()`` replaces
+    ``metadata.yaml`` atomically by one without the file; (3) the file, then the marker,
+    are unlinked. ``metadata.yaml`` therefore lists only
+    files that exist at every instant (rosbag2 and rosbags open the bag, every listed file
+    complete), and a kill after (1) leaves the marker, which makes the directory one that
+    needs recovery (:func:`qfa_ros.bag.recovery.needs_recovery`); the recovery finishes
+    the deletion (:func:`finish_deletion`) and lists what remains. Nothing is followed:
+    the names are taken in ``directory_fd``, the marker opened with ``O_NOFOLLOW``.
+
+    Parameters
+    ----------
+    directory_fd : int
+        The bag directory, open (``O_DIRECTORY | O_NOFOLLOW``).
+    name : str
+        The finished file's name, e.g. ``NAME_3.mcap``.
+    unlist : callable
+        Rewrites ``metadata.yaml`` without ``name``, atomically and durably.
+
+    Raises
+    ------
+    OSError
+        The marker could not be made, or ``unlist`` failed: the file is still listed,
+        or it is unlisted and its marker stays for a recovery to finish.
+    """
+    marker = name + DELETION_SUFFIX
+    os.close(os.open(marker, os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644,
+                     dir_fd=directory_fd))
+    os.fsync(directory_fd)
+    unlist()
+    finish_deletion(directory_fd, marker)
+    # No fsync here: were the two unlinks lost in a power cut, the marker and the unlisted
+    # file are what (1) and (2) left, which a recovery finishes.
+
+
+def finish_deletion(directory_fd, marker):
+    """Unlink the file a deletion marker names, if still there, then the marker (no symlink)."""
+    try:
+        os.unlink(marker[:-len(DELETION_SUFFIX)], dir_fd=directory_fd)
+    except FileNotFoundError:
+        pass
+    os.unlink(marker, dir_fd=directory_fd)

@@ -57,7 +57,7 @@ from qfa_ros.bag.part_scan import (
     scan_part,
 )
 from qfa_ros.bag.qos import dump_yaml
-from qfa_ros.bag.writer import file_bag_metadata
+from qfa_ros.bag.writer import file_bag_metadata, LIBRARY
 from qfa_ros.model.safe_files import fsync_directory
 
 __all__ = [
@@ -310,17 +310,44 @@ def recover_part(part, should_stop=None):
     return result
 
 
-def finished_file_metadata(path):
-    """Return the rosbag2 metadata of a finished MCAP file, from its summary."""
+def finished_file_metadata(path, recorder_only=False):
+    """
+    Return the rosbag2 metadata of a finished MCAP file, from its summary.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The file (a symlink is not followed).
+    recorder_only : bool
+        Refuse a file whose MCAP header does not name this package's writer
+        (``McapBagWriter``: its library ends in ``qfa_ros recorder``).
+
+    Returns
+    -------
+    dict
+        ``file_bag_metadata`` of the file: its topics, counts and time span.
+
+    Raises
+    ------
+    NotRecoverableError
+        Not a regular file, no readable summary, or (``recorder_only``) another writer's.
+    OSError
+        It cannot be opened.
+    """
     descriptor = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK)
     with os.fdopen(descriptor, 'rb') as stream:
         if not stat.S_ISREG(os.fstat(stream.fileno()).st_mode):
             raise NotRecoverableError('not a regular file')
         try:
-            summary = SeekingReader(stream, record_size_limit=MAX_RECORD_BYTES).get_summary()
+            reader = SeekingReader(stream, record_size_limit=MAX_RECORD_BYTES)
+            library = reader.get_header().library
+            summary = reader.get_summary()
         except Exception as error:  # mcap raises several kinds on a file it cannot read
             raise NotRecoverableError(f'its summary cannot be read ({type(error).__name__})') \
                 from None
+    # The writer's own name ends the library (the versions before it may change).
+    if recorder_only and not library.endswith(LIBRARY.rpartition('; ')[2]):
+        raise NotRecoverableError('not written by the qfa_ros recorder')
     if summary is None or summary.statistics is None:
         raise NotRecoverableError('it has no summary statistics')
     statistics = summary.statistics

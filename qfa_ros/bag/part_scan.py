@@ -289,18 +289,7 @@ def scan_part(stream, should_stop=None):
             _take(scan, group, rebuild=False)
             group = None
         if opcode == Opcode.CHUNK:
-            chunk, data = record
-            # Metadata between chunks stays where it is.
-            scan.kept_metadata += [MetadataIndex(offset, length, metadata.name)
-                                   for offset, length, metadata in scan.trailing_metadata]
-            scan.trailing_metadata = []
-            group = _Group(ChunkIndex(
-                message_start_time=chunk.message_start_time,
-                message_end_time=chunk.message_end_time,
-                chunk_start_offset=start, chunk_length=9 + len(body),
-                message_index_offsets={}, message_index_length=0,
-                compression=chunk.compression, compressed_size=len(chunk.data),
-                uncompressed_size=chunk.uncompressed_size), data, end=position)
+            group = _open_group(scan, record, start, position)
         elif opcode == Opcode.METADATA:
             scan.trailing_metadata.append((start, 9 + len(body), record))
         else:  # a schema or channel outside chunks
@@ -310,6 +299,36 @@ def scan_part(stream, should_stop=None):
         # Cut by the kill: the chunk is whole (checked), its message indexes perhaps not.
         _take(scan, group, rebuild=True)
     return scan
+
+
+def _open_group(scan, record, start, end):
+    """
+    Return the group a chunk record opens; the metadata before it stays where it is.
+
+    Parameters
+    ----------
+    scan : PartScan
+        The scan so far.
+    record : tuple
+        The chunk as :func:`_parse` returns it: ``(Chunk, decompressed records)``.
+    start, end : int
+        The chunk record's first byte and the byte after it in the file.
+
+    Returns
+    -------
+    _Group
+    """
+    chunk, data = record
+    scan.kept_metadata += [MetadataIndex(offset, length, metadata.name)
+                           for offset, length, metadata in scan.trailing_metadata]
+    scan.trailing_metadata = []
+    return _Group(ChunkIndex(
+        message_start_time=chunk.message_start_time,
+        message_end_time=chunk.message_end_time,
+        chunk_start_offset=start, chunk_length=end - start,
+        message_index_offsets={}, message_index_length=0,
+        compression=chunk.compression, compressed_size=len(chunk.data),
+        uncompressed_size=chunk.uncompressed_size), data, end=end)
 
 
 def _parse(opcode, body, in_group):

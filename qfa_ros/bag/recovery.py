@@ -23,7 +23,13 @@ import os
 from pathlib import Path
 import re
 
-from qfa_ros.bag.part_files import lock_exclusively, METADATA_FILE, PART_SUFFIX
+from qfa_ros.bag.part_files import (
+    DELETION_SUFFIX,
+    finish_deletion,
+    lock_exclusively,
+    METADATA_FILE,
+    PART_SUFFIX,
+)
 
 __all__ = [
     'MAX_ENTRIES',
@@ -97,17 +103,26 @@ def _split_files(directory, entries):
     return files
 
 
+def _deletions(directory, entries):
+    """Return the deletion markers (``NAME_i.mcap.deleting``) of a bag's files."""
+    pattern = re.compile(rf'^{re.escape(directory.name)}_\d+\.mcap{re.escape(DELETION_SUFFIX)}$')
+    return [entry.name for entry in entries
+            if pattern.match(entry.name) and entry.is_file(follow_symlinks=False)]
+
+
 def needs_recovery(directory):
     """
     Return whether bag directory ``directory`` was left unfinished by a kill.
 
-    True when it holds a ``.part`` file or a half-written ``metadata.yaml``, or finished
-    files that ``metadata.yaml`` cannot list (missing, or older than the newest file).
-    Only ``stat`` calls: no file is read.
+    True when it holds a ``.part`` file, a half-written ``metadata.yaml`` or a deletion
+    marker (retention killed while deleting a file), or finished files that
+    ``metadata.yaml`` cannot list (missing, or older than the newest file). Only ``stat``
+    calls: no file is read.
     """
     directory = Path(directory)
     entries = _entries(directory)
-    if any(METADATA_LEFTOVER_RE.match(entry.name) for entry in entries):
+    if any(METADATA_LEFTOVER_RE.match(entry.name) for entry in entries) \
+            or _deletions(directory, entries):
         return True
     files = _split_files(directory, entries)
     if any(part for _, part in files.values()):
@@ -126,10 +141,12 @@ def recover_bag_directory(directory, should_stop=None):
     """
     Recover a flight-recorder bag directory left unfinished; return a :class:`Recovery`.
 
-    Every ``.part`` is finished (:func:`recover_part`), a half-written ``metadata.yaml``
-    removed, and ``metadata.yaml`` rewritten listing every finished file with counts from
-    the files' own summaries. A directory locked by a live recorder is left alone
-    (``in use``); one that needs nothing is not touched (``nothing to recover``).
+    A deletion retention began is finished (the file its marker names deleted:
+    :func:`~qfa_ros.bag.part_files.finish_deletion`), every ``.part`` finished
+    (:func:`recover_part`), a half-written ``metadata.yaml`` removed, and ``metadata.yaml``
+    rewritten listing every finished file with counts from the files' own summaries. A
+    directory locked by a live recorder is left alone (``in use``); one that needs nothing
+    is not touched (``nothing to recover``).
     """
     # Imported here: finding what to recover needs no MCAP package (the node's start).
     from qfa_ros.bag.bag_directory import merge_bag_metadata, write_bag_metadata
@@ -159,6 +176,13 @@ def recover_bag_directory(directory, should_stop=None):
             result.status = 'nothing to recover'
             return result
         entries = _entries(directory)
+        deletions = _deletions(directory, entries)
+        for marker in deletions:
+            finish_deletion(descriptor, marker)
+        if deletions:
+            result.problem = (f'finished deleting {len(deletions)} file(s) retention was '
+                              'deleting')
+            entries = _entries(directory)
         for entry in entries:
             if METADATA_LEFTOVER_RE.match(entry.name) and entry.is_file(follow_symlinks=False):
                 os.unlink(directory / entry.name)
@@ -247,8 +271,11 @@ def recover(path, should_stop=None, depth=2):
     directory holding them, ``depth`` levels down: ``recorder.directory``, ``trace_dir``
     or ``output_dir``. A symlink given here is followed; none found inside is.
 
-    :raises OSError: ``path`` is missing, another file than a ``.mcap.part``, or neither a
-        regular file nor a directory.
+    Raises
+    ------
+    OSError
+        ``path`` is missing, another file than a ``.mcap.part``, or neither a regular file
+        nor a directory.
     """
     path = Path(path).resolve()
     if path.is_file():

@@ -12,8 +12,9 @@ import math
 
 import numpy as np
 
+from qfa_ros.model.checks import is_finite
 from qfa_ros.model.constants import STANDARD_GRAVITY
-from qfa_ros.model.profiles import StaticProfile
+from qfa_ros.model.input_profiles import StaticProfile
 
 DIAGONAL = np.ones(3) / math.sqrt(3.0)
 """Fixture axis: every sensor axis at 54.7 deg from vertical, g / sqrt(3) each."""
@@ -28,7 +29,7 @@ def idle(triad, seconds, step_s=10.0):
     follow the new temperature from the next run. Used for soaks and for the hours
     between experiments, which would otherwise cost 10 kHz loop steps.
     """
-    if not math.isfinite(seconds) or seconds < 0:
+    if not is_finite(seconds) or seconds < 0:
         raise ValueError(f'seconds must be >= 0, got {seconds!r}')
     if triad.thermal is None or seconds == 0:
         return
@@ -55,7 +56,7 @@ class ChamberBench:
     def __init__(self, triad, gravity=STANDARD_GRAVITY):
         if triad.thermal is None:
             raise ValueError('triad must have a thermal model for a chamber')
-        if not math.isfinite(gravity) or gravity <= 0:
+        if not is_finite(gravity) or gravity <= 0:
             raise ValueError(f'gravity must be positive, got {gravity!r}')
         self._triad = triad
         self.gravity = float(gravity)

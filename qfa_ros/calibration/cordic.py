@@ -9,23 +9,23 @@ towards minus infinity, as a hardware shifter does.
 Datapath (``M`` = ``m_bits``, ``N`` = ``n_bits``, ``G`` = ``guard_bits``, ``W = M + G``):
 
 1. input word ``z_q = z * 2^M``, signed, ``N + M + 1`` bits, ``z`` in ``[-2^N, 2^N)``;
-2. first multiplier (seed eq. 8): ``A = z_q * C_INV_LN2`` with
+2. first multiplier (eq. 8): ``A = z_q * C_INV_LN2`` with
    ``C_INV_LN2 = round(2^W / ln 2)`` (``W + 1`` bits), so ``A = z / ln 2 * 2^(M + W)``
    in ``N + 2M + G + 2`` bits plus sign; ``Q = A >> (M + W)`` is the integer part
-   (floor), ``F = A[M + W - 1 : M]`` the first ``W`` fraction bits (seed: ``decimal_M``);
-3. second multiplier (seed eq. 9): ``theta0_q = (F * C_LN2) >> W`` with
+   (floor), ``F = A[M + W - 1 : M]`` the first ``W`` fraction bits (the paper's ``decimal_M``);
+3. second multiplier (eq. 9): ``theta0_q = (F * C_LN2) >> W`` with
    ``C_LN2 = round(ln 2 * 2^W)``, so ``theta0 = theta0_q / 2^W`` lies in ``[0, ln 2)``,
    inside the convergence range of the hyperbolic CORDIC (about 1.118);
 4. hyperbolic CORDIC in rotation mode on ``W``-fraction-bit registers, shift indices
    ``1 .. iterations`` with 4, 13, 40, ... executed twice, ``X_1 = Y_1 = round(2^W / K)``
    where ``K`` is the gain product of exactly the iterations executed (it tends to
    ``K_h = 0.8281593609602``) and the angle table ``round(atanh(2^-i) * 2^W)``.  With
-   ``X_1 = Y_1`` the two registers stay equal, ``X_n = Y_n = e^theta0 * 2^W`` (seed eq. 5),
+   ``X_1 = Y_1`` the two registers stay equal, ``X_n = Y_n = e^theta0 * 2^W`` (eq. 5),
    so a single register is carried;
-5. range extension (seed eq. 6): ``e^z = 2^Q * e^theta0``.
+5. range extension (eq. 6): ``e^z = 2^Q * e^theta0``.
 
 ``guard_bits`` widens the internal words beyond the input/output scale ``2^M``.  With
-``guard_bits = 0`` the datapath is the seed's (constants quantized to ``M`` bits); the
+``guard_bits = 0`` the datapath is the paper's (constants quantized to ``M`` bits); the
 error of ``C_INV_LN2`` is then multiplied by ``|z|`` and reaches about 0.031 % at
 ``M = 16``, ``|z| = 64``, which is why the default carries 4 guard bits.
 
@@ -113,11 +113,11 @@ def _check_int(name, value, low, high):
 
 class CordicExp:
     r"""
-    Fixed-point ``e^z`` by hyperbolic CORDIC with the seed's range extension.
+    Fixed-point ``e^z`` by hyperbolic CORDIC with Liu, Li and Shen's range extension.
 
     ``e^z = 2^Q * e^theta0`` with ``z = Q ln 2 + theta0``, ``Q`` integer and
-    ``theta0`` in ``[0, ln 2)`` obtained from two multipliers on ``z * 2^M`` (seed
-    eq. 7-9); ``e^theta0`` by hyperbolic CORDIC (seed eq. 4-5).  See the module
+    ``theta0`` in ``[0, ln 2)`` obtained from two multipliers on ``z * 2^M`` (eq.
+    7-9); ``e^theta0`` by hyperbolic CORDIC (eq. 4-5).  See the module
     docstring for the word widths and the rounding of every constant.
 
     Parameters
@@ -208,7 +208,7 @@ class CordicExp:
         return z_q
 
     def reduce(self, z_q):
-        """Return ``(Q, theta0_q)`` with ``z ~= Q ln 2 + theta0_q / 2^W`` (seed eq. 8-9)."""
+        """Return ``(Q, theta0_q)`` with ``z ~= Q ln 2 + theta0_q / 2^W`` (eq. 8-9)."""
         z_q = self._check_input(z_q)
         w = self.work_bits
         product = z_q * self.inv_ln2_q

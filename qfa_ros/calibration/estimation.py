@@ -17,8 +17,10 @@ import numpy as np
 from qfa_ros.calibration.schedule import (
     EstimationError,
     EstimationResult,
+    Phase,
     require_closed,
     SensorPort,
+    stage,
 )
 from qfa_ros.model.checks import is_finite
 from qfa_ros.model.constants import MICRO_G, PPM
@@ -134,23 +136,33 @@ class FeedbackSettings:
 
 
 FORWARD_MATCHED = ()
-"""Forward settings an estimate must share with its reference: none. The open-loop chain
-has no transient that outlasts a sample, so points, step, settle, averaging time and order
-move a drift-free estimate by less than 0.1 ppm (``bench/results/schedule_settings.md``); the loop
-rate must match (the forward gain of k(D(z)) is per loop step: +4086 ppm at twice the
-rate)."""
+"""Forward settings an estimate must share with its reference: none.
+
+The open-loop chain has no transient that outlasts a sample; only the loop rate must match
+(the forward gain of k(D(z)) is per loop step). Measured:
+``bench/results/schedule_settings.md``."""
 FEEDBACK_MATCHED = ('settle_s', 'average_s', 'order')
-"""Feedback settings an estimate must share with its reference: a segment mean includes
-what is left of the closed loop's transient after an I_ref switch (about 1700 ppm of the
-step 20 ms after it, decaying with about 5 ms), so the step depends on the settle and
-averaging times and on the share of segments that follow a switch (the order); a reference
-at 0.28 s and an estimate at 1.12 s read +25 ppm. ``cycles`` must match too in the
-``single`` order (its first segment follows no switch, so the share depends on the count;
-in the ``chopped`` order it is a half for every count). ``motion_limit``,
-``bias_instability`` and ``temperature_correction`` change refusals, the standard error or
-the correction for the temperature, not what the step measures."""
+"""Feedback settings an estimate must share with its reference.
+
+A segment mean includes what is left of the closed loop's transient after an I_ref
+switch, so the step depends on the settle and averaging times and on the share of
+segments that follow a switch (the order; and ``cycles`` in the ``single`` order, whose
+first segment follows none). Measured: ``bench/results/schedule_settings.md``.
+``motion_limit``, ``bias_instability`` and ``temperature_correction`` change refusals, the
+standard error or the correction for the temperature, not what the step measures."""
 REFERENCE_SETTING_TOLERANCE_PPM = 1.0
 """How far a setting may move a drift-free estimate before it must match [ppm]."""
+
+
+def forward_sensor_time_s(settings, settle_time_s):
+    """Return the sensor time of one forward schedule [s] (sweep plus the loops' settling)."""
+    return len(settings.sequence()) * (settings.settle_s + settings.average_s) + settle_time_s
+
+
+def feedback_sensor_time_s(settings, settle_time_s):
+    """Return the sensor time of one feedback schedule [s] (segments plus the settling)."""
+    return (len(settings.sequence()) * (settings.settle_s + settings.average_s)
+            + settings.settle_s + settle_time_s)
 
 
 def reference_settings(kind, settings, sensor):
@@ -213,8 +225,8 @@ def check_int(name, value, low, high):
 
 def check_seconds(name, value, allow_zero=False):
     """Raise ValueError naming ``name`` unless ``value`` is a time [s] > 0 (>= 0 if allowed)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+    if not is_finite(value, bool_ok=False, types=(int, float)) or value < 0 \
+            or (value == 0 and not allow_zero):
         raise ValueError(f'{name} must be a {"non-negative" if allow_zero else "positive"} '
                          f'number of seconds, got {value!r}')
 
@@ -263,11 +275,14 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
     axes = range(port.n_axes)
     base = [port.n_fpga(axis) for axis in axes]
     indices = settings.sequence()
+    left_s = forward_sensor_time_s(settings, port.settle_time_s)
     means, stds, times = [], [], []
     try:
         for axis in axes:
             port.set_open_loop(axis, True)
-        for i in indices:
+        for number, i in enumerate(indices):
+            yield Phase('loops open', f'point {number + 1} of {len(indices)}', left_s)
+            left_s -= settings.settle_s + settings.average_s
             for axis in axes:
                 port.set_n_fpga(axis, base[axis] + i * settings.step)
             out = yield from measure_segment(port, settings.settle_s, settings.average_s)
@@ -281,6 +296,7 @@ def forward_schedule(sensor, state, settings=ForwardSettings(), apply=True, capt
             port.set_n_fpga(axis, base[axis])
             port.set_open_loop(axis, False)
     # Wait for the loops to settle so that the schedule ends with valid output.
+    yield Phase('loops re-closed', 'settling', port.settle_time_s)
     yield from measure_segment(port, 0.0, port.settle_time_s)
     delta_n = np.asarray(indices, dtype=float) * settings.step
     means = np.asarray(means)
@@ -328,8 +344,12 @@ def switched_segments(port, sequence, settings, check_motion=True):
     axes = range(port.n_axes)
     means, stds, times, readings, allan = [], [], [], [], []
     block = max(1, int(round(0.01 * port.sample_rate_hz)))
+    segment_s = settings.settle_s + settings.average_s
+    left_s = len(sequence) * segment_s + settings.settle_s + port.settle_time_s
     try:
-        for on in sequence:
+        for number, on in enumerate(sequence):
+            yield Phase('I_ref steps', f'segment {number + 1} of {len(sequence)}, I_ref '
+                        f'{"on" if on else "off"}', left_s - number * segment_s)
             for axis in axes:
                 port.set_reference_current(axis, on)
             out = yield from measure_segment(port, settings.settle_s, settings.average_s)
@@ -347,6 +367,7 @@ def switched_segments(port, sequence, settings, check_motion=True):
         for axis in axes:
             port.set_reference_current(axis, False)
     # Let the loops settle from the last switching so that the schedule ends valid.
+    yield Phase('I_ref steps', 'I_ref off, settling', settings.settle_s + port.settle_time_s)
     yield from measure_segment(port, 0.0, settings.settle_s + port.settle_time_s)
     return (np.asarray(means), np.asarray(stds), np.asarray(times), np.asarray(readings),
             np.asarray(allan))
@@ -476,8 +497,11 @@ def feedback_schedule(sensor, state, settings=FeedbackSettings(), apply=True, ca
 def capture_reference(sensor, state, forward=ForwardSettings(), feedback=FeedbackSettings()):
     """Measure both references (Ran et al. 2019, §IV-A step 1); return the two results."""
     port = SensorPort.of(sensor)
-    forward_result = yield from forward_schedule(port, state, forward, capture=True)
-    feedback_result = yield from feedback_schedule(port, state, feedback, capture=True)
+    forward_result = yield from stage(
+        forward_schedule(port, state, forward, capture=True), 'forward',
+        feedback_sensor_time_s(feedback, port.settle_time_s))
+    feedback_result = yield from stage(
+        feedback_schedule(port, state, feedback, capture=True), 'feedback')
     state.captured_at_ns = port.sensor_time_ns()
     return forward_result, feedback_result
 
@@ -491,8 +515,9 @@ def self_calibrate(sensor, state, forward=ForwardSettings(), feedback=FeedbackSe
     port = SensorPort.of(sensor)
     _check_ready('forward', forward, port, state)
     _check_ready('feedback', feedback, port, state)
-    forward_result = yield from forward_schedule(port, state, forward)
-    feedback_result = yield from feedback_schedule(port, state, feedback)
+    forward_result = yield from stage(forward_schedule(port, state, forward), 'forward',
+                                      feedback_sensor_time_s(feedback, port.settle_time_s))
+    feedback_result = yield from stage(feedback_schedule(port, state, feedback), 'feedback')
     return forward_result, feedback_result
 
 

@@ -2,7 +2,7 @@
 Ran et al.'s experiment (§IV) and the Monte Carlo comparison of estimation schedules.
 
 The error sources (:class:`ErrorProfile`) and the paper's room (:class:`PaperRoom`) are
-physics and live in :mod:`qfa_ros.model.errors`; they are re-exported here.
+physics and live in :mod:`qfa_ros.model.error_profiles`; they are re-exported here.
 """
 
 import copy
@@ -21,9 +21,9 @@ from qfa_ros.calibration.estimation import (
 )
 from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
-from qfa_ros.model import streams
+from qfa_ros.model import random_streams
 from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
-from qfa_ros.model.errors import ErrorProfile, PaperRoom
+from qfa_ros.model.error_profiles import ErrorProfile, PaperRoom
 from qfa_ros.model.triad import AXES, QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
 
@@ -119,7 +119,8 @@ def paper_experiment(seed=0, trials=6, forward_ppm=-200.0, feedback_ppm=200.0,
     for number in tqdm(range(trials), desc='paper trials', disable=not progress):
         record = recorder if number == 0 else None
         triad = QfaTriad(TriadConfig(thermal=room.thermal_config()),
-                         rng=streams.generator(root, 'paper.trial', number), start_ns=start_ns)
+                         rng=random_streams.generator(root, 'paper.trial', number),
+                         start_ns=start_ns)
         profile.apply(triad)
         state = CalibrationState()
         idle(triad, room.warm_up_s)
@@ -197,9 +198,9 @@ def format_paper_tables(trials, forward_ppm=-200.0, feedback_ppm=200.0):
               f'| output error restrained | {restrained:.2f} % |',
               '',
               f'forward drift estimated {100 - _residual(mean_f, forward_ppm):.2f} % '
-              f'(seed: 90.26 %); feedback {100 - _residual(mean_b, feedback_ppm):.2f} % '
-              f'(seed: 90.92 %); output error restrained {restrained:.2f} % '
-              '(seed: 87.56 %)']
+              f'(Ran et al. 2019: 90.26 %); feedback '
+              f'{100 - _residual(mean_b, feedback_ppm):.2f} % (Ran et al. 2019: 90.92 %); '
+              f'output error restrained {restrained:.2f} % (Ran et al. 2019: 87.56 %)']
     return '\n'.join(lines)
 
 

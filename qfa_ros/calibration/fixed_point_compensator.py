@@ -14,6 +14,7 @@ import numpy as np
 
 from qfa_ros.calibration.cordic import CordicExp
 from qfa_ros.calibration.tempfit import DoubleExpFit
+from qfa_ros.model.checks import is_finite
 
 
 def _float_word(value, m_bits):
@@ -74,11 +75,11 @@ class DoubleExpCompensator:
         if not isinstance(fit, DoubleExpFit):
             raise ValueError(f'fit must be a DoubleExpFit, got {type(fit).__name__}')
         for name in ('alpha1', 'alpha2', 'beta1', 'beta2', 'offset', 'slope'):
-            if not math.isfinite(getattr(fit, name)):
+            if not is_finite(getattr(fit, name)):
                 raise ValueError(f'fit.{name} must be finite')
         self.fit = fit
         v_low, v_high = (float(x) for x in v_range)
-        if not (math.isfinite(v_low) and math.isfinite(v_high) and v_low < v_high):
+        if not (is_finite(v_low) and is_finite(v_high) and v_low < v_high):
             raise ValueError(f'v_range must be finite with low < high, got {v_range!r}')
         self.v_range = (v_low, v_high)
         # CordicExp validates m_bits/guard_bits; probe with n_bits=0 first

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from qfa_ros.calibration.schedule import EstimationError, require_closed, SensorPort
+from qfa_ros.calibration.schedule import EstimationError, Phase, require_closed, SensorPort
 from qfa_ros.model.checks import is_finite
 from qfa_ros.model.constants import DEG_PER_HOUR, MICRO_G
 from qfa_ros.model.earth import earth_rate_enu
@@ -160,7 +160,10 @@ def gyro_bias_schedule(sensor, state, settings=GyroBiasSettings()):
     Yields the number of samples it needs and receives them; returns a
     :class:`GyroBiasResult`. Stores the correction in ``state.gyro_bias`` [rad/s].
 
-    :raises EstimationError: No gyros, a loop open, or the input moved.
+    Raises
+    ------
+    EstimationError
+        No gyros, a loop open, or the input moved.
     """
     port = SensorPort.of(sensor)
     if not port.has_gyros:
@@ -169,6 +172,7 @@ def gyro_bias_schedule(sensor, state, settings=GyroBiasSettings()):
     start_ns = port.sensor_time_ns()
     block = port.samples_for(BLOCK_S)
     blocks = max(2, int(round(settings.duration_s / BLOCK_S)))
+    yield Phase('averaging', f'{blocks} blocks of {BLOCK_S:g} s', blocks * BLOCK_S)
     samples = port.view((yield block * blocks))
     if not samples.valid.all() or np.any(samples.saturated):
         raise EstimationError('output invalid or saturated while averaging: nothing applied')

@@ -5,8 +5,8 @@ Reading takes a stranger's file (``noise.imu_yaml`` of the node, ``qfa-sim --imu
 through :func:`~qfa_ros.model.safe_files.read_regular_file` (a regular file of at most
 :data:`MAX_BYTES`), PyYAML's safe loader, and errors that name the file and the key, never
 its content (PyYAML's own messages quote the offending line; they are replaced). The four
-noise figures (:data:`~qfa_ros.model.imu_noise.KEYS`) must be there, as numbers within
-:data:`~qfa_ros.model.imu_noise.LIMITS`; ``update_rate`` and ``rostopic`` are not used (the
+noise figures (:data:`~qfa_ros.model.noise_figures.KEYS`) must be there, as numbers within
+:data:`~qfa_ros.model.noise_figures.LIMITS`; ``update_rate`` and ``rostopic`` are not used (the
 densities are continuous-time: the emulated sensor publishes them at its own rate, on its
 own topic); other keys are ignored, as Kalibr ignores them.
 
@@ -19,7 +19,8 @@ import os
 
 import yaml
 
-from qfa_ros.model.imu_noise import ImuNoiseFigures, KEYS
+from qfa_ros.model.checks import is_finite
+from qfa_ros.model.noise_figures import ImuNoiseFigures, KEYS
 from qfa_ros.model.safe_files import read_regular_file
 
 MAX_BYTES = 64 * 1024
@@ -33,10 +34,13 @@ UNITS = {'accelerometer_noise_density': 'm/s^2/sqrt(Hz)',
 
 def load_imu_yaml(path, max_bytes=MAX_BYTES):
     """
-    Return the :class:`~qfa_ros.model.imu_noise.ImuNoiseFigures` of a Kalibr ``imu.yaml``.
+    Return the :class:`~qfa_ros.model.noise_figures.ImuNoiseFigures` of a Kalibr ``imu.yaml``.
 
-    :raises ValueError: The file cannot be read or is not one; the message names the path
-        and the key, never the content.
+    Raises
+    ------
+    ValueError
+        The file cannot be read or is not one; the message names the path and the key, never
+        the content.
     """
     return parse_imu_yaml(read_regular_file(path, max_bytes), os.fspath(path))
 
@@ -88,7 +92,7 @@ def _number(value):
             number = float(value)
         except ValueError:
             return None
-        return number if math.isfinite(number) else None
+        return number if is_finite(number) else None
     return None
 
 

@@ -14,6 +14,7 @@ import numpy as np
 
 from qfa_ros.calibration.estimation import (
     check_seconds,
+    feedback_sensor_time_s,
     FeedbackSettings,
     fit_line,
     measure_segment,
@@ -22,8 +23,10 @@ from qfa_ros.calibration.estimation import (
 from qfa_ros.calibration.schedule import (
     EstimationError,
     EstimationResult,
+    Phase,
     require_closed,
     SensorPort,
+    stage,
 )
 from qfa_ros.model.constants import PPM
 from qfa_ros.model.triad import AXES
@@ -62,6 +65,10 @@ class ReferenceTcSettings:
         check_seconds('position_s', self.position_s)
         if not isinstance(self.switching, FeedbackSettings):
             raise ValueError('switching must be FeedbackSettings')
+
+
+POSITION_SETTLE_S = 0.1
+"""Discarded start of each fixture position of :func:`reference_tc_schedule` [s]."""
 
 
 def fit_reference_tc(readings_c, ratios):
@@ -127,20 +134,29 @@ def reference_tc_schedule(sensor, bench, state, settings=ReferenceTcSettings(), 
     require_closed(port)
     start_ns = port.sensor_time_ns()
     readings, ratios, times = [], [], []
+    # Sensor time of one fixture position: its settling and level, then the I_ref steps
+    # (the soaks are environment time: bench.soak runs no samples).
+    steps_s = plateau_step_time_s(port.settle_time_s, settings.switching)
+    position_s = POSITION_SETTLE_S + settings.position_s + steps_s
+    left_s = 2 * position_s * len(settings.plateaus_c)
     try:
-        for plateau in settings.plateaus_c:
+        for number, plateau in enumerate(settings.plateaus_c):
             bench.set_chamber_c(plateau)
             bench.soak(settings.soak_s)
+            name = f'plateau {number + 1} of {len(settings.plateaus_c)} at {plateau:g} degC'
             levels, steps, temps = {}, [], []
             for sign in (1, -1):
+                yield Phase(name, f'fixture {"+" if sign > 0 else "-"}', left_s)
+                left_s -= position_s
                 bench.set_position(sign)
-                out = yield from measure_segment(port, 0.1, settings.position_s)
+                out = yield from measure_segment(port, POSITION_SETTLE_S, settings.position_s)
                 if np.any(out.saturated):
                     raise EstimationError('output saturated in the fixture position')
                 levels[sign] = out.counts.mean(axis=0)
                 temps.append(float(np.mean(port.temperature_c(out.v_temp))))
-                means, _, seg_times, seg_temps, _ = yield from switched_segments(
-                    port, settings.switching.sequence(), settings.switching, check_motion=False)
+                means, _, seg_times, seg_temps, _ = yield from stage(switched_segments(
+                    port, settings.switching.sequence(), settings.switching, check_motion=False),
+                    name, left_s)
                 on = np.asarray(settings.switching.sequence(), dtype=float)
                 steps.append(fit_line(on, means)[0])
                 temps.extend(seg_temps.tolist())
@@ -175,8 +191,7 @@ PLATEAU_SWITCHING = FeedbackSettings(cycles=2, settle_s=0.25, average_s=0.25, or
 
 def plateau_step_time_s(settle_time_s, settings=PLATEAU_SWITCHING):
     """Return the sensor time of one :func:`plateau_step` [s] (segments, settling)."""
-    return (len(settings.sequence()) * (settings.settle_s + settings.average_s)
-            + settings.settle_s + settle_time_s)
+    return feedback_sensor_time_s(settings, settle_time_s)
 
 
 def plateau_step(sensor, index=None, chamber_c=None, settings=PLATEAU_SWITCHING):
@@ -219,8 +234,10 @@ def fit_plateau_steps(steps, state, apply=True, start_ns=0, end_ns=0):
     ``points``: per plateau the reading and the step per axis; ``residuals``: relative
     departure of each step from the fitted line).
 
-    :raises EstimationError: Fewer than three plateaus, or their readings span less
-        than 1 degC.
+    Raises
+    ------
+    EstimationError
+        Fewer than three plateaus, or their readings span less than 1 degC.
     """
     if len(steps) < 3:
         raise EstimationError(f'I_ref steps at {len(steps)} plateaus: at least three are '

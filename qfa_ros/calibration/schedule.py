@@ -2,9 +2,11 @@
 What every schedule shares: its error and result, the sensor port, the sensor time, the driver.
 
 A schedule is a generator that drives the loop words of a sensor, yields how many
-samples it needs next, and receives them as one block; it returns its result.
-:func:`run_schedule` drives one offline as fast as the CPU allows; the node drives the
-same generators paced by the ROS clock.
+samples it needs next, and receives them as one block; it returns its result. Between
+two requests it may yield a :class:`Phase` instead: what it does from now on, in words,
+and at most how much sensor time it still takes; the driver hands it to a
+:class:`ScheduleProgress` and sends nothing back. :func:`run_schedule` drives one offline
+as fast as the CPU allows; the node drives the same generators paced by the ROS clock.
 
 Estimators see the sensor only through a :class:`SensorPort`: the words the FPGA can
 write, the decimated output with its flags, and the on-board temperature sensor read
@@ -12,8 +14,11 @@ through its ADC. Nothing of the model's truth (true input, body temperature, dri
 noise configuration) passes through it; ``test_estimation_sees_no_truth`` audits that.
 """
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 import math
+import sys
+import time
 
 import numpy as np
 
@@ -307,15 +312,204 @@ def require_closed(sensor):
         raise EstimationError('a loop is open: another schedule is running')
 
 
+@dataclass(frozen=True)
+class Phase:
+    """
+    What a schedule does from now on, announced by yielding it between two requests.
+
+    Attributes
+    ----------
+    name : str
+        The phase in words a user understands (``loops open``, ``I_ref steps``,
+        ``plateau 2 of 17 at -30 degC``); a driver logs each change of it.
+    detail : str
+        Where the schedule is within the phase (``point 5 of 11``, ``segment 3 of 6, I_ref
+        on``); it changes without a log line.
+    left_s : float
+        Sensor time the schedule takes from here to its end, at most [s]: exact where the
+        settings fix it, an upper bound where the schedule waits for a condition (the
+        temperature calibration's extremes and soak).
+    """
+
+    name: str
+    detail: str = ''
+    left_s: float = 0.0
+
+    def __str__(self):
+        return f'{self.name}, {self.detail}' if self.detail else self.name
+
+
+def stage(schedule, name, after_s=0.0):
+    """
+    Run ``schedule`` as one stage of a longer schedule (generator, same protocol).
+
+    Its phases are named ``<name>: <phase>`` and their sensor time left lengthened by
+    ``after_s``, the longest sensor time of what follows it [s]. Closing the stage closes
+    ``schedule`` at once (its ``finally`` blocks re-close loops and switches).
+    """
+    try:
+        request = next(schedule)
+        while True:
+            if isinstance(request, Phase):
+                request = Phase(f'{name}: {request.name}', request.detail,
+                                request.left_s + after_s)
+            request = schedule.send((yield request))
+    except StopIteration as stop:
+        return stop.value
+    finally:
+        schedule.close()
+
+
+def next_request(schedule, block, progress=None):
+    """
+    Send ``block`` (None to start) to ``schedule``; return how many samples it needs next.
+
+    The phases it yields meanwhile go to ``progress`` (a :class:`ScheduleProgress`, or
+    None). ``StopIteration`` carries the schedule's result, as from ``send``.
+    """
+    request = schedule.send(block)
+    while isinstance(request, Phase):
+        if progress is not None:
+            progress.announce(request)
+        request = schedule.send(None)
+    return request
+
+
+class ScheduleProgress:
+    """
+    How far a schedule is: its phase, the sensor time done and left, the fraction, the pace.
+
+    A driver hands it every :class:`Phase` the schedule yields (:meth:`announce`) and
+    counts every block of samples it runs (:meth:`advance`: once a block, never once a
+    sample). The sensor time left is the phase's ``left_s`` less what ran since it was
+    announced; the fraction done, ``done / (done + left)``, only goes up (held at its
+    highest when a phase ran longer than it said) and reads 1 once :meth:`finish` is
+    called with the schedule's result.
+
+    Parameters
+    ----------
+    kind : str
+        The schedule's name.
+    sample_rate_hz : float
+        Rate of the samples the driver counts [Hz].
+    listener : callable, optional
+        Called as ``listener(progress, changed)`` after every phase and block, ``changed``
+        True when the phase's name changed (a log line, a bar's redraw).
+    clock : callable
+        Wall clock for the pace [s] (``time.monotonic``).
+    """
+
+    def __init__(self, kind, sample_rate_hz, listener=None, clock=time.monotonic):
+        if not sample_rate_hz > 0:
+            raise ValueError(f'sample_rate_hz must be positive, got {sample_rate_hz!r}')
+        self.kind = kind
+        self._rate_hz = float(sample_rate_hz)
+        self._listener = listener
+        self._clock = clock
+        self.phase = None
+        self.samples = 0
+        self._phase_samples = 0   # samples run when the phase was announced
+        self._first_block = None  # (samples, clock) at the end of the first block
+        self.fraction = 0.0
+        self.finished = False
+
+    def announce(self, phase):
+        """Take ``phase`` as the schedule's present phase (it starts now)."""
+        changed = self.phase is None or phase.name != self.phase.name
+        self.phase, self._phase_samples = phase, self.samples
+        self._update(changed)
+
+    def advance(self, samples):
+        """Count a block of ``samples`` the schedule ran."""
+        self.samples += samples
+        if self._first_block is None:
+            self._first_block = (self.samples, self._clock())
+        self._update(False)
+
+    def finish(self):
+        """Mark the schedule as returned: nothing is left, the fraction is 1."""
+        self.finished = True
+        self.fraction = 1.0
+        if self._listener is not None:
+            self._listener(self, False)
+
+    def _update(self, changed):
+        total = self.done_s + self.left_s
+        if total > 0 and not self.finished:
+            self.fraction = max(self.fraction, min(1.0, self.done_s / total))
+        if self._listener is not None:
+            self._listener(self, changed)
+
+    @property
+    def done_s(self):
+        """Sensor time run since the start [s]."""
+        return self.samples / self._rate_hz
+
+    @property
+    def left_s(self):
+        """Sensor time left, at most [s] (0 once finished)."""
+        if self.finished or self.phase is None:
+            return 0.0
+        return max(0.0, self.phase.left_s - (self.samples - self._phase_samples) / self._rate_hz)
+
+    @property
+    def pace(self):
+        """
+        Sensor seconds run per wall second since the first block, or None before a second.
+
+        From the first block on, not from the start: a driver that computes ahead of its
+        clock (the node, ``stream.lead_s``) hands the first block early.
+        """
+        if self._first_block is None:
+            return None
+        samples, then = self._first_block
+        elapsed = self._clock() - then
+        ran = self.samples - samples
+        return ran / self._rate_hz / elapsed if ran and elapsed > 0 else None
+
+    @property
+    def wall_left_s(self):
+        """Wall time left at the pace so far [s], or None before the pace is known."""
+        pace = self.pace
+        return None if pace is None else self.left_s / pace
+
+    def describe(self):
+        """Return the phase in words (``loops open, point 5 of 11``), or ``starting``."""
+        return 'starting' if self.phase is None else str(self.phase)
+
+
 def run_schedule(triad, schedule, chunk_samples=1000, progress=None):
     """
     Drive a schedule generator offline, as fast as possible; return its result.
 
-    The generator yields how many samples it needs; the driver runs the triad for that
-    many (in chunks of at most ``chunk_samples``) and sends back the output. A triad
-    moving along a trajectory is refused with :class:`EstimationError`: self-estimation
-    needs the sensor at rest. ``progress``, if given, is called with the sensor seconds
-    of every chunk run.
+    The generator yields how many samples it needs (or a :class:`Phase`); the driver runs
+    the triad for that many (in chunks of at most ``chunk_samples``) and sends back the
+    output. A triad moving along a trajectory is refused with :class:`EstimationError`:
+    self-estimation needs the sensor at rest.
+
+    Parameters
+    ----------
+    triad : QfaTriad
+        The sensor model the schedule drives.
+    schedule : generator
+        The schedule.
+    chunk_samples : int
+        Most samples the triad runs at once.
+    progress : str or ScheduleProgress, optional
+        A :class:`ScheduleProgress` to feed, or a name: show the schedule's phase and
+        fraction in a tqdm bar on stderr (a terminal only) under that name.
+
+    Returns
+    -------
+    object
+        What the schedule returns.
+
+    Raises
+    ------
+    EstimationError
+        The schedule refuses or fails, or the triad moves.
+    ValueError
+        ``chunk_samples`` is no whole number of at least 1.
     """
     try:
         checks.count('chunk_samples', chunk_samples, least=1)
@@ -326,8 +520,16 @@ def run_schedule(triad, schedule, chunk_samples=1000, progress=None):
     if moving:
         schedule.close()
         raise EstimationError(moving)
+    if isinstance(progress, str):
+        with _progress_bar(progress, triad.config.sample_rate_hz) as shown:
+            return _drive(triad, schedule, chunk_samples, shown)
+    return _drive(triad, schedule, chunk_samples, progress)
+
+
+def _drive(triad, schedule, chunk_samples, progress):
+    """Run ``schedule`` on ``triad`` to its end, its phases and blocks told to ``progress``."""
     try:
-        request = next(schedule)
+        request = next_request(schedule, None, progress)
         while True:
             parts = []
             remaining = request
@@ -336,7 +538,22 @@ def run_schedule(triad, schedule, chunk_samples=1000, progress=None):
                 parts.append(triad.run(n))
                 remaining -= n
                 if progress is not None:
-                    progress(n / triad.config.sample_rate_hz)
-            request = schedule.send(concatenate(parts))
+                    progress.advance(n)
+            request = next_request(schedule, concatenate(parts), progress)
     except StopIteration as stop:
+        if progress is not None:
+            progress.finish()
         return stop.value
+
+
+@contextmanager
+def _progress_bar(name, sample_rate_hz):
+    """Yield a :class:`ScheduleProgress` drawn as a tqdm bar of percent (a terminal only)."""
+    # Imported here: only a caller that asks for a bar needs tqdm.
+    from tqdm import tqdm
+    with tqdm(total=100, unit='%', desc=name, disable=None, file=sys.stderr,
+              bar_format='{desc}: {percentage:3.0f}%|{bar}| {postfix}') as bar:
+        def draw(progress, changed):
+            bar.set_postfix_str(progress.describe(), refresh=False)
+            bar.update(math.floor(100 * progress.fraction) - bar.n)
+        yield ScheduleProgress(name, sample_rate_hz, draw)

@@ -100,8 +100,11 @@ class CalibrationState:
         """
         Build a state from :meth:`to_dict` output, validating it.
 
-        :raises StateFormatError: ``data`` is not a calibration state. The message names
-            the field and the rule, never a value: the data comes from a file.
+        Raises
+        ------
+        StateFormatError
+            ``data`` is not a calibration state. The message names the field and the rule,
+            never a value: the data comes from a file.
         """
         try:
             return cls._from_dict(data)
@@ -145,8 +148,11 @@ class CalibrationState:
         """
         Write the stored words, temperature ROM and gyro bias correction into ``triad``.
 
-        :raises ValueError: The gyro bias correction is not three numbers within the gyro
-            range ``|b| <= range`` [rad/s] (a bias beyond it could not have been measured);
+        Raises
+        ------
+        ValueError
+            The gyro bias correction is not three numbers within the gyro range
+            ``|b| <= range`` [rad/s] (a bias beyond it could not have been measured);
             nothing is written. The message quotes no value (they come from a file).
         """
         if self.gyro_bias:

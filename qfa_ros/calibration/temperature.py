@@ -18,9 +18,9 @@ would.
 Only what the sensor can know is used: outputs, the temperature reading and the known
 fixture positions.
 
-One module over ~500 lines because it is one cohesive thing: the chamber program, its
-tumble records and the fit of those records (with the reading's lag behind the proof
-mass estimated from the same records) share the block format and the settings.
+The chamber program, its tumble records and their fit share the block format and the
+settings; the reading's lag behind the proof mass, estimated from the same records, is
+:mod:`qfa_ros.calibration.probe_lag`.
 """
 
 from contextlib import contextmanager
@@ -28,20 +28,22 @@ import dataclasses
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from numpy.polynomial.chebyshev import chebvander
 
 from qfa_ros.calibration.estimation import check_int
+from qfa_ros.calibration.probe_lag import estimate_probe_lag, global_fit, reading_rate
 from qfa_ros.calibration.reference_tc import fit_plateau_steps, plateau_step, plateau_step_time_s
 from qfa_ros.calibration.schedule import (
     EstimationError,
+    Phase,
     require_closed,
     samples_for,
     sensor_time_ns,
+    stage,
 )
 from qfa_ros.calibration.thermal_compensation import calibrate_zero_bias, ThermalCompensation
 from qfa_ros.model.checks import is_finite
 from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
-from qfa_ros.model.profiles import StaticProfile
+from qfa_ros.model.input_profiles import StaticProfile
 from qfa_ros.model.triad import AXES, FLAG_ADC_CLIPPED, FLAG_DA2_CLIPPED
 from qfa_ros.model.triad_config import TriadConfig
 
@@ -96,9 +98,9 @@ class TemperatureSettings:
         is far below the 20 ppm the correction must reach; at 16 it is 2.4e-5 of each
         term).
     stable_c_per_tumble : float
-        The extreme plateaus (``low_c``, ``high_c``) hold until the on-board reading
-        moves less than this from one tumble to the next (at most ten holds) [degC]: the
-        fits then cover the whole range instead of extrapolating to it.
+        The turning points (the first plateau at ``low_c`` and at ``high_c``) hold until
+        the on-board reading moves less than this from one tumble to the next (at most ten
+        holds) [degC]: the fits then cover the whole range instead of extrapolating to it.
     return_tolerance_c : float
         The soak at the end lasts until the on-board reading (tumble mean) is within
         this of where it was at the start [degC].
@@ -133,7 +135,7 @@ class TemperatureSettings:
         for name in ('low_c', 'high_c', 'period_s', 'block_s', 'step_c', 'settle_s',
                      'stable_c_per_tumble', 'return_tolerance_c', 'max_soak_s'):
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not is_finite(value, bool_ok=False):
+            if not is_finite(value, bool_ok=False, types=(int, float)):
                 raise ValueError(f'{name} must be a finite number, got {value!r}')
         if not -60.0 <= self.low_c < self.high_c <= 125.0:
             raise ValueError('low_c and high_c must satisfy -60 <= low_c < high_c <= 125 degC')
@@ -159,20 +161,60 @@ class TemperatureSettings:
 
     def max_sensor_time_s(self):
         """
-        Return the longest sensor time one calibration may take [s].
+        Return the longest sensor time one calibration may take [s], whatever the ambient.
 
-        Every plateau holds ``period_s / plateaus`` (whole tumbles), the two extremes soak
-        at most ten holds each, the soak back lasts at most ``max_soak_s``; the most
-        plateaus are those of an ambient at ``low_c`` (the way down is longest). With
-        ``reference_steps``, every plateau adds one I_ref step measurement.
+        The longest of :meth:`program_time_s` over the ambients: per cycle it is
+        ``period_s (1 + 18 / n) + n T`` for ``n`` plateaus of ``T`` [s] of tumbles and
+        I_ref steps each (the two turning points soak up to ten holds of ``period_s / n``),
+        convex in ``n``, so the longest is at the fewest plateaus (an ambient at ``high_c``
+        or above) or at the most (at ``low_c`` or below).
         """
-        plateaus = len(self.plateaus(self.low_c))
-        hold = self.period_s / plateaus
+        return max(self.program_time_s(self.low_c), self.program_time_s(self.high_c))
+
+    def program_time_s(self, ambient_c):
+        """
+        Return the longest sensor time of the program that starts at ``ambient_c`` [s].
+
+        A tumble at the start and one at the end, every plateau at its longest
+        (:meth:`plateau_limits_s`) in every cycle, and the soak back at its longest
+        (``max_soak_s``).
+        """
         tumble = len(POSITIONS) * self.block_s
-        per_cycle = (plateaus - 2) * (hold + tumble) + 2 * (10 * hold + tumble)
+        plateaus = self.plateau_limits_s(self.plateaus(ambient_c))
+        return tumble + self.cycles * sum(plateaus) + self.max_soak_s + tumble
+
+    def plateau_limits_s(self, plateaus):
+        """
+        Return the longest sensor time of each of ``plateaus`` [s].
+
+        Each holds ``period_s / len(plateaus)``, the :meth:`turning_points` up to ten
+        times that (:meth:`plateau_time_s`).
+        """
+        hold = self.period_s / len(plateaus)
+        return [self.plateau_time_s(hold, extreme) for extreme in self.turning_points(plateaus)]
+
+    def plateau_time_s(self, hold_s, extreme):
+        """
+        Return the longest sensor time of a plateau held ``hold_s`` [s].
+
+        Its whole tumbles (``hold_s``, or ten times it at an ``extreme``, plus the tumble
+        that passes it) and, with ``reference_steps``, its I_ref step measurement.
+        """
+        seconds = (10 * hold_s if extreme else hold_s) + len(POSITIONS) * self.block_s
         if self.reference_steps:
-            per_cycle += plateaus * plateau_step_time_s(TriadConfig.settle_time)
-        return tumble + self.cycles * per_cycle + self.max_soak_s + tumble
+            seconds += plateau_step_time_s(TriadConfig.settle_time)
+        return seconds
+
+    def turning_points(self, plateaus):
+        """
+        Return which of ``plateaus`` soak until the reading is stable: the turning points.
+
+        The first plateau (``low_c``) and the first at ``high_c``; a later plateau at the
+        same temperature (the way back ending at an ambient of ``low_c`` or ``high_c``)
+        holds like any other, so no program has more than two.
+        """
+        top = plateaus.index(self.high_c)
+        return [index in (0, top) for index in range(len(plateaus))]
 
     def plateaus(self, ambient_c):
         """Return the chamber plateaus [degC]: low, up to high, down to ``ambient_c``."""
@@ -308,11 +350,20 @@ def fixture_profile(axis, sign):
     return StaticProfile(tuple(float(v) for v in position_force(axis, sign)))
 
 
-def tumble(triad, settings, blocks):
-    """Run a six-position tumble, a record per position (generator); return its reading [degC]."""
+def tumble(triad, settings, blocks, phase=Phase('tumble')):
+    """
+    Run a six-position tumble, a record per position (generator); return its reading [degC].
+
+    ``phase`` names the tumble (its ``left_s``: the sensor time left at its start, at most);
+    each position is announced as ``<detail>, attitude k of 6 (<axis> up)``.
+    """
     keep_from = min(samples_for(triad, settings.settle_s),
                     samples_for(triad, settings.block_s) // 2)
-    for axis, sign in POSITIONS:
+    for number, (axis, sign) in enumerate(POSITIONS):
+        attitude = (f'attitude {number + 1} of {len(POSITIONS)} '
+                    f'({"+" if sign > 0 else "-"}{AXES[axis]} up)')
+        yield Phase(phase.name, f'{phase.detail}, {attitude}' if phase.detail else attitude,
+                    phase.left_s - number * settings.block_s)
         triad.fixture = fixture_profile(axis, sign)
         out = yield samples_for(triad, settings.block_s)
         if np.any(out.flags & (FLAG_DA2_CLIPPED | FLAG_ADC_CLIPPED)):
@@ -321,6 +372,56 @@ def tumble(triad, settings, blocks):
         blocks.append((int(out.stamps_ns[-1]), out.v_temp[keep_from:].mean(),
                        position_force(axis, sign), out.accel[keep_from:].mean(axis=0)))
     return float(triad.thermal.reading_c(np.mean([b[1] for b in blocks[-len(POSITIONS):]])))
+
+
+def hold_plateau(triad, settings, blocks, tumbles, phase, hold_s, extreme):
+    """
+    Tumble at a chamber plateau until its hold has passed (generator, same protocol).
+
+    ``phase`` names the plateau, its ``left_s`` the sensor time left at its start. An
+    ``extreme`` plateau holds on until the on-board reading moves less than
+    ``stable_c_per_tumble`` from one tumble to the next (at most ten holds): the fits then
+    cover the whole range instead of extrapolating to it.
+    """
+    tumble_s = len(POSITIONS) * settings.block_s
+    count, last = 0, None
+    while True:
+        tumbles.append(len(blocks))
+        reading = yield from tumble(triad, settings, blocks, Phase(
+            phase.name, f'tumble {count + 1}', phase.left_s - count * tumble_s))
+        count += 1
+        stable = last is not None and abs(reading - last) <= settings.stable_c_per_tumble
+        last = reading
+        if count * tumble_s >= hold_s and (not extreme or stable
+                                           or count * tumble_s >= 10 * hold_s):
+            return
+
+
+def soak_back(triad, settings, blocks, start_reading):
+    """
+    Tumble until the reading is back within ``return_tolerance_c`` of ``start_reading``.
+
+    Generator, same protocol; returns the soak's sensor time [s].
+
+    Raises
+    ------
+    EstimationError
+        Still away after ``max_soak_s``.
+    """
+    tumble_s = len(POSITIONS) * settings.block_s
+    soak_s = 0.0
+    while True:
+        reading = yield from tumble(triad, settings, blocks, Phase(
+            'soak back to the starting temperature', f'tumble {round(soak_s / tumble_s) + 1}',
+            settings.max_soak_s + tumble_s - soak_s))
+        if abs(reading - start_reading) <= settings.return_tolerance_c:
+            return soak_s
+        soak_s += tumble_s
+        if soak_s > settings.max_soak_s:
+            raise EstimationError(
+                f'the sensor is still {reading - start_reading:+.2f} degC from its '
+                f'starting temperature after a {soak_s:.0f} s soak: raise '
+                'temperature_calibration max_soak_s or let it settle first')
 
 
 def temperature_schedule(triad, state, settings=TemperatureSettings(), at_plateau=None):
@@ -353,42 +454,35 @@ def temperature_schedule(triad, state, settings=TemperatureSettings(), at_platea
     plateaus = settings.plateaus(ambient)
     hold = settings.period_s / len(plateaus)
     tumble_s = len(POSITIONS) * settings.block_s
+    # The longest sensor time of each plateau: the phases say what is left, at most.
+    turning = settings.turning_points(plateaus)
+    limits = settings.plateau_limits_s(plateaus)
     with chamber_program(triad) as previous:
+        soak = previous['ambient_profile'] == 'constant'
+        left_s = (tumble_s + settings.cycles * sum(limits)
+                  + (settings.max_soak_s + tumble_s if soak else 0.0))
         triad.temperature_compensation = False
-        start_reading = yield from tumble(triad, settings, blocks)
-        for _ in range(settings.cycles):
+        start_reading = yield from tumble(triad, settings, blocks, Phase(
+            'tumble at the starting temperature', '', left_s))
+        left_s -= tumble_s
+        for cycle in range(settings.cycles):
             for index, chamber_c in enumerate(plateaus):
                 triad.thermal.set_ambient(ambient_profile='constant', ambient_c=chamber_c)
-                extreme = chamber_c in (settings.low_c, settings.high_c)
-                count, last = 0, None
-                while True:
-                    tumbles.append(len(blocks))
-                    reading = yield from tumble(triad, settings, blocks)
-                    count += 1
-                    stable = last is not None and \
-                        abs(reading - last) <= settings.stable_c_per_tumble
-                    last = reading
-                    # the extremes soak until the reading is stable: the range is covered
-                    if count * tumble_s >= hold and (not extreme or stable
-                                                     or count * tumble_s >= 10 * hold):
-                        break
+                name = (f'cycle {cycle + 1} of {settings.cycles}, ' if settings.cycles > 1
+                        else '') + f'plateau {index + 1} of {len(plateaus)} at {chamber_c:g} degC'
+                yield from hold_plateau(triad, settings, blocks, tumbles, Phase(name, '', left_s),
+                                        hold, turning[index])
+                left_s -= limits[index]
                 if at_plateau is not None:
                     # --- per-plateau hook: extra measurements at this chamber plateau ---
                     triad.fixture = fixture_profile(2, 1)
-                    extra.append((yield from at_plateau(triad, index, chamber_c)))
+                    extra.append((yield from stage(at_plateau(triad, index, chamber_c), name,
+                                                   left_s)))
         # Back to the ambient it had; soak until the on-board reading has returned.
         triad.thermal.set_ambient(**previous)
-        if previous['ambient_profile'] == 'constant':
-            while True:
-                reading = yield from tumble(triad, settings, blocks)
-                if abs(reading - start_reading) <= settings.return_tolerance_c:
-                    break
-                soak_s += tumble_s
-                if soak_s > settings.max_soak_s:
-                    raise EstimationError(
-                        f'the sensor is still {reading - start_reading:+.2f} degC from its '
-                        f'starting temperature after a {soak_s:.0f} s soak: raise '
-                        'temperature_calibration max_soak_s or let it settle first')
+        if soak:
+            soak_s = yield from soak_back(triad, settings, blocks, start_reading)
+    yield Phase('fitting', 'bias, scale factor, misalignment, K2', 0.0)
     compensation, points, lag = fit_multiposition(blocks, tumbles, settings)
     end_ns = sensor_time_ns(triad)
     if settings.apply:
@@ -425,73 +519,6 @@ def temperature_calibration(triad, state, settings=TemperatureSettings()):
     return result, steps
 
 
-MAX_PROBE_LAG_S = 4.0
-"""Longest lag of the on-board temperature reading behind the proof mass the fit looks for
-[s] (twice the datasheet-like 0.5-2 s of :mod:`qfa_ros.model.drawn_unit`)."""
-PROBE_LAG_STEP_S = 0.05
-"""Resolution of the lag search [s]."""
-
-
-def reading_rate(times_s, v, width=3):
-    """
-    Return the rate of the on-board reading at every block [V/s], smoothed over a tumble.
-
-    Central differences of the block means against their end times, then a running mean
-    over a tumble's worth of blocks (the reading's quantization and noise would otherwise
-    dominate the derivative on a plateau).
-    """
-    if len(v) < 3:
-        return np.zeros(len(v))
-    rate = np.gradient(v, times_s)
-    width = min(width, len(v))
-    kernel = np.ones(width) / width
-    padded = np.pad(rate, (width // 2, width - 1 - width // 2), mode='edge')
-    return np.convolve(padded, kernel, mode='valid')
-
-
-def _global_fit(v, force, output):
-    """Return misalignment, K2 and the residual sum of squares of the all-block fit."""
-    centre, half = 0.5 * (v.max() + v.min()), max(0.5 * np.ptp(v), 1e-9)
-    u = (v - centre) / half
-    misalignment = np.zeros((3, 3))
-    k2 = np.zeros(3)
-    rss = 0.0
-    for i in range(3):
-        others = [j for j in range(3) if j != i]
-        design = np.column_stack([chebvander(u, 6), chebvander(u, 4) * force[:, i:i + 1],
-                                  force[:, others], force[:, i] ** 2])
-        target = output[:, i] - force[:, i]
-        coefficients = np.linalg.lstsq(design, target, rcond=None)[0]
-        misalignment[i, others] = coefficients[-3:-1]
-        k2[i] = coefficients[-1]
-        rss += float(np.sum((target - design @ coefficients) ** 2))
-    return misalignment, k2, rss
-
-
-def estimate_probe_lag(v, rate, force, output, max_lag_s=MAX_PROBE_LAG_S,
-                       step_s=PROBE_LAG_STEP_S):
-    """
-    Estimate how far the on-board reading lags the proof mass from the blocks [s].
-
-    The errors follow the proof mass's temperature; the reading follows it with the
-    probe's lag ``tau``, so the mass is at ``V + tau dV/dt`` of the reading. While the
-    chamber moves, heating and cooling blocks at one reading disagree by twice the slope
-    of the curves times ``tau dV/dt``; the ``tau`` whose corrected reading makes the
-    all-block fit (bias, scale factor, misalignment, K2) fit best is the lag. On
-    plateaus the rate is zero and the correction vanishes.
-    """
-    def best(lags):
-        rss = [_global_fit(v + lag * rate, force, output)[2] for lag in lags]
-        return round(float(lags[int(np.argmin(rss))]), 6)
-
-    # Coarse, then fine around the coarse minimum (the residual is smooth in the lag).
-    coarse_step = 5.0 * step_s
-    lag = best(np.arange(0.0, max_lag_s + 0.5 * coarse_step, coarse_step))
-    fine = np.arange(max(0.0, lag - coarse_step), min(max_lag_s, lag + coarse_step)
-                     + 0.5 * step_s, step_s)
-    return best(fine)
-
-
 def fit_multiposition(blocks, tumbles, settings):
     """
     Fit bias, scale factor, misalignment and K2 per axis from the tumble blocks.
@@ -511,9 +538,9 @@ def fit_multiposition(blocks, tumbles, settings):
     the tumble's mean reading, the scale-factor error at the pair's, where the pair's
     difference fixes it whatever ``s'`` (at the tumble's mean it would be carried there by
     ``s'``, which two blocks read at almost one temperature leave undetermined: thousands
-    of ppm at a plateau's end, issue 45). Last, seed
-    2's double exponential (linear baseline) through the tumbles' bias and through the
-    scale-factor correction ``1/(1 + s) - 1``, and their fixed-point compensators.
+    of ppm at a plateau's end). Last, Liu, Li and Shen's double exponential (linear
+    baseline) through the tumbles' bias and through the scale-factor correction
+    ``1/(1 + s) - 1``, and their fixed-point compensators.
     """
     if len(tumbles) < 10:
         raise EstimationError(f'only {len(tumbles)} tumbles: lengthen period_s')
@@ -521,7 +548,7 @@ def fit_multiposition(blocks, tumbles, settings):
     rate = reading_rate(times_ns * 1e-9, v)
     lag = estimate_probe_lag(v, rate, force, output)
     v = v + lag * rate
-    misalignment, k2, _ = _global_fit(v, force, output)
+    misalignment, k2, _ = global_fit(v, force, output)
     corrected = output - force @ misalignment.T - k2 * force ** 2
     n = len(POSITIONS)
     v_mean = np.array([v[first:first + n].mean() for first in tumbles])

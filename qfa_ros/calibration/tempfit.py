@@ -1,10 +1,10 @@
 r"""
 Zero-bias temperature model fitting (Liu, Li and Shen): the double exponential and its comparisons.
 
-The zero bias is modelled as ``y = alpha1 e^(beta1 V) + alpha2 e^(beta2 V)`` (seed eq. 1)
+The zero bias is modelled as ``y = alpha1 e^(beta1 V) + alpha2 e^(beta2 V)`` (eq. 1)
 with ``V`` the on-board temperature-sensor voltage [V] and ``y`` the zero output (any
 unit: V, m/s^2, counts; the alphas carry it, the betas are in 1/V).  It is fitted by
-the seed's alternating iteration and compared with 3rd/4th-order polynomials (seed
+their alternating iteration and compared with 3rd/4th-order polynomials (their
 Tables 1-2). :mod:`qfa_ros.calibration.fixed_point_compensator` evaluates a fit on the
 fixed-point CORDIC path; :mod:`qfa_ros.calibration.thermal_compensation` bins a
 temperature cycle, fits it and builds the compensation.
@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import math
 
 import numpy as np
+
+from qfa_ros.model.checks import is_finite
 
 _START_GRID = np.linspace(-6.0, 6.0, 25)
 """Scaled exponents ``beta * half_range`` tried for the automatic start values."""
@@ -134,13 +136,9 @@ _SECOND_TERM_F = 10.0
 ``F = ((SSE1 - SSE2) / 2) / (SSE2 / (n - p))``, the MSE reduction the pair's two more
 parameters buy against its residual (``p`` parameters of the pair fit, ``n`` points):
 two parameters fitted to noise alone give ``F`` above 10 in about one fit of 10 000
-(``F(2, 50)``). Data one exponential explains (plus the baseline) leave the pair
-unidentifiable: every ``(beta2, alpha2)`` along a flat valley fits, and the alternation
-stops wherever the rounding of the linear algebra leaves it -- the second term vanishing
-with ``beta2`` at the grid's edge, or two near-equal exponents whose cancelling alphas
-cost the fixed-point words bits (seen for ``1e-3 e^(2V)``: from 0 to 7.4 cancelled bits
-with the OpenBLAS kernel). Such data get the single exponential (``alpha2 = 0``), the
-same on every machine."""
+(``F(2, 50)``). Data one exponential explains leave the pair unidentifiable, split
+wherever the BLAS kernel's rounding leaves it (``bench/results/tempfit_second_term.md``);
+such data get the single exponential (``alpha2 = 0``), the same on every machine."""
 
 _SSE_RESOLUTION = 1e-20
 """SSE differences below this many times the points are rounding (``y`` at unit rms)."""
@@ -193,7 +191,7 @@ class DoubleExpFit:
         persisted by :meth:`TemperatureCalibration.to_dict`, not compared by ``==``).
     offset, slope : float
         Linear baseline ``offset + slope V`` added to the two exponentials (0 for the
-        seed's pure model; see ``baseline`` of :func:`fit_double_exponential`).
+        paper's pure model; see ``baseline`` of :func:`fit_double_exponential`).
     """
 
     alpha1: float
@@ -253,7 +251,7 @@ def _single_start(u, y, baseline):
 
 def _refine(u, y, s, baseline, tol, max_iter, max_cancellation_bits=None):
     """
-    Refine the scaled exponents ``s`` (one or two) by the seed's alternation.
+    Refine the scaled exponents ``s`` (one or two) by Liu, Li and Shen's alternation.
 
     With the exponents fixed, the alphas by linear least squares; then a
     Levenberg-Marquardt step on the exponents only, the alphas projected out (Kaufman's
@@ -261,7 +259,10 @@ def _refine(u, y, s, baseline, tol, max_iter, max_cancellation_bits=None):
     after re-solving the alphas does not increase, the exponents stay evaluable
     (:func:`_well_separated`) and, if bounded, the cancellation within the bound.
 
-    :returns: ``(s, alpha, mse, iterations, converged, history)`` on the scaled problem.
+    Returns
+    -------
+    tuple
+        ``(s, alpha, mse, iterations, converged, history)`` on the scaled problem.
     """
     count = len(s)
     alpha, residual, basis = _solve_alpha(u, y, s, baseline)
@@ -350,11 +351,10 @@ def fit_double_exponential(v_temp, v_out, beta0=None, tol=1e-12, max_iter=200,
     -------
     DoubleExpFit
     """
-    if not (math.isfinite(tol) and tol > 0):
+    if not (is_finite(tol) and tol > 0):
         raise ValueError(f'tol must be finite and > 0, got {tol!r}')
     if max_cancellation_bits is not None and not (
-            isinstance(max_cancellation_bits, (int, float))
-            and math.isfinite(max_cancellation_bits) and max_cancellation_bits >= 0):
+            is_finite(max_cancellation_bits, types=(int, float)) and max_cancellation_bits >= 0):
         raise ValueError('max_cancellation_bits must be a finite number >= 0, got '
                          f'{max_cancellation_bits!r}')
     if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
@@ -415,7 +415,7 @@ def fit_double_exponential_reference(v_temp, v_out, beta0=None):
 @dataclass(frozen=True)
 class PolynomialFit:
     """
-    Least-squares polynomial ``y = sum c_k v^k`` (seed Tables 1-2 comparison).
+    Least-squares polynomial ``y = sum c_k v^k`` (Liu, Li and Shen's Tables 1-2 comparison).
 
     Attributes
     ----------

@@ -50,7 +50,7 @@ class TemperatureCalibration:
     fit : DoubleExpFit
         Double-exponential model of the binned zero output vs V_temp.
     poly3, poly4 : PolynomialFit
-        3rd/4th-order comparison fits on the same bins (seed Tables 1-2).
+        3rd/4th-order comparison fits on the same bins (Liu, Li and Shen, Tables 1-2).
     m_bits, n_bits, guard_bits, output_frac_bits : int
         Fixed-point format of the compensator.
     v_range : tuple of float
@@ -197,11 +197,7 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
     poly3 = fit_polynomial(v_bins, y_bins, 3)
     poly4 = fit_polynomial(v_bins, y_bins, 4)
     if v_range is None:
-        span = float(v_bins.max() - v_bins.min())
-        low = float(v_bins.min()) - 0.25 * span
-        # a unipolar temperature ADC never reads below 0 V
-        v_range = (max(low, 0.0) if v_bins.min() >= 0 else low,
-                   float(v_bins.max()) + 0.25 * span)
+        v_range = _widened_span(v_bins)
     cancellation = _fit_cancellation(fit, v_bins)
     # The most the widened words below can absorb; a fit cancelling more is refitted
     # under that bound (a slightly worse float fit the fixed-point datapath evaluates
@@ -216,20 +212,7 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
         if constrained is not None:
             fit, cancellation = constrained, _fit_cancellation(constrained, v_bins)
         fit_seconds = time.perf_counter() - started
-    # Terms that cancel by c bits cost the fixed-point output c bits: beyond the guard
-    # bits, widen the words by what the cancellation takes (within the 63-bit datapath).
-    widen = max(0, math.ceil(min(cancellation, 64.0)) - guard_bits)
-    bits = min(max_m_bits(guard_bits), m_bits + widen)
-    while True:
-        try:
-            compensator = DoubleExpCompensator(fit, m_bits=bits, guard_bits=guard_bits,
-                                               v_range=v_range)
-            break
-        except ValueError:
-            # The widened words overflow a multiplier of this fit's datapath: fewer.
-            if bits <= m_bits:
-                raise
-            bits -= 1
+    compensator = _widened_compensator(fit, cancellation, m_bits, guard_bits, v_range)
     fixed = compensator.evaluate_fixed(v_bins)
     return TemperatureCalibration(
         fit=fit, poly3=poly3, poly4=poly4, m_bits=compensator.m_bits,
@@ -240,6 +223,40 @@ def calibrate_zero_bias(v_temp, zero_output, m_bits=16, n_bins=100, min_count=1,
         p2p_after_poly4=float(np.ptp(y_bins - poly4.evaluate(v_bins))),
         max_fixed_error=float(np.max(np.abs(fixed - fit.evaluate(v_bins)))),
         fit_seconds=fit_seconds, cancellation_bits=float(max(cancellation, 0.0)))
+
+
+def _widened_span(v_bins):
+    """Return the span of ``v_bins`` [V] widened by 25 % of itself on each side."""
+    span = float(v_bins.max() - v_bins.min())
+    low = float(v_bins.min()) - 0.25 * span
+    # a unipolar temperature ADC never reads below 0 V
+    return (max(low, 0.0) if v_bins.min() >= 0 else low, float(v_bins.max()) + 0.25 * span)
+
+
+def _widened_compensator(fit, cancellation, m_bits, guard_bits, v_range):
+    """
+    Return the compensator of ``fit``, its words widened by what its terms cancel.
+
+    Terms that cancel by c bits cost the fixed-point output c bits: beyond the guard bits,
+    the words are widened by what the cancellation takes, within the 63-bit datapath, and
+    narrowed again (not below ``m_bits``) where they overflow a multiplier of this fit's.
+
+    Raises
+    ------
+    ValueError
+        Not even ``m_bits`` fraction bits fit the datapath.
+    """
+    widen = max(0, math.ceil(min(cancellation, 64.0)) - guard_bits)
+    bits = min(max_m_bits(guard_bits), m_bits + widen)
+    while True:
+        try:
+            return DoubleExpCompensator(fit, m_bits=bits, guard_bits=guard_bits,
+                                        v_range=v_range)
+        except ValueError:
+            # The widened words overflow a multiplier of this fit's datapath: fewer.
+            if bits <= m_bits:
+                raise
+            bits -= 1
 
 
 # -- multi-position compensation (bias and scale factor per axis) ------------------------

@@ -18,7 +18,7 @@ from qfa_ros.calibration.schedule import samples_for
 from qfa_ros.calibration.temperature import chamber_program, fixture_profile, POSITIONS
 from qfa_ros.model.checks import is_finite
 from qfa_ros.model.constants import STANDARD_GRAVITY
-from qfa_ros.model.profiles import StaticProfile
+from qfa_ros.model.input_profiles import StaticProfile
 
 MAX_BINS = 1e6
 """Most temperature bins :func:`verify_cycle` takes (``(high_c - low_c) / bin_c``)."""

@@ -14,7 +14,10 @@ def needs_tools(prog):
     ``make run`` installs only what the node and ``qfa-sim`` need; ``make setup`` (and
     ``make test``) add the tools. Any other missing module is a real error and propagates.
 
-    :param prog: The command's name, the start of the line.
+    Parameters
+    ----------
+    prog : str
+        The command's name, the start of the line.
     """
     def wrap(main):
         @functools.wraps(main)

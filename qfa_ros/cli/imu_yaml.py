@@ -11,7 +11,7 @@ Writes an ``imu.yaml`` in the conventions of Kalibr, OpenVINS and allan_variance
 * from a recorded static bag: allan_variance_ros's fit of the stream's Allan deviation,
   with the white-noise density at short tau beside it where the two differ.
 
-``docs/ins.md`` and :mod:`qfa_ros.model.imu_noise` give the definitions.
+``docs/ins.md`` and :mod:`qfa_ros.model.noise_figures` give the definitions.
 """
 
 import argparse
@@ -23,8 +23,8 @@ import numpy as np
 import yaml
 
 from qfa_ros.calibration.kalibr_yaml import imu_yaml_text
-from qfa_ros.model import imu_noise
-from qfa_ros.model.imu_noise import drive_density, KEYS, MAX_TAU, SHORT_TAUS
+from qfa_ros.model import noise_figures
+from qfa_ros.model.noise_figures import drive_density, KEYS, MAX_TAU, SHORT_TAUS
 
 TOPIC = '/imu/data_raw'
 MAX_CONFIG_BYTES = 1 << 20
@@ -38,7 +38,7 @@ def _span(times):
 def config_figures(path):
     """Return (figures, comments, header) of a node parameter file (``config/qfa.yaml`` form).
 
-    The figures are those of :func:`qfa_ros.model.imu_noise.config_figures`; a
+    The figures are those of :func:`qfa_ros.model.noise_figures.config_figures`; a
     ``noise.imu_yaml`` the file names is read (relative to the working directory, as the
     node reads it) and emulated.
     """
@@ -60,9 +60,9 @@ def config_figures(path):
             values.update(parameters)
     emulated = load_imu_noise(values)
     config = triad_config(values, imu_noise=emulated)
-    figures = imu_noise.config_figures(config).as_dict()
+    figures = noise_figures.config_figures(config).as_dict()
     noise, gyro = config.noise, config.gyro
-    floor = imu_noise.loop_white_floor(config)
+    floor = noise_figures.loop_white_floor(config)
     comments = {'update_rate': 'sample_rate_hz of imu/data_raw',
                 'rostopic': "the node's topic (under its namespace)"}
     if emulated is not None:
@@ -118,7 +118,7 @@ def bag_figures(path, topic=TOPIC, max_tau=MAX_TAU):
     period = float(np.median(np.diff(stamps))) / 1e9
     if np.all(np.isnan(rate)) or not np.any(rate):
         rate = None
-    measured = imu_noise.measured_figures(accel, rate, period, max_tau)
+    measured = noise_figures.measured_figures(accel, rate, period, max_tau)
     figures = dict(measured.fit)
     comments = {}
     for key, value in measured.fit.items():

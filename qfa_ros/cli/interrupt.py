@@ -20,7 +20,10 @@ def stops_quietly(prog):
     A command that has more to say (what was kept, how to resume) catches
     :class:`KeyboardInterrupt` itself and returns :data:`INTERRUPTED_STATUS`.
 
-    :param prog: The command's name, the start of the line.
+    Parameters
+    ----------
+    prog : str
+        The command's name, the start of the line.
     """
     def wrap(main):
         @functools.wraps(main)
@@ -55,7 +58,7 @@ def one_line_on_interrupt(kind, value, traceback):
 
 
 def program_name():
-    """Return the running command's name, also for ``python -m qfa_ros.cli.MODULE``."""
+    """Return the running command's name, also for ``python -m qfa_ros.cli.<module>``."""
     argv = sys.orig_argv
     if '-m' in argv[:-1]:
         module = argv[argv.index('-m') + 1]

@@ -57,8 +57,11 @@ def require_security(environ=None):
     says why in one line). rcl enables security only for exactly ``true``: another
     spelling of yes (``True``, ``1``) would start the node open, so it is refused.
 
-    :returns: ``(secured, problem)``: whether security is asked for, and why the node
-        must not start (or None).
+    Returns
+    -------
+    tuple
+        ``(secured, problem)``: whether security is asked for, and why the node must not
+        start (or None).
     """
     environ = os.environ if environ is None else environ
     value = environ.get('ROS_SECURITY_ENABLE', '')
@@ -81,9 +84,14 @@ def startup_failure(stage, error, secured):
     """
     Report a start-up failure as one line (stderr via the ROS logger); return the status.
 
-    :param stage: What failed, e.g. ``'rclpy.init'``.
-    :param error: The exception, or a message.
-    :param secured: Whether DDS Security was asked for (``ROS_SECURITY_ENABLE``).
+    Parameters
+    ----------
+    stage : str
+        What failed, e.g. ``'rclpy.init'``.
+    error : BaseException or str
+        The exception, or a message.
+    secured : bool
+        Whether DDS Security was asked for (``ROS_SECURITY_ENABLE``).
     """
     reason = one_line(error)
     if isinstance(error, ValueError):
@@ -141,7 +149,7 @@ class ProcessTuning:
         The frozen objects go back to the collector and a full collection runs at once:
         the removed unit's collaborators reference each other, and :meth:`warmed` collects
         only the young generations before it freezes again, so without it every removed
-        unit stayed, frozen, for good (+0.12 MiB per configure/cleanup cycle, issue 43).
+        unit stayed, frozen, for good (``bench/results/lifecycle_cycles.md``).
         Nothing is published meanwhile; it takes about as long as the collection
         :meth:`warmed` avoids (~0.1 s).
         """
@@ -194,7 +202,10 @@ def main(args=None, managed=False):
 
     ``--version`` (before any ``--ros-args``) prints :func:`version_line` and exits.
 
-    :param managed: Run the managed (lifecycle) node, which starts unconfigured.
+    Parameters
+    ----------
+    managed : bool
+        Run the managed (lifecycle) node, which starts unconfigured.
     """
     own_args = list(sys.argv if args is None else args)
     if '--ros-args' in own_args:
@@ -309,9 +320,17 @@ def shut_down(node, executor, close_timeout_s=CLOSE_TIMEOUT_S,
     A C-level watchdog (``faulthandler``, exit status 1, every thread's stack on stderr)
     backs the Python one in case the hung call holds the interpreter lock.
 
-    :param node: The :class:`QfaNode`.
-    :param executor: The executor spinning it.
-    :return: 0 (a hung teardown ends the process instead of returning).
+    Parameters
+    ----------
+    node : QfaNode
+        The :class:`QfaNode`.
+    executor : rclpy.executors.Executor
+        The executor spinning it.
+
+    Returns
+    -------
+    int
+        0 (a hung teardown ends the process instead of returning).
     """
     node.close(timeout_s=close_timeout_s)
     node.get_logger().info('calibration state and recording closed; stopping the middleware')

@@ -96,11 +96,19 @@ def own_environment(environ, own):
     """
     Return the environment a ROS program of this environment needs, or None if it has it.
 
-    :param environ: The process environment.
-    :param own: :func:`own_library_directories`.
-    :returns: A copy of ``environ`` with ``own`` first on ``LD_LIBRARY_PATH``, every other
-        ROS library directory and every ``PYTHONPATH`` entry holding ROS Python packages
-        left out, and the bootstrap marked complete; None when nothing needs to change.
+    Parameters
+    ----------
+    environ : dict
+        The process environment.
+    own : list of str
+        :func:`own_library_directories`.
+
+    Returns
+    -------
+    dict or None
+        A copy of ``environ`` with ``own`` first on ``LD_LIBRARY_PATH``, every other ROS
+        library directory and every ``PYTHONPATH`` entry holding ROS Python packages left
+        out, and the bootstrap marked complete; None when nothing needs to change.
     """
     current = [p for p in environ.get('LD_LIBRARY_PATH', '').split(os.pathsep) if p]
     foreign = [p for p in current if p not in own and is_ros_library_directory(p)]
@@ -165,9 +173,17 @@ def use_own_numba_cache(environ=None, prefix=None):
     removed (``__pycache__``). A directory outside any venv (the user's) stays. Runs before
     numba is imported (numba reads the variable once, at import).
 
-    :param environ: The environment to correct (default ``os.environ``).
-    :param prefix: This venv (default ``sys.prefix``).
-    :returns: The directory now used (None: ``__pycache__``), or False if nothing changed.
+    Parameters
+    ----------
+    environ : dict, optional
+        The environment to correct (default ``os.environ``).
+    prefix : str, optional
+        This venv (default ``sys.prefix``).
+
+    Returns
+    -------
+    str or None or bool
+        The directory now used (None: ``__pycache__``), or False if nothing changed.
     """
     environ = os.environ if environ is None else environ
     prefix = Path(os.path.realpath(sys.prefix if prefix is None else prefix))

@@ -7,6 +7,7 @@ import sys
 
 from qfa_ros.bag.reader import BagError
 from qfa_ros.cli.interrupt import stops_quietly
+from qfa_ros.model.checks import is_finite
 from qfa_ros.ros.fastdds import use_shipped_fastdds_profile
 from qfa_ros.ros.replay import BagReplayer, EXIT_NO_SUBSCRIBERS, ReplaySummary
 
@@ -45,8 +46,8 @@ def main(argv=None):
     if not args.rate > 0:
         print('qfa-replay: --rate must be positive', file=sys.stderr)
         return 2
-    if not 0 <= args.start_offset < math.inf or (
-            args.clock is not None and not 0 <= args.clock < math.inf):
+    if not (is_finite(args.start_offset) and args.start_offset >= 0) or (
+            args.clock is not None and not (is_finite(args.clock) and args.clock >= 0)):
         print('qfa-replay: --start-offset and --clock must be finite and not negative',
               file=sys.stderr)
         return 2

@@ -26,14 +26,15 @@ from tqdm import tqdm
 
 from qfa_ros.calibration.schedule import sensor_time_ns
 from qfa_ros.cli.interrupt import stops_quietly
-from qfa_ros.model import trajectories
+from qfa_ros.model import motion_scripts
 from qfa_ros.model.allan import allan_deviation_of_phase
+from qfa_ros.model.checks import is_finite
 from qfa_ros.model.constants import DEG_PER_HOUR, MICRO_G
 from qfa_ros.model.design import LinearLoop
 from qfa_ros.model.drawn_unit import draw_unit
+from qfa_ros.model.error_profiles import ERROR_PROFILES, PaperRoom, sensor_config
 from qfa_ros.model.error_truth import error_truth
-from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom, sensor_config
-from qfa_ros.model.imu_noise import emulated_config
+from qfa_ros.model.noise_figures import emulated_config
 from qfa_ros.model.parallel import run_chains
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
@@ -80,7 +81,7 @@ def static_sensor():
     # The node's room correlation too (unused by a constant ambient): the node's config.
     return (TriadConfig(thermal=ThermalConfig(ambient_profile='constant',
                                               room_correlation_s=PaperRoom.room_correlation_s)),
-            trajectories.static(45.0, 0.0, 0.0, yaw=0.0))
+            motion_scripts.static(45.0, 0.0, 0.0, yaw=0.0))
 
 
 def with_imu_noise(config, args):
@@ -165,8 +166,8 @@ def run_static(args, out=None):
 def build_trajectory(args):
     """Return the :class:`~qfa_ros.model.trajectory.Trajectory` the arguments name."""
     if args.trajectory_file:
-        return trajectories.load_csv(args.trajectory_file)
-    return trajectories.SCRIPTS[args.motion](
+        return motion_scripts.load_csv(args.trajectory_file)
+    return motion_scripts.SCRIPTS[args.motion](
         latitude_deg=args.latitude, longitude_deg=args.longitude, height_m=args.height,
         yaw=math.radians(args.yaw))
 
@@ -338,11 +339,9 @@ def run_temperature_cycle(args, out=None):
     settings = TemperatureSettings(period_s=args.duration)
     verify_s = 4.0 * args.duration / 3.0
     with scenario_bag(args, triad.config) as bag:
-        with tqdm(total=round(args.duration), unit='s', desc='calibration (sensor time)',
-                  disable=None, file=sys.stderr) as bar:
-            result = run_schedule(triad, temperature_schedule(triad, CalibrationState(),
-                                                              settings),
-                                  progress=bar.update)
+        # The schedule's own phases and fraction (its length depends on the soaks).
+        result = run_schedule(triad, temperature_schedule(triad, CalibrationState(), settings),
+                              progress='calibration')
         verify_ns = triad.stamp_ns(triad.sample_index)
         with tqdm(total=round(verify_s), unit='s', desc='verification (sensor time)',
                   disable=None, file=sys.stderr) as bar:
@@ -395,7 +394,7 @@ def build_parser():
     parser.add_argument('--trials', type=int, default=6,
                         help='paper-2019: number of trials (default 6, as Ran et al. 2019)')
     motion = parser.add_argument_group('trajectory scenario')
-    motion.add_argument('--motion', choices=sorted(trajectories.SCRIPTS), default='drive',
+    motion.add_argument('--motion', choices=sorted(motion_scripts.SCRIPTS), default='drive',
                         help='built-in motion script (default drive)')
     motion.add_argument('--trajectory-file', metavar='POSES.csv',
                         help='CSV of time_s, latitude_deg, longitude_deg, height_m, '
@@ -443,7 +442,7 @@ def parse_start_time(text):
 
 def option_problem(args):
     """Return what is wrong with the numeric options of ``args`` (one line), or None."""
-    if args.duration is not None and not 0 < args.duration < math.inf:
+    if args.duration is not None and not (is_finite(args.duration) and args.duration > 0):
         return f'--duration must be a positive finite number of seconds, got {args.duration}'
     if args.start_ns + (args.duration or 0.0) * 1e9 >= 2 ** 63:
         return (f'--duration {args.duration:g} s from --start-time ends after 2262 (int64 '
@@ -463,9 +462,9 @@ def option_problem(args):
             TriadConfig(sample_rate_hz=args.rate)
         except ValueError as error:
             return f'--rate: {error}'
-        if not 0 < args.truth_rate < math.inf:
+        if not (is_finite(args.truth_rate) and args.truth_rate > 0):
             return f'--truth-rate must be a positive finite number of Hz, got {args.truth_rate}'
-        if not math.isfinite(args.yaw):
+        if not is_finite(args.yaw):
             return f'--yaw must be a finite number of degrees, got {args.yaw}'
     return None
 

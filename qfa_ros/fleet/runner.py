@@ -1,10 +1,11 @@
 """
 Run a fleet study on Dask, resumably, into Parquet.
 
-Each batch of units is one Dask task (:func:`~qfa_ros.fleet.unit.simulate_batch`). The
-client writes every finished batch to ``OUT.parts/batch-START-STOP.parquet`` at once
-(temporary file, then rename), so an interrupted run keeps what it finished and a
-restart computes only the missing batches. When all are there the parts are joined,
+Each batch of units is one Dask task
+(:func:`~qfa_ros.fleet.self_calibration_unit.simulate_batch`). The client writes every
+finished batch to ``OUT.parts/batch-START-STOP.parquet`` at once (temporary file, then
+rename), so an interrupted run keeps what it finished and a restart computes only the
+missing batches. When all are there the parts are joined,
 sorted by unit and calibration, into ``OUT`` (again written aside, then renamed). Unit
 results depend only on the study and the unit's seed, so the table is identical
 whatever the number of workers.
@@ -23,8 +24,8 @@ import time
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from qfa_ros.fleet.self_calibration_unit import simulate_batch
 from qfa_ros.fleet.study import StudyError
-from qfa_ros.fleet.unit import simulate_batch
 from qfa_ros.model.safe_files import write_atomically
 
 STUDY_FILE = 'study.json'
@@ -149,9 +150,7 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
     pyarrow.Table
         The whole study, one row per unit and calibration.
     """
-    from dask.distributed import as_completed, Client, LocalCluster
     from distributed.comm import get_address_host_port
-    from tqdm import tqdm
 
     out_path = Path(out_path)
     if scheduler:
@@ -168,45 +167,7 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
             f'computing {len(pending)}')
     started = time.perf_counter()
     if pending:
-        own_client = client is None
-        cluster = None
-        try:
-            if scheduler and own_client:
-                client = Client(scheduler)
-            elif own_client:
-                # One single-threaded process per core: the model holds the GIL per task.
-                # Port 0: a second study beside a running one must not fight over the port.
-                # CRITICAL: a study's failures reach this process through its futures;
-                # what the cluster logs as ERROR is its own chatter, e.g. a worker's
-                # heartbeat racing the scheduler's close at a Ctrl-C (a traceback).
-                with workers_shielded_from_sigint():
-                    cluster = LocalCluster(n_workers=workers or os.cpu_count(),
-                                           threads_per_worker=1, processes=True,
-                                           dashboard_address=':0',
-                                           silence_logs=logging.CRITICAL)
-                client = Client(cluster)
-            futures = [client.submit(batch_table, study, start, stop, pure=False,
-                                     key=f'qfa-fleet-{study.digest()}-{start}-{stop}')
-                       for start, stop in pending]
-            bounds = {future.key: (start, stop) for future, (start, stop)
-                      in zip(futures, pending)}
-            bar = tqdm(total=sum(stop - start for start, stop in pending), unit='unit',
-                       desc=study.name, disable=not progress)
-            with bar:
-                for future in as_completed(futures):
-                    start, stop = bounds[future.key]
-                    _write_table(future.result(), _part_path(parts, start, stop))
-                    bar.update(stop - start)
-                    future.release()
-        except KeyboardInterrupt:
-            # Stopped mid-start, the cluster may log broken connections: asked for, not news.
-            logging.getLogger('distributed').setLevel(logging.CRITICAL)
-            raise
-        finally:
-            if own_client and client is not None:
-                client.close()
-            if cluster is not None:
-                cluster.close()
+        _compute(study, parts, pending, workers, scheduler, client, progress)
     table = pa.concat_tables(pq.read_table(_part_path(parts, start, stop))
                              for start, stop in study.batches)
     table = table.sort_by([('unit', 'ascending'), ('calibration', 'ascending')])
@@ -217,3 +178,60 @@ def run_study(study, out_path, *, workers=None, scheduler=None, client=None, pro
     log(f'{study.units} units x {study.calibrations} calibrations -> {out_path} '
         f'({time.perf_counter() - started:.1f} s for {len(pending)} batches)')
     return table
+
+
+def _compute(study, parts, pending, workers, scheduler, client, progress):
+    """
+    Compute the ``pending`` batches on Dask, writing each to ``parts`` as it finishes.
+
+    Parameters
+    ----------
+    study, workers, scheduler, client, progress
+        As :func:`run_study`'s.
+    parts : pathlib.Path
+        The parts directory.
+    pending : list of tuple
+        The ``(start, stop)`` units of the batches to compute.
+    """
+    from dask.distributed import as_completed, Client, LocalCluster
+    from tqdm import tqdm
+
+    own_client = client is None
+    cluster = None
+    try:
+        if scheduler and own_client:
+            client = Client(scheduler)
+        elif own_client:
+            # One single-threaded process per core: the model holds the GIL per task.
+            # Port 0: a second study beside a running one must not fight over the port.
+            # CRITICAL: a study's failures reach this process through its futures;
+            # what the cluster logs as ERROR is its own chatter, e.g. a worker's
+            # heartbeat racing the scheduler's close at a Ctrl-C (a traceback).
+            with workers_shielded_from_sigint():
+                cluster = LocalCluster(n_workers=workers or os.cpu_count(),
+                                       threads_per_worker=1, processes=True,
+                                       dashboard_address=':0',
+                                       silence_logs=logging.CRITICAL)
+            client = Client(cluster)
+        futures = [client.submit(batch_table, study, start, stop, pure=False,
+                                 key=f'qfa-fleet-{study.digest()}-{start}-{stop}')
+                   for start, stop in pending]
+        bounds = {future.key: (start, stop) for future, (start, stop)
+                  in zip(futures, pending)}
+        bar = tqdm(total=sum(stop - start for start, stop in pending), unit='unit',
+                   desc=study.name, disable=not progress)
+        with bar:
+            for future in as_completed(futures):
+                start, stop = bounds[future.key]
+                _write_table(future.result(), _part_path(parts, start, stop))
+                bar.update(stop - start)
+                future.release()
+    except KeyboardInterrupt:
+        # Stopped mid-start, the cluster may log broken connections: asked for, not news.
+        logging.getLogger('distributed').setLevel(logging.CRITICAL)
+        raise
+    finally:
+        if own_client and client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()

@@ -60,7 +60,8 @@ import yaml
 from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
 from qfa_ros.calibration.experiments import IMPROVED_SCHEDULE, PAPER_SCHEDULE
 from qfa_ros.calibration.temperature import TemperatureSettings
-from qfa_ros.model.errors import ERROR_PROFILES
+from qfa_ros.model.checks import is_finite
+from qfa_ros.model.error_profiles import ERROR_PROFILES
 from qfa_ros.model.safe_files import read_regular_file, UntrustedFileError
 
 SCHEDULES = {'paper': PAPER_SCHEDULE, 'improved': IMPROVED_SCHEDULE}
@@ -87,8 +88,8 @@ class StudyError(ValueError):
 
 
 def _number(where, value, low, high, integer=False, allow_low=True):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value) or (integer and int(value) != value):
+    if not is_finite(value, bool_ok=False, types=(int, float)) \
+            or (integer and int(value) != value):
         kind = 'an integer' if integer else 'a finite number'
         raise StudyError(f'{where} must be {kind}, got {value!r}')
     if value < low or value > high or (value == low and not allow_low):

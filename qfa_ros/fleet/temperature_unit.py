@@ -21,10 +21,10 @@ from qfa_ros.calibration.schedule import run_schedule
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.calibration.temperature import temperature_calibration
 from qfa_ros.calibration.verification import ATTITUDES, verify_attitudes
-from qfa_ros.model import streams
+from qfa_ros.model import random_streams
 from qfa_ros.model.constants import MICRO_G, PPM
 from qfa_ros.model.drawn_unit import draw_unit
-from qfa_ros.model.errors import error_profile
+from qfa_ros.model.error_profiles import error_profile
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.triad_config import TriadConfig
@@ -64,7 +64,7 @@ def simulate_temperature_unit(study, index):
         ambient_profile='constant', ambient_c=study.environment.room_c,
         initial_sensor_c=study.environment.room_c, sensor_tau_s=sensor['sensor_tau_s']),
         **rates)
-    triad = unit.triad(config, rng=streams.generator(
+    triad = unit.triad(config, rng=random_streams.generator(
         np.random.SeedSequence([study.seed, index]), 'unit.model'))
     unit.install_error_profile(triad, error_profile(study.environment.error_profile))
     settings = study.temperature_settings()

@@ -1,8 +1,10 @@
-"""Checks of a caller's numbers shared by the model's configurations.
+"""Checks of a caller's numbers, shared by every layer.
 
-Each raises ``ValueError`` naming the parameter. They differ in what they accept on
-purpose (a string ``float()`` reads, a bool, a numpy scalar): each keeps the set of inputs
-its callers refused before they shared it.
+:func:`is_finite` is the one test of whether a caller's value is a finite number; every
+other check here, and every layer's check that words its own refusal, asks it. Each
+raises ``ValueError`` naming the parameter. They differ in what they accept on purpose (a
+string ``float()`` reads, a bool, a numpy scalar): each keeps the set of inputs its callers
+refused before they shared it.
 """
 
 import math
@@ -10,19 +12,34 @@ import math
 import numpy as np
 
 
-def is_finite(value, bool_ok=True):
+def is_finite(value, bool_ok=True, types=None):
     """
     Return True for a finite real number (``math.isfinite``), False for anything else.
 
-    A bool is a number to ``math.isfinite``; ``bool_ok=False`` counts it as none (a time or
-    a limit given as ``True``).
+    Parameters
+    ----------
+    value : object
+        The caller's value: None, a string, a sequence or an integer beyond the float
+        range is no finite number (False, not an exception).
+    bool_ok : bool
+        A bool is a number to ``math.isfinite``; False counts it (and ``numpy.bool_``) as
+        none (a time or a limit given as ``True``).
+    types : type or tuple of type, optional
+        Accept only instances of these (``(int, float)``: not a numpy integer, not a
+        ``Decimal``); None accepts whatever ``math.isfinite`` reads.
+
+    Returns
+    -------
+    bool
     """
     if not bool_ok and isinstance(value, (bool, np.bool_)):
         return False
+    if types is not None and not isinstance(value, types):
+        return False
     try:
         return math.isfinite(value)
-    except TypeError:
-        # None, a string, a sequence: no number at all.
+    except (TypeError, OverflowError):
+        # None, a string, a sequence; an integer beyond the float range.
         return False
 
 
@@ -46,13 +63,40 @@ def index(name, value, size):
     return int(value)
 
 
-def finite(name, value):
-    """Return ``value`` as a float: anything ``float()`` reads, if finite."""
+def finite(name, value, types=None, bool_ok=True):
+    """
+    Return ``value`` as a float if it is a finite number; raise ``ValueError`` otherwise.
+
+    Parameters
+    ----------
+    name : str
+        The parameter the refusal names.
+    value : object
+        The caller's value.
+    types : type or tuple of type, optional
+        None: anything ``float()`` reads (a numeric string too). Given: an instance of
+        these only, refused as ``'{name} must be a finite number'`` whatever is wrong.
+    bool_ok : bool
+        With ``types``, whether a bool counts as a number (:func:`is_finite`).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        ``value`` is no finite number (the message names ``name`` and quotes ``value``).
+    """
+    if types is not None:
+        if not is_finite(value, bool_ok, types):
+            raise ValueError(f'{name} must be a finite number, got {value!r}')
+        return float(value)
     try:
         value = float(value)
-    except (TypeError, ValueError) as error:
+    except (TypeError, ValueError, OverflowError) as error:
         raise ValueError(f'{name} must be a finite number, got {value!r}') from error
-    if not math.isfinite(value):
+    if not is_finite(value):
         raise ValueError(f'{name} must be finite, got {value!r}')
     return value
 
@@ -67,8 +111,7 @@ def positive(name, value, allow_zero=False):
 
 def non_negative(name, value, types=None):
     """Refuse a non-finite or negative number (given ``types``, also one not of them)."""
-    if (types is not None and not isinstance(value, types)) or not is_finite(value) \
-            or value < 0:
+    if not is_finite(value, types=types) or value < 0:
         raise ValueError(f'{name} must be finite and >= 0, got {value!r}')
 
 

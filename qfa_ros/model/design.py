@@ -61,7 +61,7 @@ class ControllerDesign:
 
     def with_gain(self, gain):
         """Return the same controller with k(D(z)) = ``gain`` (quantized to Q32)."""
-        if not math.isfinite(gain) or gain <= 0:
+        if not checks.is_finite(gain) or gain <= 0:
             raise ValueError(f'controller gain must be positive and finite, got {gain!r}')
         return replace(self, gain_word=int(round(gain * 2 ** GAIN_FRAC_BITS)))
 

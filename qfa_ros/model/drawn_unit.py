@@ -42,7 +42,7 @@ forward-chain coefficients      normal around the ``paper`` profile's type      
 The component coefficients act only where the error profile switches the source on
 (:meth:`Unit.install_error_profile`: the profile says which sources act, the unit how
 much); they come from their own generator stream (the child ``'unit.component_tcs'`` of
-``SeedSequence([UNIT_STREAM, seed])``, :mod:`qfa_ros.model.streams`), so adding them moved
+``SeedSequence([UNIT_STREAM, seed])``, :mod:`qfa_ros.model.random_streams`), so adding them moved
 no other draw of a seed.
 """
 
@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.polynomial.polynomial import polyval
 
-from qfa_ros.model import streams
+from qfa_ros.model import random_streams
 from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import AXES, QfaTriad
@@ -203,7 +203,7 @@ class Unit:
         """
         Write ``profile`` (an ErrorProfile) with this unit's coefficients into ``triad``.
 
-        ``profile`` is a :class:`~qfa_ros.model.errors.ErrorProfile`: it switches the
+        ``profile`` is a :class:`~qfa_ros.model.error_profiles.ErrorProfile`: it switches the
         sources on (``ideal`` leaves every one off); each forward-chain component it
         names and its I_ref source (when its coefficient is not zero) take this unit's
         coefficients instead of the type figure.
@@ -310,7 +310,7 @@ def draw_unit(seed, spread=None):
                            -spread.misalignment_max_mrad, spread.misalignment_max_mrad) * 1e-3
     np.fill_diagonal(misalignment, 0.0)
     i_ref_tc, forward_tc = draw_component_tcs(
-        streams.seed_sequence(np.random.SeedSequence([UNIT_STREAM, int(seed)]),
+        random_streams.seed_sequence(np.random.SeedSequence([UNIT_STREAM, int(seed)]),
                               'unit.component_tcs'),
         spread)
 
@@ -333,7 +333,7 @@ def install_component_tcs(triad, profile, i_ref_tc_ppm_per_c, forward_tc_ppm_per
     """
     Write ``profile`` into ``triad`` with per-axis component coefficients [ppm/degC].
 
-    ``profile`` (an :class:`~qfa_ros.model.errors.ErrorProfile`) says which sources act:
+    ``profile`` (an :class:`~qfa_ros.model.error_profiles.ErrorProfile`) says which sources act:
     each forward-chain component it names (:data:`FORWARD_TC_COMPONENTS` rows of
     ``forward_tc_ppm_per_c``) and its I_ref source (when its coefficient is not zero)
     take the given coefficients instead of the type figure; ``ideal`` leaves all off.

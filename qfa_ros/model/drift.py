@@ -1,7 +1,5 @@
 """Parameter drift of the loop gains: steps and linear aging (sensor time)."""
 
-import math
-
 import numpy as np
 
 from qfa_ros.model import checks
@@ -9,6 +7,8 @@ from qfa_ros.model.constants import PPM
 from qfa_ros.model.hardware import DRIFT_COMPONENTS
 
 SECONDS_PER_YEAR = 365.25 * 86400.0
+NUMBER_TYPES = (int, float, np.floating)
+"""What a drift setter takes as a number (a bool too, not a string or a numpy integer)."""
 
 
 class DriftModel:
@@ -57,13 +57,13 @@ class DriftModel:
 
     def set_step(self, axis, component, delta):
         """Set the step drift of ``component`` on ``axis`` (relative, e.g. 200e-6)."""
-        _check_finite('delta', delta)
+        checks.finite('delta', delta, NUMBER_TYPES)
         self.step[self._index(axis, component)] = delta
         self.version += 1
 
     def set_aging(self, axis, component, ppm_per_year):
         """Set the linear aging rate of ``component`` on ``axis`` [ppm/year]."""
-        _check_finite('ppm_per_year', ppm_per_year)
+        checks.finite('ppm_per_year', ppm_per_year, NUMBER_TYPES)
         index = self._index(axis, component)
         self._fold_aging()
         self.rate[index] = ppm_per_year * PPM / SECONDS_PER_YEAR
@@ -71,13 +71,13 @@ class DriftModel:
 
     def set_temperature_coefficient(self, axis, component, ppm_per_degc):
         """Set the temperature coefficient of ``component`` on ``axis`` [ppm/degC]."""
-        _check_finite('ppm_per_degc', ppm_per_degc)
+        checks.finite('ppm_per_degc', ppm_per_degc, NUMBER_TYPES)
         self.temperature_coefficient[self._index(axis, component)] = ppm_per_degc * PPM
         self.version += 1
 
     def set_time_acceleration(self, factor):
         """Set the aging time-acceleration factor (>= 0)."""
-        _check_finite('time_acceleration', factor)
+        checks.finite('time_acceleration', factor, NUMBER_TYPES)
         if factor < 0:
             raise ValueError(f'time_acceleration must be >= 0, got {factor!r}')
         self._fold_aging()
@@ -114,8 +114,3 @@ class DriftModel:
             values = values + self.temperature_coefficient[axis] \
                 * (temperature - self.reference_temperature)
         return dict(zip(self.components, values.tolist()))
-
-
-def _check_finite(name, value):
-    if not isinstance(value, (int, float, np.floating)) or not math.isfinite(value):
-        raise ValueError(f'{name} must be a finite number, got {value!r}')

@@ -10,6 +10,8 @@ Navigation Systems*, 2nd ed., eq. 2.105-2.106 (radii) and 5.44 (transport rate).
 
 import numpy as np
 
+from qfa_ros.model import checks
+
 SEMI_MAJOR_AXIS = 6378137.0
 """WGS-84 a [m]."""
 FLATTENING = 1.0 / 298.257223563
@@ -112,7 +114,7 @@ def check_location(latitude_deg, longitude_deg, height_m):
     """Raise ``ValueError`` naming the parameter unless the location is usable."""
     for (name, low, high), value in zip(LOCATION_LIMITS,
                                         (latitude_deg, longitude_deg, height_m)):
-        if not np.isfinite(value) or not low <= value <= high:
+        if not checks.is_finite(value) or not low <= value <= high:
             raise ValueError(f'{name} must be in [{low:g}, {high:g}], got {value!r}')
 
 

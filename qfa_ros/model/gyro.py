@@ -33,7 +33,7 @@ import math
 from numba import njit
 import numpy as np
 
-from qfa_ros.model import checks, streams
+from qfa_ros.model import checks, random_streams
 from qfa_ros.model.constants import ARCSEC, DEG_PER_HOUR, DEG_PER_ROOT_HOUR, PPM, STANDARD_GRAVITY
 from qfa_ros.model.noise import flicker_component_variance
 
@@ -162,18 +162,19 @@ class GyroTriad:
     """
 
     def __init__(self, config, sample_rate_hz, rng):
-        if not math.isfinite(sample_rate_hz) or sample_rate_hz <= 0:
+        if not checks.is_finite(sample_rate_hz) or sample_rate_hz <= 0:
             raise ValueError(f'sample_rate_hz must be positive, got {sample_rate_hz!r}')
         if not isinstance(rng, np.random.Generator):
             rng = np.random.default_rng(rng)
         self.config = config
         self.dt = 1.0 / sample_rate_hz
-        unit_stream = streams.generator(rng, 'gyro.unit')
-        flicker = streams.generator(rng, 'gyro.flicker')
-        walk = streams.generator(rng, 'gyro.walk')
+        unit_stream = random_streams.generator(rng, 'gyro.unit')
+        flicker = random_streams.generator(rng, 'gyro.flicker')
+        walk = random_streams.generator(rng, 'gyro.walk')
         # The white noise is three draws a sample, the gyros' largest cost beside the
         # loops: numpy's SFC64 draws a normal in ~2/3 of PCG64's time, from the same seed.
-        white = np.random.Generator(np.random.SFC64(streams.seed_sequence(rng, 'gyro.white')))
+        white = np.random.Generator(
+            np.random.SFC64(random_streams.seed_sequence(rng, 'gyro.white')))
         self.unit = GyroUnit.draw(config, unit_stream)
         self._white, self._flicker, self._walk = white, flicker, walk
         self._white_std = config.arw / math.sqrt(self.dt)

@@ -1,9 +1,9 @@
 """Nominal hardware of one QFA axis and the loop gains it implies (Ran et al. 2019, eq. 1-13)."""
 
 from dataclasses import asdict, dataclass, fields, replace
-import math
 import numbers
 
+from qfa_ros.model import checks
 from qfa_ros.model.constants import STANDARD_GRAVITY
 
 FORWARD_COMPONENTS = ('k1', 'c_ref', 'v_da1_ref', 'k_tz', 'k_amp', 'v_ad_ref')
@@ -109,9 +109,7 @@ class AxisHardware:
     def __post_init__(self):
         for field in fields(self):
             value = getattr(self, field.name)
-            if not isinstance(value, numbers.Real) or isinstance(value, bool) \
-                    or not math.isfinite(value):
-                raise ValueError(f'{field.name} must be a finite number, got {value!r}')
+            checks.finite(field.name, value, types=numbers.Real, bool_ok=False)
             if value <= 0:
                 raise ValueError(f'{field.name} must be positive, got {value!r}')
         for name, low, high in (('n_da1_bits', 4, 32), ('n_ad_bits', 4, 24),

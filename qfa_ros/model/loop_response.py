@@ -281,7 +281,37 @@ def measure_loop(config, rng=0, controller=None, amplitude=0.2 * STANDARD_GRAVIT
     feedback = -k_fb * applied
     moment = k0 * r + feedback
     output = counts * counts_to_accel(config.hardware)
-    start = settle_periods * period_steps
+    return _breaking_estimate((r, feedback, moment, output), rate, settle_periods * period_steps,
+                              periods, (low, high))
+
+
+def _breaking_estimate(signals, rate, start, periods, band):
+    """
+    Estimate ``L`` and the closed-loop response from the signals of a loop-breaking run.
+
+    Parameters
+    ----------
+    signals : tuple of numpy.ndarray
+        Per loop step: the excitation ``r``, the feedback moment, the moment at the
+        summing point ``u`` and the output [m/s^2].
+    rate : float
+        Loop rate [Hz].
+    start : int
+        Loop steps of the settling periods, not used.
+    periods : int
+        Chirp periods after ``start``, each one spectral segment.
+    band : (float, float)
+        Frequencies estimated [Hz].
+
+    Returns
+    -------
+    LoopMeasurement
+    """
+    from scipy import signal  # already loaded by measure_loop
+
+    r, feedback, moment, output = signals
+    period_steps = (len(r) - start) // periods
+    low, high = band
 
     def per_period(x):
         # Spectrum of each period (boxcar), rows = periods.

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from qfa_ros.model import checks, streams
+from qfa_ros.model import checks, random_streams
 from qfa_ros.model.constants import MICRO_G
 
 
@@ -41,7 +41,7 @@ class NoiseConfig:
         Bias random walk K [(m/s^2)/sqrt(s) = m/s^3/sqrt(Hz)]: a bias ``b' = K w(t)``
         (``w`` unit white noise), Kalibr's ``accelerometer_random_walk``; its Allan
         deviation is ``K sqrt(tau / 3)``. Default 0: the sensor's own bias wanders as the
-        Gauss-Markov sum above; an emulated ``imu.yaml`` (:mod:`qfa_ros.model.imu_noise`)
+        Gauss-Markov sum above; an emulated ``imu.yaml`` (:mod:`qfa_ros.model.noise_figures`)
         sets this instead.
     """
 
@@ -99,7 +99,7 @@ class NoiseSource:
     and ``v ~ N(0, K^2 dt)``, started at zero; ADC noise ``n ~ N(0, sigma_adc^2)`` per
     loop step [count].
     Every random number of axis ``i`` comes from ``streams[i]``, the child
-    ``'triad.noise'`` ``i`` of ``rng`` (:mod:`qfa_ros.model.streams`):
+    ``'triad.noise'`` ``i`` of ``rng`` (:mod:`qfa_ros.model.random_streams`):
     :func:`qfa_ros.model.kernel.run_axis` draws them in a fixed order,
     so the output depends on the seed only, not on the chunk lengths or on which thread
     runs which axis. This object holds the parameters and the Gauss-Markov states.
@@ -126,18 +126,19 @@ class NoiseSource:
         self.config = config
         self.n_axes = n_axes
         self.decimation = int(round(loop_rate_hz / sample_rate_hz))
-        self.streams = [streams.generator(rng, 'triad.noise', axis) for axis in range(n_axes)]
+        self.streams = [random_streams.generator(rng, 'triad.noise', axis)
+                        for axis in range(n_axes)]
         self.white_std = config.noise_density * math.sqrt(loop_rate_hz)
         self.adc_std = float(config.adc_noise)
         # The bias instability steps once per block of samples (a tenth of the shortest
         # correlation time, at most GAUSS_MARKOV_BLOCK_S) and holds: its Allan deviation
         # is unchanged from the block on, where the white noise dwarfs it, and it costs
-        # 1/block of its random numbers (it was 14 % of the kernel's time per sample).
+        # 1/block of its random numbers (bench/results/sim_limit.md).
         self.gm_block = max(1, int(min(GAUSS_MARKOV_BLOCK_S,
                                        0.1 * min(config.correlation_times)) * sample_rate_hz))
         if config.random_walk > 0 and config.bias_instability == 0:
             # A random walk alone (an emulated imu.yaml) steps every sample, Kalibr's
-            # discrete model exactly: one normal a sample, about 5 % of the kernel's.
+            # discrete model exactly: one normal a sample (bench/results/sim_limit.md).
             self.gm_block = 1
         dt = self.gm_block / sample_rate_hz
         if config.bias_instability > 0:

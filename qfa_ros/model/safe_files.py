@@ -83,7 +83,10 @@ def _open_regular(name):
     """
     Return ``(descriptor, stat)`` of the regular file ``name``, opened non-blocking.
 
-    :raises UntrustedFileError: As :func:`read_regular_file` says, the size aside.
+    Raises
+    ------
+    UntrustedFileError
+        As :func:`read_regular_file` says, the size aside.
     """
     if not name:
         raise UntrustedFileError('no file named')
@@ -120,7 +123,10 @@ def open_regular_file(path):
     time (a bag's MCAP files). A FIFO or a device would block or never end: refused
     without a byte read.
 
-    :raises UntrustedFileError: As :func:`read_regular_file`; the message names ``path``.
+    Raises
+    ------
+    UntrustedFileError
+        As :func:`read_regular_file`; the message names ``path``.
     """
     descriptor, _ = _open_regular(os.fspath(path))
     os.set_blocking(descriptor, True)

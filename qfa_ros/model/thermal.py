@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from qfa_ros.model import checks, streams
+from qfa_ros.model import checks, random_streams
 from qfa_ros.model.constants import MILLI_G, PPM
 
 AMBIENT_PROFILES = ('constant', 'ramp', 'cycle', 'room')
@@ -240,7 +240,7 @@ class ThermalModel:
 
     See :class:`ThermalConfig` for every equation and unit.  Random numbers (room
     wander, temperature-sensor noise) come from a private stream, the injected
-    generator's child ``'thermal.environment'`` (:mod:`qfa_ros.model.streams`), two
+    generator's child ``'thermal.environment'`` (:mod:`qfa_ros.model.random_streams`), two
     normals per sample drawn row-wise, so a run split into chunks equals one long run
     and the parent generator's other users do not shift it; :meth:`reset` replays it
     from the start.
@@ -261,7 +261,7 @@ class ThermalModel:
         if not isinstance(rng, np.random.Generator):
             raise ValueError(f'rng must be a numpy.random.Generator, got {type(rng).__name__}')
         self.config = config
-        self._rng = streams.generator(rng, 'thermal.environment')
+        self._rng = random_streams.generator(rng, 'thermal.environment')
         self._rng_start = self._rng.bit_generator.state
         self._alpha = np.asarray(config.bias_alpha, dtype=float)
         self._beta = np.asarray(config.bias_beta, dtype=float)

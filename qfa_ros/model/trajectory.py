@@ -18,7 +18,7 @@ the specific force and angular rate are consistent with the pose to rounding. Be
 the first knot and after the last one the body rests at the end pose.
 
 The built-in motion scripts and the trajectory files that build one are in
-:mod:`qfa_ros.model.trajectories`.
+:mod:`qfa_ros.model.motion_scripts`.
 
 The sensors read the mean of f^b and w_ib^b over each sample period
 (:meth:`Trajectory.sample_means`): exact integrals of verified per-piece Chebyshev fits of

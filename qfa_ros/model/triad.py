@@ -12,14 +12,14 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from qfa_ros.model import checks, kernel, streams
+from qfa_ros.model import checks, kernel, random_streams
 from qfa_ros.model.axis import AxisLoop, start_axes
 from qfa_ros.model.drift import DriftModel
 from qfa_ros.model.gyro import GyroTriad
 from qfa_ros.model.hardware import counts_to_accel
+from qfa_ros.model.input_profiles import StaticProfile
 from qfa_ros.model.noise import NoiseSource
 from qfa_ros.model.parallel import available_cores
-from qfa_ros.model.profiles import StaticProfile
 from qfa_ros.model.thermal import ThermalModel
 from qfa_ros.model.triad_config import TriadConfig
 from qfa_ros.model.triad_output import concatenate, TriadOutput
@@ -124,12 +124,12 @@ class QfaTriad:
         self.thermal = None
         if self.config.thermal is not None:
             self.thermal = ThermalModel(self.config.thermal,
-                                        streams.generator(self.rng, 'triad.thermal'))
+                                        random_streams.generator(self.rng, 'triad.thermal'))
         self.gyro = None
         if self.config.gyro is not None:
             # A named child: the accelerometers' streams are the same with or without gyros.
             self.gyro = GyroTriad(self.config.gyro, self.config.sample_rate_hz,
-                                  streams.generator(self.rng, 'triad.gyro'))
+                                  random_streams.generator(self.rng, 'triad.gyro'))
         # Gyro bias correction [rad/s] the firmware subtracts from the published rate
         # (a gyro bias schedule estimates it); zero until one ran.
         self.gyro_bias_correction = np.zeros(3)
@@ -195,7 +195,7 @@ class QfaTriad:
         config : NoiseConfig
             The new noise (e.g. white and bias instability off for a noiseless twin).
         rng : numpy.random.Generator or int
-            Source of the new streams.
+            Source of the new random_streams.
         """
         self.noise = NoiseSource(config, len(AXES), self.config.loop_rate_hz,
                                  self.config.sample_rate_hz, np.random.default_rng(rng))
@@ -235,11 +235,7 @@ class QfaTriad:
 
         The bound keeps every int64 product of the kernel below 2^62 at full-scale ADC.
         """
-        try:
-            valid = math.isfinite(gain) and 0 < gain < MAX_CONTROLLER_GAIN
-        except TypeError:
-            valid = False
-        if not valid:
+        if not (checks.is_finite(gain) and 0 < gain < MAX_CONTROLLER_GAIN):
             raise ValueError(f'controller gain must be in (0, {MAX_CONTROLLER_GAIN}), '
                              f'got {gain!r}')
         loop = self.axes[checks.index('axis', axis, len(AXES))]

@@ -1,7 +1,6 @@
 """The configuration of a :class:`~qfa_ros.model.triad.QfaTriad` (pure model, SI units)."""
 
 from dataclasses import dataclass, field
-import math
 import numbers
 
 import numpy as np
@@ -71,8 +70,8 @@ class TriadConfig:
             value = getattr(self, name)
             # settle_time may be 0 (no settling), as a number: False is not a time.
             zero_allowed = name == 'settle_time'
-            if not isinstance(value, numbers.Real) or isinstance(value, (bool, np.bool_)) \
-                    or not math.isfinite(value) or value < 0 or (value == 0 and not zero_allowed):
+            if not checks.is_finite(value, bool_ok=False, types=numbers.Real) or value < 0 \
+                    or (value == 0 and not zero_allowed):
                 rule = 'finite and >= 0' if zero_allowed else 'a positive finite number'
                 raise ValueError(f'{name} must be {rule}, got {value!r}')
         ratio = self.loop_rate_hz / self.sample_rate_hz

@@ -447,7 +447,7 @@ def _double_exponential(run, axis):
     coefficients = [run.value(f'fit.{axis}.{name}') for name in names]
     if all(isinstance(c, (int, float)) for c in coefficients):
         fit = dict(zip(names, map(float, coefficients)))
-        # the linear baseline of a multi-position calibration (0 for the seed's model)
+        # the linear baseline of a multi-position calibration (0 for Liu, Li and Shen's model)
         fit['offset'] = float(run.value(f'fit.{axis}.offset') or 0.0)
         fit['slope'] = float(run.value(f'fit.{axis}.slope') or 0.0)
         return fit

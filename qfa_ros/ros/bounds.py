@@ -13,7 +13,12 @@ import math
 import os
 from pathlib import Path
 
-from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
+from qfa_ros.calibration.estimation import (
+    feedback_sensor_time_s,
+    FeedbackSettings,
+    forward_sensor_time_s,
+    ForwardSettings,
+)
 from qfa_ros.calibration.gyro_bias import BLOCK_S
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model.constants import PPM
@@ -33,13 +38,15 @@ FEEDBACK_MAX_SETTLE_S = 0.5
 FEEDBACK_MAX_AVERAGE_S = 20.0
 CHAMBER_MAX_PERIOD_S = 4500.0
 CHAMBER_MAX_CYCLES = 1
-MAX_SCHEDULE_LOOP_STEPS = 144_000_000
-"""Model loop steps one call may compute: 14400 s of sensor time at the default 10 kHz loop."""
-CHAMBER_MAX_SENSOR_S = 14_400.0
-"""Sensor time one calibrate_temperature call may take [s], whatever the loop rate. The
-ranges alone do not bound it tightly: fewer plateaus (``low_c`` and ``high_c`` close
-together) hold longer each, and the extremes soak up to ten holds, so the settings are
-checked as a whole (:meth:`TemperatureSettings.max_sensor_time_s`)."""
+MAX_SCHEDULE_LOOP_STEPS = 180_000_000
+"""Model loop steps one call may compute: 18000 s of sensor time at the default 10 kHz loop."""
+CHAMBER_MAX_SENSOR_S = 18_000.0
+"""Sensor time one calibrate_temperature call may take [s], whatever the loop rate and the
+ambient: the default chamber limits at the longest period take 16 877 s from an ambient at
+``high_c``. The ranges alone do not bound it tightly: fewer plateaus (``low_c`` and
+``high_c`` close together, or an ambient near ``high_c``) hold longer each, and the turning
+points soak up to ten holds, so the settings are checked as a whole
+(:meth:`TemperatureSettings.max_sensor_time_s`)."""
 SETTLE_TIME_S = TriadConfig.settle_time
 """Settling of the re-closed loops that ends every estimation schedule [s]."""
 
@@ -88,17 +95,6 @@ def forward_sweep_problem(settings, hardware, forward_drift_ppm=(0.0,)):
             f'(N_FPGA {hardware.n_fpga} + the span stays under the ADC full scale with '
             f'{FORWARD_HEADROOM - 1:.0%} headroom; a positive drift.forward_ppm raises the '
             f'open-loop output and narrows it)')
-
-
-def forward_sensor_time_s(settings, settle_time_s):
-    """Return the sensor time of one forward schedule [s] (sweep plus the loops' settling)."""
-    return len(settings.sequence()) * (settings.settle_s + settings.average_s) + settle_time_s
-
-
-def feedback_sensor_time_s(settings, settle_time_s):
-    """Return the sensor time of one feedback schedule [s] (segments plus the settling)."""
-    return (len(settings.sequence()) * (settings.settle_s + settings.average_s)
-            + settings.settle_s + settle_time_s)
 
 
 def gyro_bias_sensor_time_s(duration_s):

@@ -18,13 +18,13 @@ class InputSubscription:
     ``input/imu`` (``sensor_msgs/Imu``), ``input/odometry`` (``nav_msgs/Odometry``) or
     ``input/accel`` (``geometry_msgs/AccelStamped``), with the QoS of its row in the topic
     table (:data:`~qfa_ros.ros.topic_table.TOPICS`). Each message
-    is handed to the :class:`~qfa_ros.ros.ground_truth.GroundTruthInput` under the node
+    is handed to the :class:`~qfa_ros.ros.input_queue.GroundTruthInput` under the node
     lock, then the stream is woken to compute the samples it makes due.
 
     :param node: The node (subscription, clock).
     :param lock: The node lock (the input queue is shared with the sensor thread).
     :param values: The node's live parameter values (``input.topic_type``; read only).
-    :param ground_truth: :class:`~qfa_ros.ros.ground_truth.GroundTruthInput`.
+    :param ground_truth: :class:`~qfa_ros.ros.input_queue.GroundTruthInput`.
     :param stream: :class:`~qfa_ros.ros.stream.SampleStream` (woken by each input).
     """
 

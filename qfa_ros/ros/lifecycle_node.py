@@ -119,7 +119,7 @@ class QfaLifecycleNode(SensorWiring, LifecycleNode):
         self._process_tuning = process_tuning
         # Start values rclpy refused at declaration (name: reason); set, they are forgotten.
         self._refused = {}
-        declare_parameters(self, managed=True, refused=self._refused)
+        self._start_values = declare_parameters(self, managed=True, refused=self._refused)
         self.add_on_set_parameters_callback(self._check_by_state)
         self.add_post_set_parameters_callback(self._forget_refused)
         # The unit's entities by kind (what wire_sensor created), or None while unconfigured;

@@ -15,14 +15,14 @@ from qfa_ros.calibration import kalibr_yaml
 from qfa_ros.calibration.estimation import FeedbackSettings, ForwardSettings
 from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
-from qfa_ros.model import trajectories
+from qfa_ros.model import motion_scripts
 from qfa_ros.model.constants import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G
 from qfa_ros.model.drawn_unit import draw_unit
-from qfa_ros.model.errors import error_profile, sensor_config
+from qfa_ros.model.error_profiles import error_profile, sensor_config
 from qfa_ros.model.gyro import GyroConfig
-from qfa_ros.model.imu_noise import emulated_config
+from qfa_ros.model.input_profiles import SineProfile, StepProfile, tumble_profile
 from qfa_ros.model.noise import NoiseConfig
-from qfa_ros.model.profiles import SineProfile, StepProfile, tumble_profile
+from qfa_ros.model.noise_figures import emulated_config
 from qfa_ros.model.thermal import ThermalConfig
 from qfa_ros.model.triad import QfaTriad
 from qfa_ros.model.triad_config import TriadConfig
@@ -91,7 +91,7 @@ def make_triad(values, profile=None, imu_noise=None):
     ``imu_noise`` is what :func:`load_imu_noise` read at start (None: the ``noise.*`` and
     ``gyro.*`` noise).
 
-    The error sources of ``sensor.error_profile`` (:mod:`qfa_ros.model.errors`) act
+    The error sources of ``sensor.error_profile`` (:mod:`qfa_ros.model.error_profiles`) act
     through the thermal model's body temperature, with the drawn unit's own component
     coefficients (its I_ref and forward-chain temperature coefficients).
     """
@@ -113,8 +113,8 @@ def triad_config(values, unit=False, imu_noise=None):
 
     ``unit`` is the drawn unit (or None) when the caller has it already; by default it
     is drawn from ``unit.*``. ``imu_noise`` (an
-    :class:`~qfa_ros.model.imu_noise.ImuNoiseFigures`, what ``noise.imu_yaml`` held)
-    replaces the configured noise processes (:func:`~qfa_ros.model.imu_noise.emulated_config`).
+    :class:`~qfa_ros.model.noise_figures.ImuNoiseFigures`, what ``noise.imu_yaml`` held)
+    replaces the configured noise processes (:func:`~qfa_ros.model.noise_figures.emulated_config`).
     """
     config = _triad_config(values, unit)
     if imu_noise is None:
@@ -190,14 +190,14 @@ def gyro_bias_settings(values):
 def static_profile(values):
     """Return the body at rest at the location, ``input.roll`` / ``pitch`` / ``yaw``."""
     with _named('latitude_deg / longitude_deg / height_m'):
-        return trajectories.static(values['latitude_deg'], values['longitude_deg'],
+        return motion_scripts.static(values['latitude_deg'], values['longitude_deg'],
                                    values['height_m'], values['input.roll'],
                                    values['input.pitch'], values['input.yaw'])
 
 
 def load_imu_noise(values):
     """
-    Return the :class:`~qfa_ros.model.imu_noise.ImuNoiseFigures` of ``noise.imu_yaml``.
+    Return the :class:`~qfa_ros.model.noise_figures.ImuNoiseFigures` of ``noise.imu_yaml``.
 
     None when the parameter is empty. Read once, at start, with the bounds of
     :func:`~qfa_ros.calibration.kalibr_yaml.load_imu_yaml`.
@@ -217,7 +217,7 @@ def load_trajectory_file(values):
     Return the :class:`~qfa_ros.model.trajectory.Trajectory` of ``input.trajectory_file``.
 
     None when the parameter is empty. Read once, at start, with the bounds of
-    :func:`~qfa_ros.model.trajectories.load_csv`.
+    :func:`~qfa_ros.model.motion_scripts.load_csv`.
 
     :raises ValueError: The file cannot be used; the message names the parameter and
         never quotes the file.
@@ -226,7 +226,7 @@ def load_trajectory_file(values):
     if not path:
         return None
     with _named('input.trajectory_file'):
-        return trajectories.load_csv(os.path.expanduser(path))
+        return motion_scripts.load_csv(os.path.expanduser(path))
 
 
 def trajectory_input(values, start_s=0.0, trajectory_file=None):
@@ -255,7 +255,7 @@ def _script_trajectory(kind, latitude_deg, longitude_deg, height_m, yaw):
 
     The drive takes 0.5 s to build, and every parameter check rebuilds the input.
     """
-    return trajectories.SCRIPTS[kind](latitude_deg=latitude_deg, longitude_deg=longitude_deg,
+    return motion_scripts.SCRIPTS[kind](latitude_deg=latitude_deg, longitude_deg=longitude_deg,
                                       height_m=height_m, yaw=yaw)
 
 

@@ -14,9 +14,9 @@ from std_msgs.msg import Bool
 
 from qfa_ros.model.design import published_acceleration_variance
 from qfa_ros.ros.bounds import output_directory
-from qfa_ros.ros.calibration import CalibrationKeeper
+from qfa_ros.ros.calibration_keeper import CalibrationKeeper
 from qfa_ros.ros.diagnostics import Diagnostics, temperature_status
-from qfa_ros.ros.ground_truth import GroundTruthInput
+from qfa_ros.ros.input_queue import GroundTruthInput
 from qfa_ros.ros.input_topic import InputSubscription
 from qfa_ros.ros.model_settings import (
     input_profile,
@@ -64,6 +64,10 @@ class SensorWiring:
 
     _stream = None
     """The :class:`SampleStream` once :meth:`wire_sensor` made it (None before)."""
+    _start_values = None
+    """The parameter values the node was started with, if :meth:`wire_sensor` runs later
+    (the managed node's ``configure``): the recording's retention applies in their
+    ``recorder.directory`` only."""
 
     def wire_sensor(self, values, process_tuning=None):
         """
@@ -80,6 +84,23 @@ class SensorWiring:
         # The live parameter values, shared (read-only) by every collaborator; written
         # only by RuntimeParameters, under _lock.
         self._values = values
+        # Protects what the sensor thread and the executor thread share: the model, the
+        # live values, the sample grid and the running schedule (SampleStream), the
+        # ground-truth input queue, the calibration state (CalibrationKeeper) and the
+        # counters of the collaborators. Each tick and each callback's use of them holds it.
+        self._lock = threading.Lock()
+        trajectory_file = self._build_model(values)
+        publishers = self._create_publishers(values)
+        self._wire_collaborators(values, trajectory_file, publishers, process_tuning)
+        self.publish_calibrated()
+        self._start_lines = self._start_summary(values)
+        # What an earlier run left unfinished (a kill, a power cut), recovered in the
+        # background once the first samples are out (QfaNode.announce_start) or at
+        # configure (QfaLifecycleNode).
+        self._startup_recovery = StartupRecovery(self, values)
+
+    def _build_model(self, values):
+        """Build the model and its state from ``values``; return the trajectory file read."""
         # The trajectory file and the imu.yaml are read once here, before any service
         # answers (the parameters are read-only); the state file below, also only at start
         # (a managed node's start is its configure).
@@ -93,14 +114,11 @@ class SensorWiring:
         apply_ambient(self._triad, values)
         self._keeper = CalibrationKeeper(self._triad, values['state_file'], self.get_logger())
         apply_drift(self._triad, values)
-
-        # Protects what the sensor thread and the executor thread share: the model, the
-        # live values, the sample grid and the running schedule (SampleStream), the
-        # ground-truth input queue, the calibration state (CalibrationKeeper) and the
-        # counters of the collaborators. Each tick and each callback's use of them holds it.
-        self._lock = threading.Lock()
         self._keeper.load(fresh=values['state.fresh'])
+        return trajectory_file
 
+    def _create_publishers(self, values):
+        """Create the publishers and their recording; return the imu and temperature ones."""
         # A profile each (topic_table): an override applied to one is not the other's.
         imu_publisher = create_publisher(self, 'imu/data_raw')
         temperature_publisher = create_publisher(self, 'imu/temperature')
@@ -111,14 +129,18 @@ class SensorWiring:
             imu_publisher.topic_name: offered_qos(imu_publisher.qos_profile),
             temperature_publisher.topic_name: offered_qos(temperature_publisher.qos_profile),
             '/diagnostics': TOPIC['/diagnostics'].qos,
-            self._calibrated_publisher.topic_name: TOPIC['~/is_calibrated'].qos})
+            self._calibrated_publisher.topic_name: TOPIC['~/is_calibrated'].qos},
+            operator_values=self._start_values or values)
+        return imu_publisher, temperature_publisher
 
+    def _wire_collaborators(self, values, trajectory_file, publishers, process_tuning):
+        """Wire the stream, the input, the schedules and services, diagnostics and the truth."""
         self._ground_truth = GroundTruthInput(values)
         variance = published_acceleration_variance(self._triad.config)
         self._stream = SampleStream(
             self, self._lock, self._triad, values, self._ground_truth, self._recording,
-            imu_publisher, temperature_publisher,
-            [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0, variance], process_tuning)
+            *publishers, [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0, variance],
+            process_tuning)
         if self._triad.gyro is not None:
             rate_variance = self._triad.gyro.variance()
             self._stream.set_rate_covariance(
@@ -149,10 +171,11 @@ class SensorWiring:
         self.runtime_effects = self._parameter_changes.steps
         self.applied_effects = self._parameter_changes.applied
 
-        self.publish_calibrated()
+    def _start_summary(self, values):
+        """Return the two start-up lines: what the node runs, and the state it loaded."""
         thermal = self._triad.thermal
         unit = values['unit.seed'] if values['unit.seed'] >= 0 else values['seed']
-        self._start_lines = [
+        return [
             f'{values["sample_rate_hz"]:g} Hz on imu/data_raw (frame {values["frame_id"]}), '
             f'loop {values["loop_rate_hz"]:g} Hz, input {values["input.mode"]}, thermal '
             f'{values["thermal.ambient_profile"] if thermal else "off"}, '
@@ -161,10 +184,6 @@ class SensorWiring:
             f'{self._keeper.startup_summary()}; unit '
             f'{f"drawn, seed {unit}" if values["unit.draw"] else "nominal"}; to start fresh '
             f'(uncompensated): -p state.fresh:=true']
-        # What an earlier run left unfinished (a kill, a power cut), recovered in the
-        # background once the first samples are out (QfaNode.announce_start) or at
-        # configure (QfaLifecycleNode).
-        self._startup_recovery = StartupRecovery(self, values)
 
     @property
     def is_calibrated(self):

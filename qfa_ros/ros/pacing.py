@@ -28,12 +28,9 @@ LATE_NS = 5_000_000
 STALE_NS = 1_000_000_000
 """A message still unpublished this long after its stamp is dropped, not published [ns].
 
-The sensor thread never computes a sample more than 1 s behind the clock
-(``qfa_ros.ros.stream.MAX_CATCH_UP_S``); this is the same bound on the publishing side. A
-pacer that cannot publish as fast as the stream comes (a machine overloaded for minutes)
-would otherwise fall further behind without end: every message waiting, in memory, and
-each one published later than the one before (seen: 430 s of samples, 150 MB, queued).
-Not applied with ``use_sim_time``, whose samples are late, never lost."""
+The publishing side's :data:`~qfa_ros.ros.stream.MAX_CATCH_UP_S`: a pacer slower than the
+stream would queue without end (``bench/results/soak_growth.md``). Not applied with
+``use_sim_time``, whose samples are late, never lost."""
 
 CATCH_UP_BURST = 3
 """Messages the pacer may publish back to back when it catches up after a stall."""
@@ -41,24 +38,18 @@ CATCH_UP_BURST = 3
 CATCH_UP_SPACING_NS = 150_000
 """Least time between publications beyond :data:`CATCH_UP_BURST` while catching up [ns].
 
-Held up for a few sample periods (the CPU or the GIL taken), the pacer would publish the
-late messages back to back, and a subscriber with a history of 5 (``SensorDataQoS``) that
-wakes after more than five arrived loses the oldest. So a catch-up publishes at most
-:data:`CATCH_UP_BURST` at once and then one per spacing (a token bucket), which the
-subscriber takes as they come. The pause is slept, and a sleep this short overshoots by
-about its length: spinning it exactly was tried and lost 4x more samples at 2 kHz (a Python
-subscriber sharing the cores needs that long per message). A 3 ms stall at 2 kHz is
-caught up within ~2 ms. Never wider than the messages' stamps are apart: a catch-up is
-never slower than the stream."""
+A subscriber keeping the last 5 (``SensorDataQoS``) loses the oldest of a longer burst, so
+a catch-up is a token bucket, slept, never spaced wider than the stamps (the variants
+measured: ``bench/results/node_rate.md``, *How the catch-up was chosen*)."""
 
 RECORD_PERIOD_S = 0.25
 """How often the recording thread writes what was published meanwhile [s].
 
-Each time it also ends the chunk in progress and fsyncs the file
-(:meth:`~qfa_ros.ros.recording.StreamRecording.checkpoint`), so a kill or a power cut loses
-at most what was published in the last period or so (``docs/node.md``, *Flight
-recorder*). Longer runs cost less per message (1.0 against 1.4 % of a core at 1 kHz, side
-by side, with 0.05 s); stopping or restarting the recording writes what is queued first."""
+Each write ends the chunk and fsyncs the file
+(:meth:`~qfa_ros.ros.recording.StreamRecording.checkpoint`): a kill loses at most about a
+period (``docs/node.md``, *Flight recorder*); longer runs cost less per message
+(``bench/results/node_rate.md``, *Recording in runs*). Stopping or restarting the
+recording writes what is queued first."""
 
 IDLE_PERIOD_S = 1.0
 """How often the recording thread wakes while nothing is recorded [s]."""
@@ -74,22 +65,18 @@ from them at once, instead of after their time slice."""
 RECORDING_NICE = 5
 """Niceness added to the recording thread (Linux): under the pacer's, over the sensor thread's.
 
-It has a deadline, looser than the pacer's: what was published must be in the file within
-a fraction of a second (the flight recorder's crash bound, ``docs/node.md``), for which it
-needs about 1 % of a core at 1 kHz. At + 10 on a two-core machine loaded 25 deep it got
-about that much and fell behind: one kill in 25 lost samples published 1.3 s before it
-(``bench/results/crash_recording.md``); + 5 triples its share (scheduler weight 335
+Its deadline (the flight recorder's crash bound, ``docs/node.md``) is looser than the
+pacer's, but at + 10 on a loaded machine it fell behind it
+(``bench/results/crash_recording.md``, runs 1 and 2); + 5 triples its scheduler weight (335
 against 110) and still lets the waking pacer take the core first."""
 
 
 PACER_SLICE_NS = 100_000
 """Time slice the pacer thread asks the scheduler for [ns] (Linux 6.12+ EEVDF; 0.1 ms, the least).
 
-Linux's EEVDF scheduler lets a thread that has the CPU finish its slice (1.4 ms by default
-here) before a thread it woke on the same CPU runs; it pre-empts sooner for a thread that
-asked for a shorter slice. Without it, the sensor thread computing a 0.1 s batch (2.6 ms on
-a shared core, seen with ``perf sched``) kept the woken pacer waiting up to 2.3 ms once a
-batch; with it the 2 kHz latency p99 went from 0.71–0.83 to 0.33–0.37 ms, side by side. A
+EEVDF lets the running thread finish its slice before a thread it woke on the same CPU
+runs, unless the woken one asked for a shorter slice: the sensor thread's batch no longer
+holds the woken pacer up (``bench/results/node_rate.md``, *The pacer's time slice*). A
 thread may shorten its own slice without privilege; older kernels keep the default."""
 
 # --- sched_setattr(2) -----------------------------------------------------------------------

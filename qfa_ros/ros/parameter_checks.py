@@ -5,11 +5,11 @@ Each refusal names the parameter (or the family of parameters a rule spans) and 
 quotes at most :data:`~qfa_ros.ros.parameter_table.MAX_SHOWN` characters of a value.
 """
 
-import math
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.parameter import Parameter
 
+from qfa_ros.model.checks import is_finite
 from qfa_ros.ros.bounds import confined_directory, forward_sweep_problem
 from qfa_ros.ros.model_settings import (
     feedback_settings,
@@ -112,7 +112,7 @@ def _check_number(label, value, spec, integer=False):
     """Return why ``value`` (``label``: a parameter or an element) is no ``spec`` number."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return f'{label} must be a number'
-    if not integer and not math.isfinite(value):
+    if not integer and not is_finite(value):
         return f'{label} must be finite, got {shown(value)}'
     if integer and not isinstance(value, int):
         return f'{label} must be an integer'

@@ -20,9 +20,9 @@ from qfa_ros.calibration.estimation import (
 )
 from qfa_ros.calibration.gyro_bias import GyroBiasSettings
 from qfa_ros.calibration.temperature import TemperatureSettings
-from qfa_ros.model import trajectories
+from qfa_ros.model import motion_scripts
 from qfa_ros.model.constants import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G, STANDARD_GRAVITY
-from qfa_ros.model.errors import ERROR_PROFILES, PaperRoom
+from qfa_ros.model.error_profiles import ERROR_PROFILES, PaperRoom
 from qfa_ros.model.gyro import GyroConfig
 from qfa_ros.model.noise import NoiseConfig
 from qfa_ros.model.thermal import ThermalConfig
@@ -42,7 +42,7 @@ from qfa_ros.ros.bounds import (
 )
 
 INPUT_MODES = ('static', 'profile', 'trajectory', 'topic')
-INPUT_TRAJECTORIES = tuple(sorted(trajectories.SCRIPTS)) + ('file',)
+INPUT_TRAJECTORIES = tuple(sorted(motion_scripts.SCRIPTS)) + ('file',)
 INPUT_PROFILES = ('sine', 'tumble', 'steps')
 INPUT_TOPIC_TYPES = ('imu', 'accel', 'odometry')
 AMBIENT_PROFILES = ('constant', 'ramp', 'cycle', 'room')
@@ -98,6 +98,8 @@ STATE_READ = ("decides whether the operator's calibration state is read at confi
 CPU_RATE = 'a rate or a wake-up period: it sets the CPU the node spends'
 COMPUTED_AHEAD = 'how far ahead the model is computed: it sets the memory and CPU of each batch'
 DISK = 'the free space the node leaves on the disk'
+RETENTION = ('how much of the flight recordings the node keeps, deleting the oldest: a '
+             'participant who could set it could have the recordings deleted')
 STALL = ("how long one stranger's message stamped ahead may hold the honest input back")
 SENSOR = ('which sensor is emulated (its unit, errors and noise): it changes what the stream '
           'says, as drift.* does at any time; no file, and no more CPU or memory than the '
@@ -193,11 +195,12 @@ PARAMETERS = (
                   'scale-factor error versus temperature (Liu, Li and Shen)', CONFIGURE,
                   why=SENSOR),
     ParameterSpec('sensor.error_profile', 'paper',
-                  "Error sources of the sensor (qfa_ros.model.errors, docs/ins.md): paper, the "
-                  "sensor with its errors (the drawn unit, noise.*, gyro.*, the thermal curves "
-                  "and Ran et al.'s component temperature coefficients: DA1 reference +20, "
-                  'k_tz +7, in-amp +6, I_ref +30, magnet/k_t +10 ppm/degC); ideal, every source '
-                  'off (no unit draw, no noise, ideal gyros, no thermal curves or coefficients; '
+                  "Error sources of the sensor (qfa_ros.model.error_profiles, docs/ins.md): "
+                  "paper, the sensor with its errors (the drawn unit, noise.*, gyro.*, the "
+                  "thermal curves and Ran et al.'s component temperature coefficients: DA1 "
+                  'reference +20, k_tz +7, in-amp +6, I_ref +30, magnet/k_t +10 ppm/degC); '
+                  'ideal, every source off (no unit draw, no noise, ideal gyros, no thermal '
+                  'curves or coefficients; '
                   'model.* and drift.* still add what they set)', CONFIGURE,
                   choices=ERROR_PROFILES, why=SENSOR),
     ParameterSpec('thermal.ambient_profile', 'room',
@@ -322,7 +325,7 @@ PARAMETERS = (
                   'CSV pose file of input.trajectory file: time_s, latitude_deg, '
                   'longitude_deg, height_m, roll_deg, pitch_deg, yaw_deg. Read once, at '
                   'start (a managed node: at each configure; a regular file of at most '
-                  f'{trajectories.MAX_CSV_BYTES >> 20} MiB, ~ expanded); set by the operator '
+                  f'{motion_scripts.MAX_CSV_BYTES >> 20} MiB, ~ expanded); set by the operator '
                   'only, so no participant can make the node read a file', OPERATOR,
                   why=FILE_READ),
     ParameterSpec('input.profile', 'sine', 'Scripted profile of input.mode profile',
@@ -447,7 +450,8 @@ PARAMETERS = (
                   'compensation, no references); the next saved calibration replaces it',
                   OPERATOR, why=STATE_READ),
     ParameterSpec('recorder.enabled', False,
-                  'Record imu/data_raw, imu/temperature and /diagnostics to MCAP'),
+                  'Record the published imu/data_raw, imu/temperature, /diagnostics, '
+                  '~/calibration_events and truth topics to MCAP'),
     ParameterSpec('recorder.directory', 'recordings',
                   'Directory of the flight recordings, created when needed: relative to '
                   'output_dir, or absolute inside it (symlinks and .. resolved; ~ not '
@@ -457,6 +461,23 @@ PARAMETERS = (
                   1 << 20, 1 << 34),
     ParameterSpec('recorder.max_duration_s', 600.0,
                   'Start a new recording file after this long [s]', RUNTIME, 1.0, 86400.0),
+    ParameterSpec('recorder.keep_s', 86400.0,
+                  'Recording time the flight recorder keeps [s]: the newest finished files '
+                  'are kept while the time they cover adds up to less than this (the one that '
+                  'reaches it too), older ones are deleted, the bags of earlier runs in '
+                  'recorder.directory included; the file being written is never deleted. '
+                  '0: no limit. 86400: the last day of recording, as a flight data recorder '
+                  'keeps its last hours of operation (the disk it takes: docs/node.md, '
+                  'Retention)',
+                  OPERATOR, 0.0, 3.1536e7, why=RETENTION),
+    ParameterSpec('recorder.keep_bytes', 10 << 30,
+                  'Most bytes of finished recording files the flight recorder keeps [bytes]: '
+                  'beyond it the oldest are deleted (the file being written comes on top, at '
+                  'most recorder.max_bytes). 0: no limit. 10 GiB: more than a day at the '
+                  'default rates (bench/results/recorder_disk_rate.md), so that '
+                  'recorder.keep_s decides there and this one at higher rates; min_free_bytes '
+                  'still stops the recorder when neither frees enough', OPERATOR, 0, 2 ** 50,
+                  why=RETENTION),
 )
 
 SPECS = {spec.name: spec for spec in PARAMETERS}

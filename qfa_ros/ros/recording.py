@@ -11,6 +11,7 @@ from qfa_ros.bag.part_files import make_durable, RecorderError
 from qfa_ros.model.safe_files import system_reason
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.bounds import confined_directory
+from qfa_ros.ros.pacing import lower_thread_priority
 
 FREE_SPACE_CHECK_S = 1.0
 """Wall time between two free-space checks of a running recording [s]."""
@@ -20,6 +21,11 @@ GUARD_BAND_BYTES = 16 << 20
 writes between two checks (about 0.4 MB/s at 10 kHz), so the floor itself is never crossed."""
 
 MIB = float(1 << 20)
+GIB = float(1 << 30)
+
+RETENTION_NICE = 19
+"""Niceness added to a retention pass's thread (Linux): the least of the node's threads, as
+the start-up recovery's. Deleting old files may wait on the disk; nothing waits for it."""
 
 
 class FreeSpaceGuard:
@@ -61,6 +67,15 @@ class StreamRecording:
     :data:`FREE_SPACE_CHECK_S`; before it falls under ``min_free_bytes`` the recording
     stops (the current file finished under its final name) with an ERROR diagnostic.
     A failed write stops the recording, never the stream; :attr:`problem` says why.
+
+    Retention (``recorder.keep_s``, ``recorder.keep_bytes``, :mod:`qfa_ros.bag.retention`)
+    deletes the oldest finished files of the node's bags in the directory beyond the
+    limits: a pass when a recording starts and after each file finished, on a thread of its
+    own at low priority, and at once before the free space would stop the recording (the
+    floor is the last resort). It applies only in the ``recorder.directory`` the node
+    started with (``operator_values``): a participant who moves the recording elsewhere
+    cannot have files deleted there.
+
     Thread-safe on its own lock, not the node's: a write the disk holds up (page-cache
     writeback stalls ``write`` for 100 ms and more) must not hold up the sensor thread.
 
@@ -68,13 +83,24 @@ class StreamRecording:
     :param values: The node's live parameter values.
     :param qos: Offered QoS per recorded topic name.
     :param guard: :class:`FreeSpaceGuard` (default: ``min_free_bytes`` of ``values``).
+    :param operator_values: The parameter values the node started with (default: ``values``
+        as they are now): retention applies only in their ``recorder.directory``.
     """
 
-    def __init__(self, node, values, qos, guard=None):
+    def __init__(self, node, values, qos, guard=None, operator_values=None):
         self._node = node
         self._values = values
         self._qos = qos
         self._guard = guard or FreeSpaceGuard(values['min_free_bytes'])
+        self._operator_values = dict(operator_values or values)
+        # The Retention of the directory recorded into (None: no limit set, or not the
+        # operator's directory; retention_note says which); kept over restarts in the same
+        # directory, so that what it deleted adds up since start.
+        self.retention = None
+        self.retention_note = 'off'
+        # Whether a retention pass is wanted, and the thread running passes (None: none).
+        self._retention_due = False
+        self._retention_thread = None
         self.recorder = None
         self.directory = None
         self.problem = None
@@ -86,7 +112,8 @@ class StreamRecording:
         # Called with the problem (the recording's lock held, any thread; it must not block)
         # when the recording stops for lack of free space: a managed node's fault.
         self.on_free_space_floor = None
-        # Protects the writer, its files and the fields above; re-entrant because a
+        # Protects the writer, its files and the fields above (retention's included; a
+        # pass itself runs without it, on Retention's own lock); re-entrant because a
         # failed write stops (closes) the recording from inside record, and a caller may
         # hold it around several calls (drain a queue, then restart).
         self.lock = threading.RLock()
@@ -127,7 +154,8 @@ class StreamRecording:
         try:
             directory = confined_directory(values, 'recorder.directory')
             directory.mkdir(parents=True, exist_ok=True)
-            shortfall = self._guard.shortfall(directory, 'recorder.directory')
+            self._choose_retention(directory)
+            shortfall = self._floor_reached(directory, None)
             if shortfall:
                 self._stop(f'recorder not started: {shortfall}', DiagnosticStatus.ERROR)
                 return
@@ -140,6 +168,7 @@ class StreamRecording:
             self.directory = directory
             self._next_check = time.monotonic() + FREE_SPACE_CHECK_S
             self._checked_path = None
+            self._retain_soon()
         except (OSError, ValueError) as error:
             # What a participant reads (a refused change, /rosout): the rule or the
             # system's words, never the path (resolved, and as long as the value).
@@ -159,6 +188,7 @@ class StreamRecording:
                 return
             if path is not None:
                 self._node.get_logger().info(f'recording file finished: {path}')
+                self._retain_soon()
 
     def close(self):
         """Finish the current file, if any; idempotent."""
@@ -229,10 +259,102 @@ class StreamRecording:
         now = time.monotonic()
         if now >= self._next_check or path != self._checked_path:
             # Each new file and every FREE_SPACE_CHECK_S: one statvfs call.
+            if path != self._checked_path and self._checked_path is not None:
+                self._retain_soon()  # a file finished
             self._next_check, self._checked_path = now + FREE_SPACE_CHECK_S, path
-            shortfall = self._guard.shortfall(self.directory, 'recorder.directory')
+            shortfall = self._floor_reached(self.directory, self.recorder)
             if shortfall:
                 self._stop(f'recording stopped: {shortfall}', DiagnosticStatus.ERROR)
+
+    # Retention ------------------------------------------------------------------------
+    def _choose_retention(self, directory):
+        """Keep, make or drop the Retention for ``directory`` (the lock held)."""
+        values = self._values
+        keep_ns = int(round(values['recorder.keep_s'] * NS_PER_S))
+        keep_bytes = int(values['recorder.keep_bytes'])
+        try:
+            operator = confined_directory(self._operator_values, 'recorder.directory')
+        except ValueError:
+            operator = None
+        if not (keep_ns or keep_bytes):
+            self.retention, self.retention_note = None, 'off (recorder.keep_s and ' \
+                'recorder.keep_bytes are 0: no limit)'
+        elif directory != operator:
+            self.retention, self.retention_note = None, 'off: recorder.directory is not ' \
+                'the one the node started with'
+        elif self.retention is None or self.retention.directory != directory:
+            # Imported here: the MCAP packages load only when a recording starts.
+            from qfa_ros.bag.retention import Retention
+            self.retention = Retention(directory, self._node.get_name(), keep_ns, keep_bytes)
+            self.retention_note = (f'keeps {_duration(keep_ns)} of recording'
+                                   if keep_ns else 'no duration limit') + \
+                (f', at most {keep_bytes / GIB:.3g} GiB' if keep_bytes else ', no size limit')
+
+    def _floor_reached(self, directory, recorder):
+        """
+        Return why the free space stops the recording, or None (the lock held).
+
+        Retention goes first: short of the floor, a pass runs at once (the file being
+        written is never deleted), then the free space is looked at again.
+        """
+        shortfall = self._guard.shortfall(directory, 'recorder.directory')
+        if shortfall and self.retention is not None:
+            self._retain(self.retention, recorder)
+            shortfall = self._guard.shortfall(directory, 'recorder.directory')
+        return shortfall
+
+    def _retain_soon(self):
+        """Have a pass run on the retention thread (started if none runs; the lock held)."""
+        if self.retention is None:
+            return
+        self._retention_due = True
+        if self._retention_thread is None:
+            self._retention_thread = threading.Thread(
+                target=self._retention_passes, name='qfa_retention', daemon=True)
+            self._retention_thread.start()
+
+    def _retention_passes(self):
+        """Run passes while one is due, then end (the retention thread)."""
+        lower_thread_priority(RETENTION_NICE)
+        while True:
+            with self.lock:
+                if not self._retention_due or self.retention is None:
+                    self._retention_thread = None
+                    return
+                self._retention_due = False
+                retention, recorder = self.retention, self.recorder
+            self._retain(retention, recorder)
+
+    def _retain(self, retention, recorder):
+        """Run one retention pass; log what it deleted (never raises)."""
+        before = retention.summary.deleted
+        try:
+            summary = retention.apply(recorder)
+        except Exception as error:  # a thread of the node never raises; it says why
+            retention.summary.problem = f'{type(error).__name__}: {error}'
+            self._node.get_logger().error(f'retention pass failed: {retention.summary.problem}')
+            return
+        if summary.deleted > before:
+            self._node.get_logger().info(
+                f'retention deleted {summary.deleted - before} recording file(s) in '
+                f'{retention.directory}: {_kept(summary)}')
+
+    def retention_values(self):
+        """Return the ``stream`` diagnostic's retention key values: what it deleted and kept."""
+        # Without the lock: a pass before the floor may hold it for long; each attribute is
+        # replaced whole.
+        retention, note = self.retention, self.retention_note
+        if not self.active and retention is None:
+            return []
+        values = [('retention', note)]
+        if retention is not None:
+            summary = retention.summary
+            values += [('retention deleted', f'{summary.deleted} file(s), '
+                        f'{summary.deleted_bytes / MIB:.1f} MiB since start'),
+                       ('retention kept', _kept(summary))]
+            if summary.problem:
+                values.append(('retention problem', summary.problem))
+        return values
 
     def publish(self, publisher, message, msgtype, now_ns=None):
         """Publish ``message`` and record the published bytes when recording."""
@@ -243,3 +365,22 @@ class StreamRecording:
         publisher.publish(data)
         self.record(publisher.topic_name, msgtype, data,
                     self._node.get_clock().now().nanoseconds if now_ns is None else now_ns)
+
+
+def _duration(ns):
+    """Return a duration [ns] in the unit that reads best: s, min or h."""
+    seconds = ns / NS_PER_S
+    if seconds >= 3600.0:
+        return f'{seconds / 3600.0:.4g} h'
+    return f'{seconds / 60.0:.4g} min' if seconds >= 60.0 else f'{seconds:.4g} s'
+
+
+def _kept(summary):
+    """Return what a retention pass kept: files, size, time covered and since when."""
+    if not summary.kept:
+        return 'no finished file'
+    # Imported here: the MCAP packages load only when a recording starts.
+    from qfa_ros.bag.part_repair import utc_text
+    return (f'{summary.kept} finished file(s), {summary.kept_bytes / MIB:.1f} MiB, '
+            f'{_duration(summary.kept_ns)} of recording since '
+            f'{utc_text(summary.oldest_kept_ns)}')

@@ -13,11 +13,11 @@ warning.
 import dataclasses
 import heapq
 import importlib
-import math
 import threading
 import time
 
 from qfa_ros.bag.reader import BagSource, normalized_type
+from qfa_ros.model.checks import is_finite
 
 __all__ = [
     'BagReplayer',
@@ -214,9 +214,9 @@ class BagReplayer:
                  loop=False, start_offset=0.0, spin_s=SPIN_S):
         if not rate > 0:
             raise ValueError(f'rate must be positive, got {rate!r}')
-        if not 0 <= start_offset < math.inf:
+        if not (is_finite(start_offset) and start_offset >= 0):
             raise ValueError(f'start_offset must be finite and non-negative, got {start_offset!r}')
-        if clock and not 0 <= clock_hz < math.inf:
+        if clock and not (is_finite(clock_hz) and clock_hz >= 0):
             raise ValueError(f'clock_hz must be finite and non-negative, got {clock_hz!r}')
         self.node = node
         self.spin_s = max(0.0, float(spin_s))

@@ -118,7 +118,7 @@ class RuntimeParameters:
         self._stream = stream
         self._recording = recording
         self._schedules = schedules
-        # The step that applies each runtime effect of params.RUNTIME_EFFECTS, and how
+        # The step that applies each runtime effect of parameter_table.RUNTIME_EFFECTS, and how
         # often each ran for an accepted change (read by the tests; under the node lock).
         self.steps = {
             'live': lambda: None, 'drift': lambda: apply_drift(triad, values),
@@ -156,7 +156,7 @@ class RuntimeParameters:
     def _apply(self, changes):
         """Apply ``changes`` (name: value) to the sensor; return why they were undone, or None."""
         wanted = {EFFECT_OF[name] for name in changes}
-        # One step per effect, each once, in the order of params.RUNTIME_EFFECTS.
+        # One step per effect, each once, in the order of parameter_table.RUNTIME_EFFECTS.
         effects = [effect for effect in RUNTIME_EFFECTS if effect in wanted]
         with self._lock:
             old = {name: self._values[name] for name in changes}

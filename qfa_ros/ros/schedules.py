@@ -16,12 +16,13 @@ import errno
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.task import Future
 
-from qfa_ros.calibration.schedule import EstimationError
+from qfa_ros.calibration.schedule import EstimationError, next_request
 from qfa_ros.model.constants import DEG_PER_HOUR
 from qfa_ros.model.safe_files import system_reason
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.triad_output import concatenate
 from qfa_ros.ros.bounds import confined_directory
+from qfa_ros.ros.progress import ScheduleReport
 from qfa_ros.ros.recording import FreeSpaceGuard
 
 
@@ -33,7 +34,7 @@ class SensorSnapshot:
     """
     What a schedule may change, taken before it starts: loop words and calibration state.
 
-    :param keeper: :class:`~qfa_ros.ros.calibration.CalibrationKeeper`.
+    :param keeper: :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
     """
 
     def __init__(self, keeper):
@@ -67,35 +68,54 @@ class ScheduleRun:
     """
     A self-estimation or calibration schedule driven by the sensor thread.
 
-    The schedule generator yields how many samples it needs; the sensor thread feeds
-    it the model output (as the samples become due, or as fast as the CPU allows when
-    ``fast``) and sends the concatenated block back. ``future`` gets the result.
+    The schedule generator yields how many samples it needs (and its phases); the sensor
+    thread feeds it the model output (as the samples become due, or as fast as the CPU
+    allows when ``fast``) and sends the concatenated block back. ``future`` gets the
+    result; ``progress`` counts every block fed and takes every phase announced.
 
-    :param kind: Schedule name.
-    :param generator: Schedule generator of :mod:`qfa_ros.calibration.estimation` or
-        :mod:`qfa_ros.calibration.temperature`.
-    :param fast: Run as fast as the CPU allows instead of at the node clock.
-    :raises EstimationError: The schedule refuses to start (e.g. no reference).
+    Parameters
+    ----------
+    kind : str
+        Schedule name.
+    generator : generator
+        Schedule generator of :mod:`qfa_ros.calibration.estimation`,
+        :mod:`qfa_ros.calibration.temperature` or :mod:`qfa_ros.calibration.gyro_bias`.
+    fast : bool
+        Run as fast as the CPU allows instead of at the node clock.
+    progress : ScheduleProgress
+        Where the schedule's phases and blocks are counted.
+    started_ns : int
+        The node clock at the call [ns] (``imu/data_raw`` withheld since).
+
+    Raises
+    ------
+    EstimationError
+        The schedule refuses to start (e.g. no reference).
     """
 
-    def __init__(self, kind, generator, fast):
+    def __init__(self, kind, generator, fast, progress, started_ns=0):
         self.kind = kind
         self.generator = generator
         self.fast = fast
+        self.progress = progress
+        self.started_ns = started_ns
         self.future = Future()
         self.parts = []
-        self.remaining = next(generator)
+        self.remaining = next_request(generator, None, progress)
 
     def feed(self, output):
-        """Hand over ``output``; return True once the schedule has finished."""
+        """Hand over ``output`` (a block, counted once); return True once the schedule ends."""
         self.parts.append(output)
-        self.remaining -= len(output.stamps_ns)
+        count = len(output.stamps_ns)
+        self.remaining -= count
+        self.progress.advance(count)
         if self.remaining > 0:
             return False
         block, self.parts = concatenate(self.parts), []
         try:
-            self.remaining = self.generator.send(block)
+            self.remaining = next_request(self.generator, block, self.progress)
         except StopIteration as stop:
+            self.progress.finish()
             self.future.set_result(stop.value)
             return True
         except Exception as error:
@@ -119,7 +139,7 @@ class ScheduleService:
     :param lock: The node lock.
     :param values: The node's live parameter values.
     :param stream: :class:`~qfa_ros.ros.stream.SampleStream` that drives the schedule.
-    :param keeper: :class:`~qfa_ros.ros.calibration.CalibrationKeeper`.
+    :param keeper: :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
     """
 
     def __init__(self, node, lock, values, stream, keeper):
@@ -137,6 +157,8 @@ class ScheduleService:
         self.last_results = {}
         self.last_trace = None
         self.last_error = None
+        # The running or last schedule's phase and progress (diagnostics, log).
+        self.report = ScheduleReport(node, values['sample_rate_hz'])
 
     def busy_answer(self):
         """Return the reason a call must be refused now, or None."""
@@ -191,11 +213,13 @@ class ScheduleService:
             fast = spec.always_fast or not self._values['estimation.realtime']
             try:
                 run = ScheduleRun(kind, spec.schedule(keeper.triad, keeper.state, self._values),
-                                  fast)
+                                  fast, self.report.progress(kind),
+                                  self._node.get_clock().now().nanoseconds)
             except Exception as error:
                 # EstimationError and ValueError are the expected refusals; anything else
                 # must still answer the caller instead of leaving the call hanging.
                 return self._failed(response, kind, error, before)
+            self.report.started(run)
             self._stream.start_schedule(run, spec.pause)
         try:
             result = await run.future
@@ -214,6 +238,7 @@ class ScheduleService:
             for r in results:
                 self.last_results[r.kind] = r.summary()
             self.last_error = None
+            self.report.ended('done')
         summary = '; '.join(r.summary() for r in results)
         problems = []
         node = self._node
@@ -271,6 +296,7 @@ class ScheduleService:
             return False, 'no schedule running'
         run.abort(f'{run.kind} cancelled {cause}: loops, loop words and calibration state '
                   'restored as before the call; nothing saved', ScheduleCancelledError)
+        self.report.ended(f'cancelled {cause}')
         self._snapshot.restore()
         if run.fast:
             stream.finish_fast_schedule()
@@ -281,6 +307,7 @@ class ScheduleService:
     def _failed(self, response, kind, error, before):
         """Answer a refused or failed schedule; keep and persist what it already applied."""
         self._stream.end_schedule()
+        self.report.ended('failed')
         response.success = False
         response.message = f'{kind} failed: {error}'
         if self._keeper.state.to_dict() != before:
@@ -296,10 +323,12 @@ class ScheduleService:
         keeper = self._keeper
         state = keeper.state
         triad_axes = keeper.triad.axes
+        # The running or last schedule: its phase, progress and time left (or how it ended).
+        sentence, progress = self.report.status(self._node.get_clock().now().nanoseconds)
         values = [('has reference', state.has_reference),
                   ('compensation', 'on' if keeper.compensation else 'off'),
                   ('state file', keeper.store.path or 'in memory only'),
-                  ('schedule running', self.busy_kind or 'none')]
+                  ('schedule running', self.busy_kind or 'none'), *progress]
         values += [(f'k(D(z)) {a}', f'{loop.controller.gain:.9g}')
                    for a, loop in zip(AXES, triad_axes)]
         values += [(f'N_VREF {a}', loop.n_vref) for a, loop in zip(AXES, triad_axes)]
@@ -316,11 +345,17 @@ class ScheduleService:
             values.append(('last error', self.last_error))
         if keeper.problem:
             values.append(('state file problem', keeper.problem))
-            return DiagnosticStatus.ERROR, keeper.problem, values
-        if not state.has_reference:
-            return DiagnosticStatus.WARN, 'uncalibrated: no reference captured', values
-        if not keeper.compensation:
-            return DiagnosticStatus.WARN, 'compensation bypassed: nominal words', values
-        if self.last_error:
-            return DiagnosticStatus.WARN, f'calibrated; {self.last_error}', values
-        return DiagnosticStatus.OK, 'calibrated', values
+            level, message = DiagnosticStatus.ERROR, keeper.problem
+        elif not state.has_reference:
+            level, message = DiagnosticStatus.WARN, 'uncalibrated: no reference captured'
+        elif not keeper.compensation:
+            level, message = DiagnosticStatus.WARN, 'compensation bypassed: nominal words'
+        elif self.last_error:
+            level, message = DiagnosticStatus.WARN, f'calibrated; {self.last_error}'
+        else:
+            level, message = DiagnosticStatus.OK, 'calibrated'
+        if sentence:
+            # A running schedule is what the user looks for; a past one's end comes after.
+            message = f'{sentence}; {message}' if self.report.running \
+                else f'{message}; {sentence}'
+        return level, message, values

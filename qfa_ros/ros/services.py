@@ -27,7 +27,7 @@ class CalibrationServices:
     schedules : ScheduleService
         :class:`~qfa_ros.ros.schedules.ScheduleService`.
     keeper : CalibrationKeeper
-        :class:`~qfa_ros.ros.calibration.CalibrationKeeper`.
+        :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
     truth : TruthPublisher
         :class:`~qfa_ros.ros.truth.TruthPublisher` (marks applied corrections).
     publish_calibrated : callable

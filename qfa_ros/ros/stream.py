@@ -31,6 +31,7 @@ from qfa_ros.ros.pacing import (
     RecordingQueue,
     STALE_NS,
 )
+from qfa_ros.ros.progress import withheld_note
 
 FAST_CHUNK_SAMPLES = 1000
 FAST_SLICE_S = 0.02
@@ -100,7 +101,7 @@ class SampleStream:
     :param lock: The node lock.
     :param triad: The model.
     :param values: The node's live parameter values.
-    :param ground_truth: :class:`~qfa_ros.ros.ground_truth.GroundTruthInput`.
+    :param ground_truth: :class:`~qfa_ros.ros.input_queue.GroundTruthInput`.
     :param recording: :class:`~qfa_ros.ros.recording.StreamRecording`.
     :param imu_publisher: Publisher of ``imu/data_raw``.
     :param temperature_publisher: Publisher of ``imu/temperature``.
@@ -525,6 +526,7 @@ class SampleStream:
             values.append(('recording', recording.current_path or 'between files'))
         if recording.problem:
             values.append(('recorder problem', recording.problem))
+        values += recording.retention_values()
         if self.sensor_error:
             values.append(('sensor thread error', self.sensor_error))
         level, message = DiagnosticStatus.OK, 'publishing'
@@ -533,6 +535,11 @@ class SampleStream:
         # skips and drops since are counted in the values.
         if self.pause_reason:
             level, message = DiagnosticStatus.WARN, f'paused: {self.pause_reason}'
+            if self.schedule is not None:
+                # Why, since when and how long still (the schedule's own progress).
+                note = withheld_note(self.schedule, self._now_ns())
+                values.append(('imu/data_raw', note))
+                message += f'; imu/data_raw {note}'
         elif self._last_skip is not None and time.monotonic() - self._last_skip < SKIP_WARN_S:
             level, message = DiagnosticStatus.WARN, \
                 f'{self.skip_note}; {self.skipped} samples skipped since start'

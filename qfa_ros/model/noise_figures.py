@@ -57,6 +57,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from qfa_ros.model import checks
 from qfa_ros.model.allan import allan_deviation
 from qfa_ros.model.constants import DEG_PER_HOUR, DEG_PER_ROOT_HOUR, MICRO_G
 from qfa_ros.model.design import designed_loop
@@ -114,8 +115,8 @@ class ImuNoiseFigures:
     def __post_init__(self):
         for key in KEYS:
             value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or not math.isfinite(value) or not 0 <= value <= LIMITS[key]:
+            if not checks.is_finite(value, bool_ok=False, types=(int, float)) \
+                    or not 0 <= value <= LIMITS[key]:
                 raise ValueError(f'{key} must be a number in [0, {LIMITS[key]:.3g}]')
 
     def as_dict(self):
@@ -182,7 +183,10 @@ def emulated_config(config, figures):
     loop, its ADC noise, the unit's errors, the gyros' quantization) stays:
     ``config_figures(emulated_config(config, f)) == f`` within rounding.
 
-    :raises ValueError: The accelerometer density is below the loop's own floor.
+    Raises
+    ------
+    ValueError
+        The accelerometer density is below the loop's own floor.
     """
     floor = loop_white_floor(config)
     density = figures.accelerometer_noise_density

@@ -6,6 +6,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 
 from qfa_ros.model import earth
+from qfa_ros.model.checks import is_finite
 from qfa_ros.model.trajectory import quaternion_to_dcm
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.model_settings import static_profile
@@ -87,8 +88,8 @@ class GroundTruthInput:
         if self._refused(time_ns, time_ns if now_ns is None else now_ns):
             return
         value = tuple(value) + (tuple(rate) if rate is not None else (math.nan,) * 3)
-        if not all(math.isfinite(v) and abs(v) <= MAX_SPECIFIC_FORCE for v in value[:3]) or \
-                (rate is not None and not all(math.isfinite(v) and abs(v) <= MAX_ANGULAR_RATE
+        if not all(is_finite(v) and abs(v) <= MAX_SPECIFIC_FORCE for v in value[:3]) or \
+                (rate is not None and not all(is_finite(v) and abs(v) <= MAX_ANGULAR_RATE
                                               for v in value[3:])):
             self.rejected += 1
             self.problem = (f'non-finite or out-of-range ground-truth input rejected (limits '
@@ -116,7 +117,7 @@ class GroundTruthInput:
             return
         values = tuple(position) + tuple(orientation) + tuple(linear) + tuple(angular)
         norm = math.sqrt(sum(q * q for q in orientation))
-        if not all(math.isfinite(v) for v in values) or not 0.5 < norm < 1.5:
+        if not all(is_finite(v) for v in values) or not 0.5 < norm < 1.5:
             self.rejected += 1
             self.problem = f'bad ground-truth odometry rejected: {values}'
             return

@@ -101,7 +101,10 @@ def error_profile(name):
     ``paper``: Ran et al.'s error sources (the defaults of :class:`ErrorProfile`);
     ``ideal``: every source off.
 
-    :raises ValueError: ``name`` is not one of :data:`ERROR_PROFILES`.
+    Raises
+    ------
+    ValueError
+        ``name`` is not one of :data:`ERROR_PROFILES`.
     """
     if name == 'paper':
         return ErrorProfile()
@@ -193,7 +196,10 @@ def sensor_config(name, config):
     :func:`ideal_config`. The component temperature coefficients of the same name are
     :func:`error_profile`'s (written into a built triad).
 
-    :raises ValueError: ``name`` is not one of :data:`ERROR_PROFILES`.
+    Raises
+    ------
+    ValueError
+        ``name`` is not one of :data:`ERROR_PROFILES`.
     """
     error_profile(name)
     return ideal_config(config) if name == 'ideal' else config

@@ -40,18 +40,6 @@ def _location(latitude_deg, longitude_deg, height_m):
     return math.radians(latitude_deg), math.radians(longitude_deg), float(height_m)
 
 
-def _finite(**values):
-    """Refuse any of ``values`` (name=value) that is not a finite number."""
-    for name, value in values.items():
-        checks.finite(name, value)
-
-
-def _positive(**values):
-    """Refuse any of ``values`` (name=value) that is not a finite number > 0."""
-    for name, value in values.items():
-        checks.positive(name, value)
-
-
 def _dwells(location, attitudes, dwell_s, move_s):
     """Knots resting ``dwell_s`` at each attitude, moving ``move_s`` between them."""
     times, poses = [], []
@@ -73,7 +61,8 @@ def static(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, roll=0.0, pitch=0
            yaw=math.pi / 2):
     """Return a body at rest at a location, attitude in [rad] (yaw pi/2: x north)."""
     location = _location(latitude_deg, longitude_deg, height_m)
-    _finite(roll=roll, pitch=pitch, yaw=yaw)
+    for name, angle in (('roll', roll), ('pitch', pitch), ('yaw', yaw)):
+        checks.finite(name, angle)
     return Trajectory(_dwells(location, [(roll, pitch, yaw)], 1.0, 0.0), 'static')
 
 
@@ -86,8 +75,9 @@ def six_position_tumble(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0,
                         dwell_s=10.0, move_s=4.0, yaw=math.pi / 2):
     """Return the six-position tumble: each axis up then down, ``dwell_s`` at rest each."""
     location = _location(latitude_deg, longitude_deg, height_m)
-    _positive(dwell_s=dwell_s, move_s=move_s)
-    _finite(yaw=yaw)
+    checks.positive('dwell_s', dwell_s)
+    checks.positive('move_s', move_s)
+    checks.finite('yaw', yaw)
     attitudes = [(r, p, yaw) for r, p in TUMBLE_ATTITUDES]
     return Trajectory(_dwells(location, attitudes, dwell_s, move_s), 'six-position tumble')
 
@@ -101,7 +91,9 @@ def rate_table_turn(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, rate_deg
     ramp down, rest.
     """
     location = _location(latitude_deg, longitude_deg, height_m)
-    _finite(rate_deg_s=rate_deg_s, turns=turns, ramp_s=ramp_s, dwell_s=dwell_s, yaw=yaw)
+    for name, value in (('rate_deg_s', rate_deg_s), ('turns', turns), ('ramp_s', ramp_s),
+                        ('dwell_s', dwell_s), ('yaw', yaw)):
+        checks.finite(name, value)
     rate = math.radians(rate_deg_s)
     if rate == 0 or turns <= 0 or ramp_s <= 0 or dwell_s < 0:
         raise ValueError('rate_deg_s and turns must be non-zero; ramp_s > 0, dwell_s >= 0')
@@ -143,8 +135,9 @@ def vehicle_drive(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, yaw=math.p
     and joined by quintic Hermite pieces every ``knot_s``.
     """
     lat0, lon0, h0 = _location(latitude_deg, longitude_deg, height_m)
-    _finite(yaw=yaw)
-    _positive(ramp_s=ramp_s, knot_s=knot_s)
+    checks.finite('yaw', yaw)
+    checks.positive('ramp_s', ramp_s)
+    checks.positive('knot_s', knot_s)
     script = np.asarray(script, dtype=float)
     if script.ndim != 2 or script.shape[1] != 4 or np.any(script[:, 0] <= 0) \
             or not np.all(np.isfinite(script)):
@@ -204,8 +197,10 @@ def _vibration(name, location, duration_s, frequency_hz, knots_per_cycle, yaw, a
     ``second(s, c, w)`` returns the second channel's index and its values, rates and
     accelerations, given ``s = sin(w t)`` and ``c = cos(w t)``.
     """
-    _positive(frequency_hz=frequency_hz, duration_s=duration_s)
-    _finite(yaw=yaw, amplitude_deg=amplitude_deg)
+    checks.positive('frequency_hz', frequency_hz)
+    checks.positive('duration_s', duration_s)
+    checks.finite('yaw', yaw)
+    checks.finite('amplitude_deg', amplitude_deg)
     try:
         valid = not isinstance(knots_per_cycle, bool) and knots_per_cycle >= 1 \
             and int(knots_per_cycle) == knots_per_cycle
@@ -256,7 +251,7 @@ def sculling(latitude_deg=45.0, longitude_deg=0.0, height_m=0.0, amplitude_deg=0
     the roll, rectifies into a mean specific force along body y.
     """
     location = _location(latitude_deg, longitude_deg, height_m)
-    _finite(displacement_m=displacement_m)
+    checks.finite('displacement_m', displacement_m)
     return _vibration('sculling', location, duration_s, frequency_hz, knots_per_cycle, yaw,
                       amplitude_deg, lambda s, c, w: (2, *_sine(displacement_m, w, s, c)))
 
@@ -315,7 +310,7 @@ def parse_csv(data, name='trajectory'):
 
 def save_csv(path, trajectory, rate_hz=100.0):
     """Write ``trajectory`` sampled at ``rate_hz`` as a CSV pose file."""
-    _positive(rate_hz=rate_hz)
+    checks.positive('rate_hz', rate_hz)
     t = np.arange(trajectory.start, trajectory.end + 0.5 / rate_hz, 1.0 / rate_hz)
     k = trajectory.kinematics(t)
     with open(path, 'w', newline='') as handle:
