@@ -19,16 +19,16 @@ from std_srvs.srv import SetBool, Trigger
 from qfa_ros.calibration.estimation import (
     capture_reference,
     feedback_schedule,
+    feedback_sensor_time_s,
     forward_schedule,
+    forward_sensor_time_s,
     self_calibrate,
 )
 from qfa_ros.calibration.gyro_bias import gyro_bias_schedule
 from qfa_ros.calibration.temperature import temperature_calibration
 from qfa_ros.ros.bounds import (
     CHAMBER_WORST_S,
-    feedback_sensor_time_s,
     FEEDBACK_WORST_S,
-    forward_sensor_time_s,
     FORWARD_WORST_S,
     gyro_bias_sensor_time_s,
     MAX_SCHEDULE_LOOP_STEPS,
