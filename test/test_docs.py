@@ -83,7 +83,12 @@ def test_docs_site_builds_with_warnings_as_errors(tmp_path):
 
 def test_readme_is_short_and_its_links_exist():
     text = (ROOT / 'README.md').read_text()
-    assert len(text.splitlines()) <= 200
+    # The interface tables are generated from the code (interface_docs) and grow with the
+    # interface; what is written by hand stays within the 200 lines it had, less the
+    # hand-kept table of 8 the generated block replaced.
+    lines = text.splitlines()
+    begin, end = lines.index('<!-- interfaces:begin -->'), lines.index('<!-- interfaces:end -->')
+    assert len(lines) - (end + 1 - begin) <= 192
     assert '`make test`' in text or 'make test ' in text  # .ci/run runs the README's command
     links = re.findall(r'\]\(([^)#:]+)(?:#[^)]*)?\)', text)
     assert links

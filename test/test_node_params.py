@@ -17,6 +17,8 @@ from qfa_ros.ros.parameter_checks import as_declared_type, check_all, check_valu
 from qfa_ros.ros.parameter_docs import access_table, config_yaml, markdown_table
 from qfa_ros.ros.parameter_table import EFFECT_OF, OPERATOR, PARAMETERS, RUNTIME_EFFECTS, SPECS
 from qfa_ros.ros.state_store import StateFileError, StateStore
+from qfa_ros.ros.stream import offered_qos
+from qfa_ros.ros.topic_table import PUBLISHER, SUBSCRIPTION, TOPICS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -213,6 +215,25 @@ def changed_value(spec):
         else default * 0.9 + 0.01
 
 
+def assert_qos_of_the_topic_table(node):
+    values = {name: node.get_parameter(name).value
+              for name in {spec.only_if[0] for spec in TOPICS if spec.only_if}}
+    endpoints = {(PUBLISHER, p.topic_name): p for p in node.publishers}
+    endpoints |= {(SUBSCRIPTION, s.topic_name): s for s in node.subscriptions}
+    checked = 0
+    for spec in TOPICS:
+        endpoint = endpoints.get((spec.direction, node.resolve_topic_name(spec.name)))
+        assert (endpoint is not None) == spec.offered(values), spec.name
+        if endpoint is None:
+            continue
+        offered = offered_qos(endpoint.qos_profile)
+        assert (offered.reliability, offered.durability, offered.history, offered.depth) == \
+            (spec.qos.reliability, spec.qos.durability, spec.qos.history, spec.qos.depth), \
+            spec.name
+        checked += 1
+    assert checked == sum(spec.offered(values) for spec in TOPICS) > 5
+
+
 def test_every_writable_parameter_takes_effect_or_is_refused(tmp_path):
     import rclpy
     from rclpy.context import Context
@@ -225,6 +246,9 @@ def test_every_writable_parameter_takes_effect_or_is_refused(tmp_path):
         Parameter('output_dir', value=str(tmp_path)), Parameter('state_file', value=''),
         Parameter('estimation.realtime', value=False)])
     try:
+        # First, the node's own publishers and subscription have their rows' QoS, the depth
+        # included (discovery does not carry it: test_node_truth.py compares the rest over DDS).
+        assert_qos_of_the_topic_table(node)
         assert set(node.runtime_effects) == set(RUNTIME_EFFECTS)
         outcomes = {}
         for spec in PARAMETERS:

@@ -35,6 +35,7 @@ from qfa_ros.ros.bounds import (
 from qfa_ros.ros.parameter_checks import check_all
 from qfa_ros.ros.parameter_table import PARAMETERS
 from qfa_ros.ros.recording import FreeSpaceGuard, GUARD_BAND_BYTES, StreamRecording
+from qfa_ros.ros.service_table import SCHEDULE_SERVICES
 
 NODE = '/qfa_node'
 STRING = b'\x00\x01\x00\x00\x02\x00\x00\x00'
@@ -46,10 +47,8 @@ SCHEDULES = {'estimation.forward.points': 4, 'estimation.forward.average_s': 0.3
              'estimation.forward.settle_s': 0.02, 'estimation.feedback.cycles': 2,
              'estimation.feedback.order': 'chopped', 'estimation.feedback.average_s': 1.0,
              'estimation.feedback.settle_s': 0.05}
-SERVICES = {'reference': 'capture_reference', 'forward': 'estimate_forward_gain',
-            'feedback': 'estimate_feedback_gain', 'self_calibrate': 'self_calibrate',
-            'temperature': 'calibrate_temperature'}
-
+# Every schedule service of the table, by kind: each is cancelled and undone below.
+SERVICES = {spec.kind: spec.call for spec in SCHEDULE_SERVICES}
 
 
 def defaults(**changes):

@@ -17,11 +17,26 @@ from std_srvs.srv import SetBool, Trigger
 from qfa_ros.bag.qos import QOS_TRUTH
 from qfa_ros.model import motion_scripts, trajectory
 from qfa_ros.model.constants import MICRO_G
+from qfa_ros.ros.parameter_table import PARAMETERS as PARAMETERS_TABLE
+from qfa_ros.ros.service_table import SERVICES
+from qfa_ros.ros.topic_table import PUBLISHER, TOPICS
 
 NODE = '/qfa_node'
 ROOT = Path(__file__).resolve().parents[1]
 ROLL, PITCH, YAW = 0.4, -0.3, 1.1
 FEEDBACK_PPM = [800.0, -600.0, 1000.0]
+IMU_DEPTH = 1000
+PARAMETERS = {'thermal.ambient_profile': 'constant', 'truth.rate_hz': 20.0,
+              'input.roll': ROLL, 'input.pitch': PITCH, 'input.yaw': YAW,
+              'estimation.realtime': False, 'estimation.feedback.cycles': 1,
+              'estimation.feedback.settle_s': 0.2, 'estimation.feedback.average_s': 1.0,
+              'qos_overrides./imu/data_raw.publisher.depth': IMU_DEPTH}
+
+
+PARAMETER_SERVICES = ('/describe_parameters', '/get_parameter_types', '/get_parameters',
+                      '/list_parameters', '/set_parameters', '/set_parameters_atomically',
+                      '/get_type_description')
+"""The services rclpy gives every node (Kilted adds the type description)."""
 
 
 def stamp_ns(header):
@@ -46,12 +61,7 @@ class Truth:
 def setup(tmp_path_factory):
     directory = tmp_path_factory.mktemp('truth')
     domain = domain_id('truth')
-    parameters = {'state_file': '', 'output_dir': str(directory),
-                  'thermal.ambient_profile': 'constant', 'truth.rate_hz': 20.0,
-                  'input.roll': ROLL, 'input.pitch': PITCH, 'input.yaw': YAW,
-                  'estimation.realtime': False, 'estimation.feedback.cycles': 1,
-                  'estimation.feedback.settle_s': 0.2, 'estimation.feedback.average_s': 1.0,
-                  'qos_overrides./imu/data_raw.publisher.depth': 1000}
+    parameters = {'state_file': '', 'output_dir': str(directory), **PARAMETERS}
     node = NodeProcess(domain, directory, parameters)
     client = Client(domain)
     imu = ImuCollector(client, depth=1000)
@@ -101,19 +111,50 @@ def test_each_truth_message_is_a_new_sample_instant(setup):
                             ('truth/imu_errors', truth.errors)):
         stamps = np.array([stamp_ns(m.header) for m in messages])
         assert np.all(np.diff(stamps) > 0), (topic, np.sum(np.diff(stamps) <= 0), len(stamps))
-    # The QoS the node offers is the one docs/node.md and docs/ins.md state, and the bags'.
-    for topic in ('/truth/odometry', '/truth/imu_errors'):
-        offered, = client.node.get_publishers_info_by_topic(topic)
-        assert offered.qos_profile.reliability == ReliabilityPolicy.RELIABLE, topic
-        assert offered.qos_profile.durability == DurabilityPolicy.VOLATILE, topic
+    # docs/ins.md states the truth's QoS by hand (docs/node.md's table is generated).
     assert (QOS_TRUTH.reliability, QOS_TRUTH.depth, QOS_TRUTH.durability) == \
         ('reliable', 10, 'volatile')
-    for page in ('node.md', 'ins.md'):
-        rows = [line for line in (ROOT / 'docs' / page).read_text().splitlines()
-                if line.startswith('| ') and any(cell.strip() in ('`truth/odometry`',
-                                                                  '`/truth/odometry`')
-                                                 for cell in line.split('|')[1:3])]
-        assert rows and all('reliable, depth 10' in row for row in rows), (page, rows)
+    rows = [line for line in (ROOT / 'docs' / 'ins.md').read_text().splitlines()
+            if line.startswith('| ') and any(cell.strip() in ('`truth/odometry`',
+                                                              '`/truth/odometry`')
+                                             for cell in line.split('|')[1:3])]
+    assert rows and all('reliable, depth 10' in row for row in rows), rows
+
+
+def test_the_node_offers_the_topics_and_services_of_its_tables(setup):
+    # What the node offers, seen from another participant, is what the topic and service
+    # tables say (the interface docs are generated from them): each topic with its type,
+    # reliability and durability, none it should not have; every service, and no other.
+    # Discovery does not carry the history depth: test_node_params.py compares it in process.
+    client = setup['client']
+    graph = client.node
+    values = {spec.name: spec.default for spec in PARAMETERS_TABLE} | PARAMETERS
+
+    def endpoints(spec):
+        name = spec.name.replace('~', NODE) if spec.name.startswith('~') else \
+            '/' + spec.name.lstrip('/')
+        infos = (graph.get_publishers_info_by_topic if spec.direction == PUBLISHER
+                 else graph.get_subscriptions_info_by_topic)(name)
+        return [info for info in infos if info.node_name == NODE.lstrip('/')]
+
+    def services():
+        return {name: types for name, types in graph.get_service_names_and_types_by_node(
+            NODE.lstrip('/'), '/') if not name.endswith(PARAMETER_SERVICES)}
+
+    expected = {f'{NODE}/{spec.call}': [spec.type_name] for spec in SERVICES}
+    client.spin_until(lambda: all(endpoints(spec) for spec in TOPICS if spec.offered(values))
+                      and services() == expected, 30, 'the node in the graph')
+    for spec in TOPICS:
+        infos = endpoints(spec)
+        if not spec.offered(values):
+            assert not infos, spec.name
+            continue
+        info, = infos
+        assert info.topic_type == spec.type_name, spec.name
+        qos = info.qos_profile
+        assert (qos.reliability.name.lower(), qos.durability.name.lower()) == \
+            (spec.qos.reliability, spec.qos.durability), spec.name
+    assert services() == expected
 
 
 def test_error_truth_predicts_the_published_output(setup):

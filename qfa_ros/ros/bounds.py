@@ -4,7 +4,9 @@ What a stray participant cannot exceed: the schedule ranges, their worst case, t
 ROS 2 without DDS Security lets any participant on the domain set parameters and call
 services. The ranges below bound what one schedule call can cost (sensor time, during
 which ``imu/data_raw`` is withheld, and model loop steps, i.e. CPU time), and
-:func:`confined_directory` keeps every runtime-chosen directory under ``output_dir``.
+:func:`confined_directory` keeps every runtime-chosen directory under ``output_dir``. Each
+service's worst case and the budget check over every schedule are the services table's
+(:mod:`qfa_ros.ros.service_table`).
 """
 
 import math
@@ -17,6 +19,7 @@ from qfa_ros.calibration.estimation import (
     forward_sensor_time_s,
     ForwardSettings,
 )
+from qfa_ros.calibration.gyro_bias import BLOCK_S
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model.constants import PPM
 from qfa_ros.model.hardware import AxisHardware, nominal_gains
@@ -94,6 +97,11 @@ def forward_sweep_problem(settings, hardware, forward_drift_ppm=(0.0,)):
             f'open-loop output and narrows it)')
 
 
+def gyro_bias_sensor_time_s(duration_s):
+    """Return the sensor time of one gyro bias schedule of ``duration_s`` [s] (whole blocks)."""
+    return max(2, round(duration_s / BLOCK_S)) * BLOCK_S
+
+
 LARGEST_FORWARD = ForwardSettings(points=FORWARD_MAX_POINTS,
                                   step=FORWARD_MAX_SPAN // FORWARD_MAX_POINTS,
                                   settle_s=FORWARD_MAX_SETTLE_S,
@@ -164,34 +172,3 @@ def confined_directory(values, name):
         # link planted under output_dir would tell the caller paths it cannot see.
         raise ValueError(f'{rule}; this one leads outside it')
     return directory
-
-
-def budget_problem(loop_rate_hz, forward, feedback, chamber):
-    """
-    Return why one schedule call would compute too many model loop steps, or None.
-
-    :param loop_rate_hz: The model's loop rate [Hz].
-    :param forward, feedback: :class:`ForwardSettings`, :class:`FeedbackSettings`.
-    :param chamber: :class:`~qfa_ros.calibration.temperature.TemperatureSettings`.
-    """
-    estimation = (forward_sensor_time_s(forward, SETTLE_TIME_S)
-                  + feedback_sensor_time_s(feedback, SETTLE_TIME_S))
-    if estimation * loop_rate_hz > MAX_SCHEDULE_LOOP_STEPS:
-        return (f'estimation.forward.* / estimation.feedback.*: one capture_reference would '
-                f'take {estimation:.0f} s of sensor time, {estimation * loop_rate_hz:.3g} loop '
-                f'steps at loop_rate_hz {loop_rate_hz:g}; at most '
-                f'{MAX_SCHEDULE_LOOP_STEPS:.3g} are allowed')
-    chamber_s = chamber.max_sensor_time_s()
-    if chamber_s > CHAMBER_MAX_SENSOR_S:
-        return ('temperature_calibration.period_s, temperature_calibration.low_c, '
-                'temperature_calibration.high_c, temperature_calibration.cycles, '
-                'temperature_calibration.reference_steps: one calibrate_temperature would '
-                f'take {chamber_s:.0f} s of sensor time (its plateaus between low_c and '
-                f'high_c, the soaks at the extremes and back); at most '
-                f'{CHAMBER_MAX_SENSOR_S:.0f} s are allowed')
-    if chamber_s * loop_rate_hz > MAX_SCHEDULE_LOOP_STEPS:
-        return (f'temperature_calibration.period_s x temperature_calibration.cycles: one '
-                f'calibrate_temperature would take {chamber_s:.0f} s of sensor time, '
-                f'{chamber_s * loop_rate_hz:.3g} loop steps at loop_rate_hz '
-                f'{loop_rate_hz:g}; at most {MAX_SCHEDULE_LOOP_STEPS:.3g} are allowed')
-    return None

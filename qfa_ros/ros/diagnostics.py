@@ -2,6 +2,8 @@
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
+from qfa_ros.ros.topic_table import create_publisher
+
 DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
 
 
@@ -28,7 +30,7 @@ class Diagnostics:
     """
     Publish the ``stream``, ``calibration``, ``temperature`` and ``input`` statuses.
 
-    Creates the ``/diagnostics`` publisher (depth 10) and the timer at
+    Creates the ``/diagnostics`` publisher (its row in the topic table) and the timer at
     ``diagnostics_rate_hz`` that publishes and records them.
 
     :param node: The node (publisher, timer, name, clock).
@@ -45,7 +47,7 @@ class Diagnostics:
         self._values = values
         self._recording = recording
         self._sources = sources
-        self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._publisher = create_publisher(node, '/diagnostics')
         self.timer = node.create_timer(1.0 / values['diagnostics_rate_hz'], self.timer_callback)
 
     def array(self):

@@ -1,11 +1,8 @@
 """Ground-truth input topic: one subscription, its messages queued for the model."""
 
-from geometry_msgs.msg import AccelStamped
-from nav_msgs.msg import Odometry
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Imu
 
 from qfa_ros.model.triad import NS_PER_S
+from qfa_ros.ros.topic_table import create_subscription
 
 
 def input_time_ns(stamp, now_ns):
@@ -19,7 +16,8 @@ class InputSubscription:
     Subscribe to the ground-truth topic ``input.topic_type`` names and queue its messages.
 
     ``input/imu`` (``sensor_msgs/Imu``), ``input/odometry`` (``nav_msgs/Odometry``) or
-    ``input/accel`` (``geometry_msgs/AccelStamped``), best effort, depth 100. Each message
+    ``input/accel`` (``geometry_msgs/AccelStamped``), with the QoS of its row in the topic
+    table (:data:`~qfa_ros.ros.topic_table.TOPICS`). Each message
     is handed to the :class:`~qfa_ros.ros.input_queue.GroundTruthInput` under the node
     lock, then the stream is woken to compute the samples it makes due.
 
@@ -35,13 +33,10 @@ class InputSubscription:
         self._lock = lock  # the node lock: the input queue the sensor thread reads
         self._ground_truth = ground_truth
         self._stream = stream
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
-        if values['input.topic_type'] == 'imu':
-            node.create_subscription(Imu, 'input/imu', self.imu_callback, qos)
-        elif values['input.topic_type'] == 'odometry':
-            node.create_subscription(Odometry, 'input/odometry', self.odometry_callback, qos)
-        else:
-            node.create_subscription(AccelStamped, 'input/accel', self.accel_callback, qos)
+        topic_type = values['input.topic_type']
+        callbacks = {'imu': self.imu_callback, 'odometry': self.odometry_callback,
+                     'accel': self.accel_callback}
+        create_subscription(node, f'input/{topic_type}', callbacks[topic_type])
 
     def imu_callback(self, message):
         """Take the specific force (and angular rate, if given) of a ground-truth Imu."""

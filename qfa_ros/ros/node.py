@@ -10,11 +10,8 @@ import threading
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import Bool
 
-from qfa_ros.bag.qos import QOS_LATCHED, QosProfile
 from qfa_ros.model.design import published_acceleration_variance
 from qfa_ros.ros.bounds import output_directory
 from qfa_ros.ros.calibration_keeper import CalibrationKeeper
@@ -38,7 +35,8 @@ from qfa_ros.ros.runtime_parameters import (
 from qfa_ros.ros.schedules import ScheduleService
 from qfa_ros.ros.services import CalibrationServices
 from qfa_ros.ros.startup_recovery import StartupRecovery
-from qfa_ros.ros.stream import offered_qos, ros_qos, SampleStream
+from qfa_ros.ros.stream import offered_qos, SampleStream
+from qfa_ros.ros.topic_table import create_publisher, TOPIC
 from qfa_ros.ros.truth import TruthPublisher
 
 ANNOUNCE_AFTER_S = 1.0
@@ -121,26 +119,17 @@ class SensorWiring:
 
     def _create_publishers(self, values):
         """Create the publishers and their recording; return the imu and temperature ones."""
-        # REP-2003: a sensor driver offers the system-default (reliable) QoS; a depth of
-        # 100 lets a reliable subscriber be briefly late. Users override it the ROS way:
-        # qos_overrides./<namespace>/imu/data_raw.publisher.{history,depth,reliability}.
-        # A profile each (ros_qos): an override applied to one is not the other's.
-        stream_qos = QosProfile(depth=100)
-        imu_publisher = self.create_publisher(
-            Imu, 'imu/data_raw', ros_qos(stream_qos),
-            qos_overriding_options=QoSOverridingOptions.with_default_policies())
-        temperature_publisher = self.create_publisher(
-            Temperature, 'imu/temperature', ros_qos(stream_qos),
-            qos_overriding_options=QoSOverridingOptions.with_default_policies())
-        self._calibrated_publisher = self.create_publisher(Bool, '~/is_calibrated',
-                                                           ros_qos(QOS_LATCHED))
+        # A profile each (topic_table): an override applied to one is not the other's.
+        imu_publisher = create_publisher(self, 'imu/data_raw')
+        temperature_publisher = create_publisher(self, 'imu/temperature')
+        self._calibrated_publisher = create_publisher(self, '~/is_calibrated')
 
         # The recording states the QoS the publishers really offer (overrides applied).
         self._recording = StreamRecording(self, values, {
             imu_publisher.topic_name: offered_qos(imu_publisher.qos_profile),
             temperature_publisher.topic_name: offered_qos(temperature_publisher.qos_profile),
-            '/diagnostics': QosProfile(depth=10),
-            self._calibrated_publisher.topic_name: QOS_LATCHED},
+            '/diagnostics': TOPIC['/diagnostics'].qos,
+            self._calibrated_publisher.topic_name: TOPIC['~/is_calibrated'].qos},
             operator_values=self._start_values or values)
         return imu_publisher, temperature_publisher
 
@@ -238,10 +227,9 @@ class QfaNode(SensorWiring, Node):
     """
     Emulated self-calibrating IMU of three digital closed-loop QFA.
 
-    Publishes ``imu/data_raw``, ``imu/temperature``, ``/diagnostics`` and
-    ``~/is_calibrated``; serves ``~/capture_reference``, ``~/estimate_forward_gain``,
-    ``~/estimate_feedback_gain``, ``~/self_calibrate``, ``~/calibrate_temperature``,
-    ``~/calibrate_gyros``, ``~/set_compensation`` and ``~/cancel``. The unit
+    Publishes and subscribes to the topics of
+    :data:`~qfa_ros.ros.topic_table.TOPICS` and serves the services of
+    :data:`~qfa_ros.ros.service_table.SERVICES`. The unit
     (:class:`SensorWiring`) is wired and started at construction, and runs until :meth:`close`.
 
     :param node_name: Node name.

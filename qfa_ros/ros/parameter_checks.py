@@ -10,7 +10,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.parameter import Parameter
 
 from qfa_ros.model.checks import is_finite
-from qfa_ros.ros.bounds import budget_problem, confined_directory, forward_sweep_problem
+from qfa_ros.ros.bounds import confined_directory, forward_sweep_problem
 from qfa_ros.ros.model_settings import (
     feedback_settings,
     forward_settings,
@@ -25,6 +25,7 @@ from qfa_ros.ros.parameter_table import (
     MAX_STRING_LENGTH,
     SPECS,
 )
+from qfa_ros.ros.service_table import budget_problem
 
 
 def descriptor(spec):
@@ -194,7 +195,9 @@ def check_all(values, trajectory_file=None, imu_noise=None):
         problem = forward_sweep_problem(forward, config.hardware, values['drift.forward_ppm'])
         if problem:
             return problem
-        feedback, chamber = feedback_settings(values), temperature_settings(values)
+        # Built for the reasons their checks give; the budget below takes the values.
+        feedback_settings(values)
+        temperature_settings(values)
         input_profile(values, trajectory_file=trajectory_file)
         if not values['output_dir']:
             return 'output_dir must not be empty'
@@ -203,4 +206,4 @@ def check_all(values, trajectory_file=None, imu_noise=None):
     except (ValueError, OSError) as error:
         # OSError: a symlink loop or an unreadable component while resolving a directory.
         return str(error)
-    return budget_problem(values['loop_rate_hz'], forward, feedback, chamber)
+    return budget_problem(values)

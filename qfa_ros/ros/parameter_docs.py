@@ -91,16 +91,36 @@ def access_table():
     return '\n'.join(rows) + '\n'
 
 
-def main(argv=None):
-    """Print ``config/qfa.yaml``, the docs parameter table or who may set what (``access``)."""
-    args = sys.argv[1:] if argv is None else argv
-    outputs = {'yaml': config_yaml, 'markdown': markdown_table, 'access': access_table}
+def print_output(args, outputs, module):
+    """
+    Print the output the command line ``args`` names; return the exit status.
+
+    Parameters
+    ----------
+    args : list of str
+        The arguments: one name of ``outputs``.
+    outputs : dict
+        Each name with the function returning its text.
+    module : str
+        The module run with ``python -m``, for the usage line.
+
+    Returns
+    -------
+    int
+        0, or 2 (the usage printed on stderr) for anything but one known name.
+    """
     if len(args) != 1 or args[0] not in outputs:
-        print('usage: python -m qfa_ros.ros.parameter_docs {yaml|markdown|access}',
-              file=sys.stderr)
+        print(f'usage: python -m {module} {{{"|".join(outputs)}}}', file=sys.stderr)
         return 2
     print(outputs[args[0]](), end='')
     return 0
+
+
+def main(argv=None):
+    """Print ``config/qfa.yaml``, the docs parameter table or who may set what (``access``)."""
+    args = sys.argv[1:] if argv is None else argv
+    return print_output(args, {'yaml': config_yaml, 'markdown': markdown_table,
+                               'access': access_table}, 'qfa_ros.ros.parameter_docs')
 
 
 if __name__ == '__main__':

@@ -22,19 +22,8 @@ from qfa_ros.model.safe_files import system_reason
 from qfa_ros.model.triad import AXES
 from qfa_ros.model.triad_output import concatenate
 from qfa_ros.ros.bounds import confined_directory
-from qfa_ros.ros.model_settings import feedback_settings, forward_settings
 from qfa_ros.ros.progress import ScheduleReport
 from qfa_ros.ros.recording import FreeSpaceGuard
-
-SCHEDULE_PAUSE = {
-    'reference': 'reference capture running (open loop, then I_ref steps)',
-    'forward': 'forward-gain schedule running: loops open, no valid output',
-    'feedback': 'feedback-gain schedule running: I_ref steps of about 0.6 g on the output',
-    'self_calibrate': 'self-calibration running (open loop, then I_ref steps)',
-    'temperature': 'temperature calibration running: accelerated chamber cycle (and I_ref '
-                   'steps at its plateaus)',
-    'gyro_bias': 'gyro bias calibration running: averaging the gyros at rest',
-}
 
 
 class ScheduleCancelledError(Exception):
@@ -179,8 +168,23 @@ class ScheduleService:
             return f'busy: {self.busy_kind} schedule running'
         return None
 
-    async def run(self, response, kind, make_schedule, fast=None):
-        """Start a schedule, await its end, then persist, trace and answer ``response``."""
+    async def run(self, response, spec):
+        """
+        Start the schedule of ``spec``, await its end, then persist, trace and answer.
+
+        Parameters
+        ----------
+        response : std_srvs.srv.Trigger.Response
+            The answer to fill.
+        spec : ServiceSpec
+            The service's row (:data:`~qfa_ros.ros.service_table.SERVICES`): its schedule,
+            kind, pause and whether it always runs fast.
+
+        Returns
+        -------
+        std_srvs.srv.Trigger.Response
+            ``response``, answered.
+        """
         busy = self.busy_answer()
         if busy:
             response.success = False
@@ -188,14 +192,15 @@ class ScheduleService:
             return response
         # Busy from here until the answer: the state is saved and traced after the
         # sensor thread has let go of the schedule.
-        self.busy_kind = kind
+        self.busy_kind = spec.kind
         try:
-            return await self._run(response, kind, make_schedule, fast)
+            return await self._run(response, spec)
         finally:
             self.busy_kind = None
 
-    async def _run(self, response, kind, make_schedule, fast):
+    async def _run(self, response, spec):
         keeper = self._keeper
+        kind = spec.kind
         with self._lock:
             moving = keeper.triad.is_at_rest()
             if moving:
@@ -205,18 +210,17 @@ class ScheduleService:
                 return response
             before = keeper.state.to_dict()
             self._snapshot = SensorSnapshot(keeper)
+            fast = spec.always_fast or not self._values['estimation.realtime']
             try:
-                run = ScheduleRun(kind, make_schedule(forward_settings(self._values),
-                                                      feedback_settings(self._values)),
-                                  not self._values['estimation.realtime'] if fast is None
-                                  else fast, self.report.progress(kind),
+                run = ScheduleRun(kind, spec.schedule(keeper.triad, keeper.state, self._values),
+                                  fast, self.report.progress(kind),
                                   self._node.get_clock().now().nanoseconds)
             except Exception as error:
                 # EstimationError and ValueError are the expected refusals; anything else
                 # must still answer the caller instead of leaving the call hanging.
                 return self._failed(response, kind, error, before)
             self.report.started(run)
-            self._stream.start_schedule(run, SCHEDULE_PAUSE[kind])
+            self._stream.start_schedule(run, spec.pause)
         try:
             result = await run.future
         except ScheduleCancelledError as error:

@@ -1,37 +1,37 @@
-"""The node's calibration services: each one starts a schedule or switches the corrections."""
+"""The node's calibration services, one per row of the services table."""
+
+import functools
 
 from rclpy.callback_groups import ReentrantCallbackGroup
-from std_srvs.srv import SetBool, Trigger
 
-from qfa_ros.calibration.estimation import (
-    capture_reference,
-    feedback_schedule,
-    forward_schedule,
-    self_calibrate,
-)
-from qfa_ros.calibration.gyro_bias import gyro_bias_schedule
-from qfa_ros.calibration.temperature import temperature_calibration
-from qfa_ros.ros.model_settings import gyro_bias_settings, temperature_settings
+from qfa_ros.ros.service_table import SERVICES
 
 
 class CalibrationServices:
     """
-    Serve the calibration services of the node and the cancellation of their schedules.
+    Serve the services of :data:`~qfa_ros.ros.service_table.SERVICES`.
 
-    ``~/capture_reference``, ``~/estimate_forward_gain``, ``~/estimate_feedback_gain``,
-    ``~/self_calibrate``, ``~/calibrate_temperature``, ``~/calibrate_gyros``,
-    ``~/set_compensation`` and ``~/cancel``. The schedule services await the schedule the
-    sensor thread drives (:class:`~qfa_ros.ros.schedules.ScheduleService`); they answer
-    once it has ended.
+    A row with a schedule is served by :meth:`ScheduleService.run
+    <qfa_ros.ros.schedules.ScheduleService.run>`, which awaits the schedule the sensor thread
+    drives and answers once it has ended; a row with a handler by the method of that name
+    (:meth:`set_compensation`, :meth:`cancel`).
 
-    :param node: The node (services, guard condition, logger).
-    :param lock: The node lock (the model, the stream and the calibration state are used
-        under it).
-    :param values: The node's live parameter values (read, never written).
-    :param schedules: :class:`~qfa_ros.ros.schedules.ScheduleService`.
-    :param keeper: :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
-    :param truth: :class:`~qfa_ros.ros.truth.TruthPublisher` (marks applied corrections).
-    :param publish_calibrated: Callable publishing ``~/is_calibrated``.
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node (services, guard condition, logger).
+    lock : threading.Lock
+        The node lock (the model, the stream and the calibration state are used under it).
+    values : dict
+        The node's live parameter values (read, never written).
+    schedules : ScheduleService
+        :class:`~qfa_ros.ros.schedules.ScheduleService`.
+    keeper : CalibrationKeeper
+        :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
+    truth : TruthPublisher
+        :class:`~qfa_ros.ros.truth.TruthPublisher` (marks applied corrections).
+    publish_calibrated : callable
+        Publishes ``~/is_calibrated``.
     """
 
     def __init__(self, node, lock, values, schedules, keeper, truth, publish_calibrated):
@@ -46,73 +46,60 @@ class CalibrationServices:
         # mutually exclusive group the pending coroutine would keep the other services
         # from answering 'busy'; the reentrant group lets them run meanwhile.
         group = ReentrantCallbackGroup()
-        for srv_type, name, callback in (
-                (Trigger, '~/capture_reference', self.capture_reference_callback),
-                (Trigger, '~/estimate_forward_gain', self.estimate_forward_gain_callback),
-                (Trigger, '~/estimate_feedback_gain', self.estimate_feedback_gain_callback),
-                (Trigger, '~/self_calibrate', self.self_calibrate_callback),
-                (Trigger, '~/calibrate_temperature', self.calibrate_temperature_callback),
-                (Trigger, '~/calibrate_gyros', self.calibrate_gyros_callback),
-                (SetBool, '~/set_compensation', self.set_compensation_callback),
-                (Trigger, '~/cancel', self.cancel_callback)):
-            node.create_service(srv_type, name, callback, callback_group=group)
+        for spec in SERVICES:
+            if spec.schedule is None:
+                callback = functools.partial(getattr(self, spec.handler), spec)
+            else:
+                callback = self._schedule_callback(spec)
+            node.create_service(spec.srv_type, spec.name, callback, callback_group=group)
         # Triggered by the sensor thread when a schedule ends, so that the executor wakes
         # and resumes the service coroutine awaiting it.
         self.schedule_done = node.create_guard_condition(self.schedule_done_callback)
 
-    async def capture_reference_callback(self, request, response):
-        """Measure and persist the forward and feedback reference gains."""
-        keeper = self._keeper
-        return await self._schedules.run(response, 'reference', lambda f, b: capture_reference(
-            keeper.triad, keeper.state, f, b))
-
-    async def estimate_forward_gain_callback(self, request, response):
-        """Run the forward schedule and apply the correction in place."""
-        keeper = self._keeper
-        return await self._schedules.run(response, 'forward', lambda f, b: forward_schedule(
-            keeper.triad, keeper.state, f))
-
-    async def estimate_feedback_gain_callback(self, request, response):
-        """Run the feedback schedule and apply the correction in place."""
-        keeper = self._keeper
-        return await self._schedules.run(response, 'feedback', lambda f, b: feedback_schedule(
-            keeper.triad, keeper.state, b))
-
-    async def self_calibrate_callback(self, request, response):
-        """Run the forward, then the feedback schedule and apply both corrections."""
-        keeper = self._keeper
-        return await self._schedules.run(response, 'self_calibrate', lambda f, b: self_calibrate(
-            keeper.triad, keeper.state, f, b))
-
-    async def calibrate_temperature_callback(self, request, response):
+    def _schedule_callback(self, spec):
         """
-        Run an accelerated chamber cycle, fit bias and scale factor, switch compensation on.
+        Return the service callback that runs the schedule of ``spec``.
 
-        With ``temperature_calibration.reference_steps`` the I_ref step is measured at every
-        plateau and its temperature coefficient stored in the calibration state.
+        Parameters
+        ----------
+        spec : ServiceSpec
+            The service's row.
+
+        Returns
+        -------
+        callable
+            A coroutine function ``(request, response)`` awaiting
+            :meth:`~qfa_ros.ros.schedules.ScheduleService.run`.
         """
-        keeper = self._keeper
-        return await self._schedules.run(
-            response, 'temperature', lambda f, b: temperature_calibration(
-                keeper.triad, keeper.state, temperature_settings(self._values)),
-            fast=True)
+        async def run_schedule(request, response):
+            return await self._schedules.run(response, spec)
+        return run_schedule
 
-    async def calibrate_gyros_callback(self, request, response):
-        """Average the gyros at rest, remove the Earth rate and correct their bias."""
-        keeper = self._keeper
-        return await self._schedules.run(
-            response, 'gyro_bias', lambda f, b: gyro_bias_schedule(
-                keeper.triad, keeper.state, gyro_bias_settings(self._values)))
+    def set_compensation(self, spec, request, response):
+        """
+        Apply (true) the stored corrections or restore the nominal words (false).
 
-    def set_compensation_callback(self, request, response):
-        """Apply (true) the stored corrections or restore the nominal words (false)."""
+        Parameters
+        ----------
+        spec : ServiceSpec
+            Its row: the ``kind`` of the calibration event it marks.
+        request : std_srvs.srv.SetBool.Request
+            ``data``: true to apply, false to restore.
+        response : std_srvs.srv.SetBool.Response
+            The answer to fill.
+
+        Returns
+        -------
+        std_srvs.srv.SetBool.Response
+            ``response``, answered (``busy: ...`` while a schedule runs).
+        """
         busy = self._schedules.busy_answer()
         if busy:
             response.success, response.message = False, busy
             return response
         with self._lock:
             response.success, response.message = self._keeper.set_compensation(request.data)
-            self._truth.mark('set_compensation')
+            self._truth.mark(spec.kind)
         if response.success:
             problem = self._keeper.save()
             if problem:
@@ -121,8 +108,24 @@ class CalibrationServices:
             self._publish_calibrated()
         return response
 
-    def cancel_callback(self, request, response):
-        """Abort the running schedule, restore the sensor and let the stream resume."""
+    def cancel(self, spec, request, response):
+        """
+        Abort the running schedule, restore the sensor and let the stream resume.
+
+        Parameters
+        ----------
+        spec : ServiceSpec
+            Its row.
+        request : std_srvs.srv.Trigger.Request
+            Empty.
+        response : std_srvs.srv.Trigger.Response
+            The answer to fill.
+
+        Returns
+        -------
+        std_srvs.srv.Trigger.Response
+            ``response``, answered (``no schedule running`` when there is none).
+        """
         if self._schedules.refusal is not None:
             response.success, response.message = False, self._schedules.refusal
             return response

@@ -13,12 +13,13 @@ publishes what the model holds then: the pose on the input trajectory, its origi
 A correction applied in place (a schedule's result, ``~/set_compensation``) changes the
 loop words, the temperature compensation or the gyro bias correction. Where the node
 applies one, :meth:`TruthPublisher.mark` records the words and the errors right after it
-and the first sample computed with it; the next tick publishes one
+and the first sample computed with it, under the kind of the service that applied it
+(its row in :data:`~qfa_ros.ros.service_table.SERVICES`); the next tick publishes one
 ``diagnostic_msgs/DiagnosticStatus`` on ``~/calibration_events`` (transient local) per
 marked correction that changed something, each against the one before it, so two
-corrections within one tick give two events. A change nobody marked (a schedule that
-failed after applying part of its result) is still seen between two ticks and published
-as one event.
+corrections within one tick give two events. Every correction the node applies is marked;
+a change seen between two ticks that nobody marked would be published under the schedule
+seen running, or as :data:`UNATTRIBUTED` with a warning in the log.
 """
 
 import math
@@ -28,23 +29,20 @@ from nav_msgs.msg import Odometry
 import numpy as np
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
-from qfa_ros.bag.qos import QOS_LATCHED, QOS_TRUTH, QosProfile
 from qfa_ros.model.constants import DEG_PER_HOUR, MICRO_G, PPM
 from qfa_ros.model.error_truth import error_truth
 from qfa_ros.model.loop_response import CORRECTION_SETTLE_BAND, feedback_step_transient
 from qfa_ros.model.triad import NS_PER_S
-from qfa_ros.ros.stream import ros_qos
+from qfa_ros.ros.topic_table import create_publisher, TOPIC, TRUTH_FRAME_ID
 
-TRUTH_FRAME_ID = 'enu_origin'
-"""Frame of ``truth/odometry``: the ENU tangent plane at ``truth/origin``."""
 POSE_MODES = ('static', 'trajectory')
 """Input modes with a pose on the Earth (``profile`` scripts a specific force only)."""
-EVENT_DEPTH = 20
-"""Calibration events a late subscriber still gets (transient local)."""
-QOS_EVENTS = QosProfile(depth=EVENT_DEPTH, durability='transient_local')
-"""QoS of ``~/calibration_events``, in the node and in the flight recordings."""
-TYPES = {'events': 'diagnostic_msgs/msg/DiagnosticStatus', 'odometry': 'nav_msgs/msg/Odometry',
-         'origin': 'sensor_msgs/msg/NavSatFix', 'errors': 'sensor_msgs/msg/Imu'}
+UNATTRIBUTED = 'unattributed'
+"""The kind of an event whose correction no service marked (none is known to)."""
+TRUTH_TOPICS = {'events': '~/calibration_events', 'odometry': 'truth/odometry',
+                'origin': 'truth/origin', 'errors': 'truth/imu_errors'}
+"""The row in the topic table of each truth publisher."""
+TYPES = {key: TOPIC[name].type_name for key, name in TRUTH_TOPICS.items()}
 """The message type of each truth publisher, as the flight recorder writes it."""
 
 
@@ -100,14 +98,13 @@ class TruthPublisher:
         self._values = values
         self._stream = stream
         self.enabled = bool(values['truth.enabled'])
-        # One statement of the truth's QoS, shared with the bags (qfa_ros.bag.qos).
-        self.events = node.create_publisher(DiagnosticStatus, '~/calibration_events',
-                                            ros_qos(QOS_EVENTS))
+        # The QoS of each is its row's in the topic table (the bags' too: qfa_ros.bag.qos).
+        self.events = create_publisher(node, TRUTH_TOPICS['events'])
         self.odometry = self.origin = self.errors = None
         if self.enabled:
-            self.odometry = node.create_publisher(Odometry, 'truth/odometry', ros_qos(QOS_TRUTH))
-            self.origin = node.create_publisher(NavSatFix, 'truth/origin', ros_qos(QOS_LATCHED))
-            self.errors = node.create_publisher(Imu, 'truth/imu_errors', ros_qos(QOS_TRUTH))
+            self.odometry = create_publisher(node, TRUTH_TOPICS['odometry'])
+            self.origin = create_publisher(node, TRUTH_TOPICS['origin'])
+            self.errors = create_publisher(node, TRUTH_TOPICS['errors'])
         self._profile = None
         self._fingerprint = None
         self._before = None
@@ -120,14 +117,17 @@ class TruthPublisher:
 
     def chain(self, callback):
         """Return ``callback`` preceded by :meth:`mark` (the stream's schedule-end hook)."""
-        def marked(kind=None):
+        def marked(kind):
             self.mark(kind)
             callback()
         return marked
 
-    def mark(self, kind=None):
+    def mark(self, kind):
         """
         Note that a correction ``kind`` may have been applied now: the next sample has it.
+
+        ``kind`` is the kind of the service that applied it (its row's ``kind`` in
+        :data:`~qfa_ros.ros.service_table.SERVICES`).
 
         Records the words and the errors the model holds now, so that each correction
         gets its own event even when several come within one tick. Called with the node
@@ -138,6 +138,15 @@ class TruthPublisher:
             return  # before the first tick: nothing to compare the correction with
         self._marks.append((self._stream.grid.next_index, kind, self._words(),
                             self._error_truth()[0]))
+
+    def _unmarked_kind(self):
+        """Return the kind of a change nobody marked: the schedule seen running, or none."""
+        if self._last_kind is not None:
+            return self._last_kind
+        self._node.get_logger().warning(
+            'a correction no service marked: published on ~/calibration_events as '
+            f'{UNATTRIBUTED}')
+        return UNATTRIBUTED
 
     def _error_truth(self):
         """Return the :class:`ErrorTruth` of the model now, and whether the input has a pose."""
@@ -186,13 +195,11 @@ class TruthPublisher:
             for index, kind, marked_words, marked_truth in marks:
                 if marked_words != self._fingerprint:
                     messages.append(('events', self._event(
-                        kind or self._last_kind or _changed(self._fingerprint, marked_words),
-                        marked_words, marked_truth, index)))
+                        kind or self._unmarked_kind(), marked_words, marked_truth, index)))
                 self._fingerprint, self._before = marked_words, marked_truth
             if self._fingerprint is not None and words != self._fingerprint:
                 messages.append(('events', self._event(
-                    self._last_kind or _changed(self._fingerprint, words), words, truth,
-                    grid.next_index - 1)))
+                    self._unmarked_kind(), words, truth, grid.next_index - 1)))
             self._fingerprint, self._before = words, truth
             self._last_kind = None
             if self.enabled:
@@ -214,12 +221,8 @@ class TruthPublisher:
 
     def offered_qos(self):
         """Return the QoS (:class:`~qfa_ros.bag.qos.QosProfile`) of each truth topic."""
-        topics = {self.events.topic_name: QOS_EVENTS}
-        if self.enabled:
-            topics[self.odometry.topic_name] = QOS_TRUTH
-            topics[self.errors.topic_name] = QOS_TRUTH
-            topics[self.origin.topic_name] = QOS_LATCHED
-        return topics
+        return {getattr(self, key).topic_name: TOPIC[name].qos
+                for key, name in TRUTH_TOPICS.items() if getattr(self, key) is not None}
 
     def _event(self, kind, words, truth, index):
         """
@@ -301,17 +304,3 @@ class TruthPublisher:
         twist.angular.x, twist.angular.y, twist.angular.z = (float(v) for v in rate)
         return message
 
-
-def _changed(before, after):
-    """Return the kind of correction a change of the loop words and switches implies."""
-    loops_before, rest_before = before
-    loops_after, rest_after = after
-    forward = any(a[0] != b[0] or a[2] != b[2] for a, b in zip(loops_after, loops_before))
-    feedback = any(a[1] != b[1] for a, b in zip(loops_after, loops_before))
-    if forward and feedback:
-        return 'self_calibrate'
-    if forward or feedback:
-        return 'forward' if forward else 'feedback'
-    if rest_after[:2] != rest_before[:2]:
-        return 'temperature'
-    return 'gyro_bias'
