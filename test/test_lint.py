@@ -73,7 +73,7 @@ def test_commit_subjects_fit_on_one_line():
         assert len(long_subjects('-1', f'{FIRST_CHECKED_COMMIT}~1')) == 1
 
 
-NUMPYDOC_LAYERS = ('model', 'calibration', 'bag', 'report', 'fleet', 'cli')
+NUMPYDOC_LAYERS = ('model', 'calibration', 'bag', 'ros', 'report', 'fleet', 'cli')
 """The layers of ``qfa_ros`` whose docstrings are numpydoc only (``ros`` joins once converted)."""
 REST_FIELD = re.compile(
     r'^[ \t]*:(param|type|returns?|rtype|raises?|yields?|var|ivar|cvar)\b[^:]*:', re.MULTILINE)

@@ -201,6 +201,8 @@ def test_sigterm_closes_the_recording_cleanly(setup):
         # The truth an INS developer replays the recording against (truth.rate_hz 10 Hz).
         assert counts['/truth/imu_errors'] > 50 and counts['/truth/odometry'] > 50
         assert counts['/truth/origin'] >= 1  # and again at each new input (orientation)
+        # Latched ~/is_calibrated, as published at start: what the unit said at replay.
+        assert counts['/qfa_node/is_calibrated'] >= 1
         connection = next(c for c in reader.connections if c.topic == '/imu/data_raw')
         _, _, raw = next(reader.messages(connections=[connection]))
         message = reader.deserialize(raw, connection.msgtype)

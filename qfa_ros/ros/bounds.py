@@ -80,10 +80,14 @@ def forward_sweep_problem(settings, hardware, forward_drift_ppm=(0.0,)):
     """
     Return why the forward sweep of ``settings`` would leave DA1's or the ADC's range.
 
-    :param settings: :class:`ForwardSettings`.
-    :param hardware: The axes' :class:`~qfa_ros.model.hardware.AxisHardware`.
-    :param forward_drift_ppm: Injected forward-gain drift per axis [ppm]; the largest
-        raises the open-loop output.
+    Parameters
+    ----------
+    settings
+        :class:`ForwardSettings`.
+    hardware
+        The axes' :class:`~qfa_ros.model.hardware.AxisHardware`.
+    forward_drift_ppm
+        Injected forward-gain drift per axis [ppm]; the largest raises the open-loop output.
     """
     gain_factor = 1.0 + max(0.0, max(forward_drift_ppm)) * PPM
     span = forward_max_span(hardware, gain_factor)
@@ -150,8 +154,10 @@ def confined_directory(values, name):
     is refused rather than taken literally. Resolve again right before writing: a
     symlink may have been swapped since the parameter was checked.
 
-    :raises ValueError: The directory would lie outside ``output_dir``; the message
-        names the parameter.
+    Raises
+    ------
+    ValueError
+        The directory would lie outside ``output_dir``; the message names the parameter.
     """
     value = values[name]
     rule = (f'{name} must name a directory inside output_dir: relative to it, or absolute '

@@ -14,9 +14,14 @@ class CalibrationKeeper:
     The state is changed by a schedule (sensor thread) or a service (executor thread);
     the caller holds the node lock around every method.
 
-    :param triad: The running model; its present words are the nominal ones.
-    :param state_file: Path of the persisted state, or '' for memory only.
-    :param logger: The node's logger.
+    Parameters
+    ----------
+    triad
+        The running model; its present words are the nominal ones.
+    state_file
+        Path of the persisted state, or '' for memory only.
+    logger
+        The node's logger.
     """
 
     def __init__(self, triad, state_file, logger):
@@ -41,8 +46,11 @@ class CalibrationKeeper:
         """
         Restore the persisted state; a bad file is set aside and the sensor starts bare.
 
-        :param fresh: Do not read the state file at all (``state.fresh``): start on the
-            nominal words, uncompensated; the next save replaces the file.
+        Parameters
+        ----------
+        fresh
+            Do not read the state file at all (``state.fresh``): start on the nominal words,
+            uncompensated; the next save replaces the file.
         """
         store = self.store
         if store.path is None:
@@ -123,7 +131,9 @@ class CalibrationKeeper:
 
         The caller saves the state afterwards (:meth:`save`), outside the node lock.
 
-        :returns: ``(success, message)`` for a ``SetBool`` answer.
+        Returns
+        -------
+        ``(success, message)`` for a ``SetBool`` answer.
         """
         state = self.state
         if on and not (state.controller_gain or state.n_vref or state.temperature

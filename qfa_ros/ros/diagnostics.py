@@ -33,12 +33,18 @@ class Diagnostics:
     Creates the ``/diagnostics`` publisher (its row in the topic table) and the timer at
     ``diagnostics_rate_hz`` that publishes and records them.
 
-    :param node: The node (publisher, timer, name, clock).
-    :param lock: The node lock (every status is read under it).
-    :param values: The node's live parameter values (``hardware_id``,
-        ``diagnostics_rate_hz``; read only).
-    :param recording: :class:`~qfa_ros.ros.recording.StreamRecording` (publishes and records).
-    :param sources: ``(topic, callable returning (level, message, key values))`` pairs.
+    Parameters
+    ----------
+    node
+        The node (publisher, timer, name, clock).
+    lock
+        The node lock (every status is read under it).
+    values
+        The node's live parameter values (``hardware_id``, ``diagnostics_rate_hz``; read only).
+    recording
+        :class:`~qfa_ros.ros.recording.StreamRecording` (publishes and records).
+    sources
+        ``(topic, callable returning (level, message, key values))`` pairs.
     """
 
     def __init__(self, node, lock, values, recording, sources):

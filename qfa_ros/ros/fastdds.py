@@ -50,8 +50,14 @@ def use_shipped_fastdds_profile(environ=None, distribution=None):
     either name is the one in effect (Jazzy's Fast DDS would ignore the documented
     ``FASTDDS_DEFAULT_PROFILES_FILE``, so it is copied to the name Jazzy reads).
 
-    :param distribution: The ROS 2 distribution (default: :func:`ros_distribution`).
-    :returns: The profile now in effect (the user's own or the shipped one), or None.
+    Parameters
+    ----------
+    distribution
+        The ROS 2 distribution (default: :func:`ros_distribution`).
+
+    Returns
+    -------
+    The profile now in effect (the user's own or the shipped one), or None.
     """
     environ = os.environ if environ is None else environ
     distribution = ros_distribution(environ) if distribution is None else distribution

@@ -38,7 +38,10 @@ class GroundTruthInput:
     the window (read-only).
     The caller holds the node lock around every method.
 
-    :param values: The node's live parameter values (read, never written).
+    Parameters
+    ----------
+    values
+        The node's live parameter values (read, never written).
     """
 
     def __init__(self, values):

@@ -21,11 +21,18 @@ class InputSubscription:
     is handed to the :class:`~qfa_ros.ros.input_queue.GroundTruthInput` under the node
     lock, then the stream is woken to compute the samples it makes due.
 
-    :param node: The node (subscription, clock).
-    :param lock: The node lock (the input queue is shared with the sensor thread).
-    :param values: The node's live parameter values (``input.topic_type``; read only).
-    :param ground_truth: :class:`~qfa_ros.ros.input_queue.GroundTruthInput`.
-    :param stream: :class:`~qfa_ros.ros.stream.SampleStream` (woken by each input).
+    Parameters
+    ----------
+    node
+        The node (subscription, clock).
+    lock
+        The node lock (the input queue is shared with the sensor thread).
+    values
+        The node's live parameter values (``input.topic_type``; read only).
+    ground_truth
+        :class:`~qfa_ros.ros.input_queue.GroundTruthInput`.
+    stream
+        :class:`~qfa_ros.ros.stream.SampleStream` (woken by each input).
     """
 
     def __init__(self, node, lock, values, ground_truth, stream):

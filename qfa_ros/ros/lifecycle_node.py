@@ -103,11 +103,16 @@ class QfaLifecycleNode(SensorWiring, LifecycleNode):
     ``configure`` answers FAILURE naming it until it is set (an operator's one: until the
     node is started again with a valid one).
 
-    :param node_name: Node name.
-    :param process_tuning: The process's interpreter settings (see
-        :class:`~qfa_ros.ros.stream.SampleStream`); its ``released()`` is called when a
-        unit is removed, so that the next ``configure`` freezes its own start-up objects.
-    :param kwargs: Passed to :class:`rclpy.lifecycle.LifecycleNode`.
+    Parameters
+    ----------
+    node_name
+        Node name.
+    process_tuning
+        The process's interpreter settings (see :class:`~qfa_ros.ros.stream.SampleStream`); its
+        ``released()`` is called when a unit is removed, so that the next ``configure`` freezes its
+        own start-up objects.
+    kwargs
+        Passed to :class:`rclpy.lifecycle.LifecycleNode`.
     """
 
     _publishers_managed = False

@@ -202,8 +202,10 @@ def load_imu_noise(values):
     None when the parameter is empty. Read once, at start, with the bounds of
     :func:`~qfa_ros.calibration.kalibr_yaml.load_imu_yaml`.
 
-    :raises ValueError: The file cannot be used; the message names the parameter and
-        never quotes the file.
+    Raises
+    ------
+    ValueError
+        The file cannot be used; the message names the parameter and never quotes the file.
     """
     path = values['noise.imu_yaml']
     if not path:
@@ -219,8 +221,10 @@ def load_trajectory_file(values):
     None when the parameter is empty. Read once, at start, with the bounds of
     :func:`~qfa_ros.model.motion_scripts.load_csv`.
 
-    :raises ValueError: The file cannot be used; the message names the parameter and
-        never quotes the file.
+    Raises
+    ------
+    ValueError
+        The file cannot be used; the message names the parameter and never quotes the file.
     """
     path = values['input.trajectory_file']
     if not path:

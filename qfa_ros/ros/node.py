@@ -32,7 +32,7 @@ from qfa_ros.ros.runtime_parameters import (
     declare_parameters,
     RuntimeParameters,
 )
-from qfa_ros.ros.schedules import ScheduleService
+from qfa_ros.ros.schedule_service import ScheduleService
 from qfa_ros.ros.services import CalibrationServices
 from qfa_ros.ros.startup_recovery import StartupRecovery
 from qfa_ros.ros.stream import offered_qos, SampleStream
@@ -73,13 +73,19 @@ class SensorWiring:
         """
         Build the model from ``values`` and wire the collaborators; the stream is not started.
 
-        :param values: Every parameter's value by name (``declare_parameters``); kept as
-            the live values.
-        :param process_tuning: The process's interpreter settings, applied by the sensor
-            thread (see :class:`SampleStream`); only a process that runs this node alone
-            passes them.
-        :raises ValueError: A parameter is invalid or the trajectory file cannot be used;
-            the message names the parameter.
+        Parameters
+        ----------
+        values
+            Every parameter's value by name (``declare_parameters``); kept as the live values.
+        process_tuning
+            The process's interpreter settings, applied by the sensor thread (see
+            :class:`SampleStream`); only a process that runs this node alone passes them.
+
+        Raises
+        ------
+        ValueError
+            A parameter is invalid or the trajectory file cannot be used; the message names the
+            parameter.
         """
         # The live parameter values, shared (read-only) by every collaborator; written
         # only by RuntimeParameters, under _lock.
@@ -191,8 +197,9 @@ class SensorWiring:
         return self._keeper.is_calibrated
 
     def publish_calibrated(self):
-        """Publish ``~/is_calibrated`` (transient local: late subscribers get it too)."""
-        self._calibrated_publisher.publish(Bool(data=self.is_calibrated))
+        """Publish ``~/is_calibrated`` (transient local: late subscribers get it too), recorded."""
+        self._recording.publish(self._calibrated_publisher, Bool(data=self.is_calibrated),
+                                TOPIC['~/is_calibrated'].type_name)
 
     # Shutdown -------------------------------------------------------------------------
     def close(self, timeout_s=10.0):
@@ -232,12 +239,20 @@ class QfaNode(SensorWiring, Node):
     :data:`~qfa_ros.ros.service_table.SERVICES`. The unit
     (:class:`SensorWiring`) is wired and started at construction, and runs until :meth:`close`.
 
-    :param node_name: Node name.
-    :param process_tuning: The process's interpreter settings, applied by the sensor thread
-        (see :class:`SampleStream`); only a process that runs this node alone passes them.
-    :param kwargs: Passed to :class:`rclpy.node.Node` (e.g. ``context``,
-        ``parameter_overrides``).
-    :raises ValueError: A parameter is invalid; the message names it.
+    Parameters
+    ----------
+    node_name
+        Node name.
+    process_tuning
+        The process's interpreter settings, applied by the sensor thread (see
+        :class:`SampleStream`); only a process that runs this node alone passes them.
+    kwargs
+        Passed to :class:`rclpy.node.Node` (e.g. ``context``, ``parameter_overrides``).
+
+    Raises
+    ------
+    ValueError
+        A parameter is invalid; the message names it.
     """
 
     def __init__(self, node_name='qfa_node', *, process_tuning=None, **kwargs):

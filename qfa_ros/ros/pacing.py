@@ -120,10 +120,15 @@ def sched_setattr(thread, attr, machine=None):
     """
     Call ``sched_setattr(thread, attr, 0)``; return True if the kernel accepted it.
 
-    :param thread: Native thread id (0 is the calling thread).
-    :param attr: A :class:`SchedAttr`.
-    :param machine: ``platform.machine()`` by default; an architecture without a known
-        call number (or a system other than Linux) makes this a no-op returning False.
+    Parameters
+    ----------
+    thread
+        Native thread id (0 is the calling thread).
+    attr
+        A :class:`SchedAttr`.
+    machine
+        ``platform.machine()`` by default; an architecture without a known call number (or a system
+        other than Linux) makes this a no-op returning False.
     """
     machine = platform.machine() if machine is None else machine
     number = SCHED_SETATTR_NUMBERS.get(machine) if platform.system() == 'Linux' else None
@@ -178,14 +183,20 @@ class Pacer:
     (counted in :attr:`dropped`), so the messages waiting never span much more than a
     second, however long the thread was held up.
 
-    :param node: The node (its clock: system time, or ``/clock`` with ``use_sim_time``).
-    :param on_published: Called on the pacer thread with ``(publisher, msgtype, data,
-        time_ns)`` after each publication (the recording hook; before a :meth:`pause`
-        returns, so it must not block), or None.
-    :param on_empty: Called on the pacer thread when it has published everything it was
-        given (it asks the sensor thread for more), or None.
-    :param on_started: Called once on the pacer thread after the first messages it was
-        given are published, or None.
+    Parameters
+    ----------
+    node
+        The node (its clock: system time, or ``/clock`` with ``use_sim_time``).
+    on_published
+        Called on the pacer thread with ``(publisher, msgtype, data, time_ns)`` after each
+        publication (the recording hook; before a :meth:`pause` returns, so it must not block), or
+        None.
+    on_empty
+        Called on the pacer thread when it has published everything it was given (it asks the
+        sensor thread for more), or None.
+    on_started
+        Called once on the pacer thread after the first messages it was given are published, or
+        None.
     """
 
     def __init__(self, node, on_published=None, on_empty=None, on_started=None):
@@ -266,9 +277,12 @@ class Pacer:
         """
         Publish again, each message stamped at or after the present; return it [ns].
 
-        :param now_ns: The node clock [ns] (a callable), read under the gate: a message
-            that came due while the caller waited for it was still dropped as paused, so
-            the present is only known once no publication can be under way.
+        Parameters
+        ----------
+        now_ns
+            The node clock [ns] (a callable), read under the gate: a message that came due while
+            the caller waited for it was still dropped as paused, so the present is only known once
+            no publication can be under way.
         """
         with self._gate:
             from_ns = now_ns()
@@ -393,7 +407,10 @@ class RecordingQueue:
     compression and a write the disk holds up delay neither a publication nor the sensor
     thread that feeds the pacer.
 
-    :param recording: :class:`~qfa_ros.ros.recording.StreamRecording`.
+    Parameters
+    ----------
+    recording
+        :class:`~qfa_ros.ros.recording.StreamRecording`.
     """
 
     def __init__(self, recording):

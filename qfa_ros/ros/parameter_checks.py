@@ -66,7 +66,10 @@ def as_declared_type(parameter):
     Used as the node's pre-set callback and on the start-up overrides, so the stored
     value is always a double (array) and then validated like any other.
 
-    :param parameter: An :class:`rclpy.parameter.Parameter`.
+    Parameters
+    ----------
+    parameter
+        An :class:`rclpy.parameter.Parameter`.
     """
     spec = SPECS.get(parameter.name)
     if spec is None or isinstance(spec.default, bool):

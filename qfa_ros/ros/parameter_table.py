@@ -116,18 +116,29 @@ class ParameterSpec:
     """
     One node parameter.
 
-    :param name: Parameter name.
-    :param default: Default value; its Python type fixes the ROS parameter type.
-    :param description: Human description with the unit.
-    :param access: Who may set it, and when: :data:`OPERATOR`, :data:`CONFIGURE` or
-        :data:`RUNTIME`.
-    :param low, high: Inclusive range of a scalar number (None: no range).
-    :param choices: Allowed strings.
-    :param length: Required length of an array (None: one to ``max_length`` elements).
-    :param max_length: Most elements of an array without a required ``length``.
-    :param why: Why the operator alone sets it (:data:`OPERATOR`), or why a participant may
-        set it while the managed node is unconfigured (:data:`CONFIGURE`).
-    :param confined: A directory confined to ``output_dir`` (checked whenever it is set).
+    Parameters
+    ----------
+    name
+        Parameter name.
+    default
+        Default value; its Python type fixes the ROS parameter type.
+    description
+        Human description with the unit.
+    access
+        Who may set it, and when: :data:`OPERATOR`, :data:`CONFIGURE` or :data:`RUNTIME`.
+    low, high
+        Inclusive range of a scalar number (None: no range).
+    choices
+        Allowed strings.
+    length
+        Required length of an array (None: one to ``max_length`` elements).
+    max_length
+        Most elements of an array without a required ``length``.
+    why
+        Why the operator alone sets it (:data:`OPERATOR`), or why a participant may set it while
+        the managed node is unconfigured (:data:`CONFIGURE`).
+    confined
+        A directory confined to ``output_dir`` (checked whenever it is set).
     """
 
     name: str
@@ -451,7 +462,7 @@ PARAMETERS = (
                   OPERATOR, why=STATE_READ),
     ParameterSpec('recorder.enabled', False,
                   'Record the published imu/data_raw, imu/temperature, /diagnostics, '
-                  '~/calibration_events and truth topics to MCAP'),
+                  '~/is_calibrated, ~/calibration_events and truth topics to MCAP'),
     ParameterSpec('recorder.directory', 'recordings',
                   'Directory of the flight recordings, created when needed: relative to '
                   'output_dir, or absolute inside it (symlinks and .. resolved; ~ not '

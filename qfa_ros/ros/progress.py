@@ -78,7 +78,7 @@ class ScheduleReport:
         return ScheduleProgress(kind, self._rate_hz, self._log_phase)
 
     def started(self, run):
-        """Show ``run`` (a :class:`~qfa_ros.ros.schedules.ScheduleRun`) from now on."""
+        """Show ``run`` (a :class:`~qfa_ros.ros.schedule_service.ScheduleRun`) from now on."""
         self.run, self.outcome = run, RUNNING
 
     @property

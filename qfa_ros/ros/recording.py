@@ -32,8 +32,12 @@ class FreeSpaceGuard:
     """
     Say when writing under a directory would take its file system under a free-space floor.
 
-    :param floor_bytes: Free space to leave (``min_free_bytes``) [bytes].
-    :param usage: ``shutil.disk_usage`` or a stand-in with the same result (tests).
+    Parameters
+    ----------
+    floor_bytes
+        Free space to leave (``min_free_bytes``) [bytes].
+    usage
+        ``shutil.disk_usage`` or a stand-in with the same result (tests).
     """
 
     def __init__(self, floor_bytes, usage=shutil.disk_usage):
@@ -79,12 +83,19 @@ class StreamRecording:
     Thread-safe on its own lock, not the node's: a write the disk holds up (page-cache
     writeback stalls ``write`` for 100 ms and more) must not hold up the sensor thread.
 
-    :param node: The node (its name prefixes the files; its logger reports).
-    :param values: The node's live parameter values.
-    :param qos: Offered QoS per recorded topic name.
-    :param guard: :class:`FreeSpaceGuard` (default: ``min_free_bytes`` of ``values``).
-    :param operator_values: The parameter values the node started with (default: ``values``
-        as they are now): retention applies only in their ``recorder.directory``.
+    Parameters
+    ----------
+    node
+        The node (its name prefixes the files; its logger reports).
+    values
+        The node's live parameter values.
+    qos
+        Offered QoS per recorded topic name.
+    guard
+        :class:`FreeSpaceGuard` (default: ``min_free_bytes`` of ``values``).
+    operator_values
+        The parameter values the node started with (default: ``values`` as they are now): retention
+        applies only in their ``recorder.directory``.
     """
 
     def __init__(self, node, values, qos, guard=None, operator_values=None):

@@ -30,14 +30,21 @@ def declare_parameters(node, managed=False, refused=None):
     """
     Declare every parameter of the table on ``node``; return their start values by name.
 
-    :param managed: Declare for the managed node: read-only only the operator's parameters
-        (``access`` :data:`~qfa_ros.ros.parameter_table.OPERATOR`); it refuses the others of
-        the plain node's read-only ones itself from ``configure`` to ``cleanup``. Otherwise
-        every parameter that is not writable at run time is read-only.
-    :param refused: None, or a dict: a start value rclpy refuses (type, range) is then
-        recorded there (name: reason) and the parameter declared with its default, instead
-        of raising.
-    :raises ValueError: A start value has the wrong type; the message names the parameter.
+    Parameters
+    ----------
+    managed
+        Declare for the managed node: read-only only the operator's parameters (``access``
+        :data:`~qfa_ros.ros.parameter_table.OPERATOR`); it refuses the others of the plain node's
+        read-only ones itself from ``configure`` to ``cleanup``. Otherwise every parameter that is
+        not writable at run time is read-only.
+    refused
+        None, or a dict: a start value rclpy refuses (type, range) is then recorded there (name:
+        reason) and the parameter declared with its default, instead of raising.
+
+    Raises
+    ------
+    ValueError
+        A start value has the wrong type; the message names the parameter.
     """
     # Integers typed for doubles ([1, 2, 3], 2000) become doubles: in every change
     # (pre-set callback) and at start, where declaration runs no pre-set callback.
@@ -98,14 +105,24 @@ class RuntimeParameters:
     old values back and runs the steps again with them, so the parameter and the sensor
     stay as they were; the node goes on either way.
 
-    :param node: The node (callback, logger).
-    :param lock: The node lock (the model, the stream and the values are changed under it).
-    :param values: The node's live parameter values: written here only, under ``lock``.
-    :param trajectory_file: The trajectory file read at start, or None.
-    :param triad: The model.
-    :param stream: :class:`~qfa_ros.ros.stream.SampleStream`.
-    :param recording: :class:`~qfa_ros.ros.recording.StreamRecording`.
-    :param schedules: :class:`~qfa_ros.ros.schedules.ScheduleService` (busy, last error).
+    Parameters
+    ----------
+    node
+        The node (callback, logger).
+    lock
+        The node lock (the model, the stream and the values are changed under it).
+    values
+        The node's live parameter values: written here only, under ``lock``.
+    trajectory_file
+        The trajectory file read at start, or None.
+    triad
+        The model.
+    stream
+        :class:`~qfa_ros.ros.stream.SampleStream`.
+    recording
+        :class:`~qfa_ros.ros.recording.StreamRecording`.
+    schedules
+        :class:`~qfa_ros.ros.schedule_service.ScheduleService` (busy, last error).
     """
 
     def __init__(self, node, lock, values, trajectory_file, triad, stream, recording,

@@ -3,7 +3,7 @@ The node's services, as data: one row per service, everything else derived from 
 
 :data:`SERVICES` is the one table. Derived from it: the services the node offers
 (:class:`~qfa_ros.ros.services.CalibrationServices` creates one per row), what the stream
-says while a schedule runs (:meth:`~qfa_ros.ros.schedules.ScheduleService.run`), the
+says while a schedule runs (:meth:`~qfa_ros.ros.schedule_service.ScheduleService.run`), the
 loop-step budget of every schedule (:func:`budget_problem`, checked with the parameters by
 :func:`~qfa_ros.ros.parameter_checks.check_all`), the kind of a correction on
 ``~/calibration_events`` (:meth:`~qfa_ros.ros.truth.TruthPublisher.mark`), the services

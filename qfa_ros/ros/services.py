@@ -12,8 +12,8 @@ class CalibrationServices:
     Serve the services of :data:`~qfa_ros.ros.service_table.SERVICES`.
 
     A row with a schedule is served by :meth:`ScheduleService.run
-    <qfa_ros.ros.schedules.ScheduleService.run>`, which awaits the schedule the sensor thread
-    drives and answers once it has ended; a row with a handler by the method of that name
+    <qfa_ros.ros.schedule_service.ScheduleService.run>`, which awaits the schedule the sensor
+    thread drives and answers once it has ended; a row with a handler by the method of that name
     (:meth:`set_compensation`, :meth:`cancel`).
 
     Parameters
@@ -25,7 +25,7 @@ class CalibrationServices:
     values : dict
         The node's live parameter values (read, never written).
     schedules : ScheduleService
-        :class:`~qfa_ros.ros.schedules.ScheduleService`.
+        :class:`~qfa_ros.ros.schedule_service.ScheduleService`.
     keeper : CalibrationKeeper
         :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
     truth : TruthPublisher
@@ -69,7 +69,7 @@ class CalibrationServices:
         -------
         callable
             A coroutine function ``(request, response)`` awaiting
-            :meth:`~qfa_ros.ros.schedules.ScheduleService.run`.
+            :meth:`~qfa_ros.ros.schedule_service.ScheduleService.run`.
         """
         async def run_schedule(request, response):
             return await self._schedules.run(response, spec)

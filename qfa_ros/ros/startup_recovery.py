@@ -26,8 +26,12 @@ class StartupRecovery:
     alone. Nothing waits for it: the node starts it once the first samples are out, and
     the thread yields the cores to the sensor and pacer threads.
 
-    :param node: The node (its name: the recordings' prefix; its logger).
-    :param values: The node's parameter values at start.
+    Parameters
+    ----------
+    node
+        The node (its name: the recordings' prefix; its logger).
+    values
+        The node's parameter values at start.
     """
 
     def __init__(self, node, values):

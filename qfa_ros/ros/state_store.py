@@ -51,7 +51,10 @@ class StateStore:
     new state, also across a power cut. A file that cannot be parsed is renamed to
     ``<name>.corrupt-<UTC time>`` so that the next save never overwrites it silently.
 
-    :param path: State file; None or empty keeps the state in memory only.
+    Parameters
+    ----------
+    path
+        State file; None or empty keeps the state in memory only.
     """
 
     def __init__(self, path):
@@ -61,8 +64,10 @@ class StateStore:
         """
         Return ``(state, compensation_enabled)``; ``(None, True)`` when there is no file.
 
-        :raises StateFileError: The file is unreadable or corrupt (it is set aside when
-            it can be renamed).
+        Raises
+        ------
+        StateFileError
+            The file is unreadable or corrupt (it is set aside when it can be renamed).
         """
         if self.path is None or not self.path.exists():
             return None, True
@@ -122,7 +127,10 @@ class StateStore:
         """
         Write ``state`` atomically; return the path, or None without a state file.
 
-        :raises OSError: The directory is missing or not writable, or the disk is full.
+        Raises
+        ------
+        OSError
+            The directory is missing or not writable, or the disk is full.
         """
         if self.path is None:
             return None

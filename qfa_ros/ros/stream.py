@@ -97,20 +97,31 @@ class SampleStream:
     under the recording's own lock, never ``lock``: a write the disk holds up must not
     hold up the sensor thread).
 
-    :param node: The node (clock and logger).
-    :param lock: The node lock.
-    :param triad: The model.
-    :param values: The node's live parameter values.
-    :param ground_truth: :class:`~qfa_ros.ros.input_queue.GroundTruthInput`.
-    :param recording: :class:`~qfa_ros.ros.recording.StreamRecording`.
-    :param imu_publisher: Publisher of ``imu/data_raw``.
-    :param temperature_publisher: Publisher of ``imu/temperature``.
-    :param acceleration_covariance: Row-major 3x3 covariance [(m/s^2)^2].
-    :param process_tuning: None, or the process's interpreter settings: an object whose
-        ``warmed()`` the sensor thread calls after its warm-up (before the grid is
-        anchored) and ``streaming()`` after its first batch (before the first sample is
-        due). Process-wide, so only the process entry point passes one
-        (:class:`qfa_ros.cli.node.ProcessTuning`); a node run inside another program
+    Parameters
+    ----------
+    node
+        The node (clock and logger).
+    lock
+        The node lock.
+    triad
+        The model.
+    values
+        The node's live parameter values.
+    ground_truth
+        :class:`~qfa_ros.ros.input_queue.GroundTruthInput`.
+    recording
+        :class:`~qfa_ros.ros.recording.StreamRecording`.
+    imu_publisher
+        Publisher of ``imu/data_raw``.
+    temperature_publisher
+        Publisher of ``imu/temperature``.
+    acceleration_covariance
+        Row-major 3x3 covariance [(m/s^2)^2].
+    process_tuning
+        None, or the process's interpreter settings: an object whose ``warmed()`` the sensor thread
+        calls after its warm-up (before the grid is anchored) and ``streaming()`` after its first
+        batch (before the first sample is due). Process-wide, so only the process entry point
+        passes one (:class:`qfa_ros.cli.node.ProcessTuning`); a node run inside another program
         leaves its interpreter as it is.
     """
 

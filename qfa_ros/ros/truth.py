@@ -79,15 +79,22 @@ class TruthPublisher:
     """
     Publish the truth topics and the calibration events of the node.
 
-    :param node: The node (publishers, timer, clock).
-    :param lock: The node lock (the model and the stream are read under it).
-    :param triad: The model.
-    :param values: The node's live parameter values (``truth.*``, ``frame_id``,
-        ``input.mode``, ``hardware_id``).
-    :param stream: The :class:`~qfa_ros.ros.stream.SampleStream` (its grid and schedule).
-    :param recording: The :class:`~qfa_ros.ros.recording.StreamRecording`: what is published
-        is recorded too, while a flight recording runs (:meth:`offered_qos` gives it the
-        topics' QoS).
+    Parameters
+    ----------
+    node
+        The node (publishers, timer, clock).
+    lock
+        The node lock (the model and the stream are read under it).
+    triad
+        The model.
+    values
+        The node's live parameter values (``truth.*``, ``frame_id``, ``input.mode``,
+        ``hardware_id``).
+    stream
+        The :class:`~qfa_ros.ros.stream.SampleStream` (its grid and schedule).
+    recording
+        The :class:`~qfa_ros.ros.recording.StreamRecording`: what is published is recorded too,
+        while a flight recording runs (:meth:`offered_qos` gives it the topics' QoS).
     """
 
     def __init__(self, node, lock, triad, values, stream, recording):

@@ -34,7 +34,10 @@ class SensorSnapshot:
     """
     What a schedule may change, taken before it starts: loop words and calibration state.
 
-    :param keeper: :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
+    Parameters
+    ----------
+    keeper
+        :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
     """
 
     def __init__(self, keeper):
@@ -135,11 +138,18 @@ class ScheduleService:
     """
     Run one schedule at a time for the Trigger services and answer them.
 
-    :param node: The node (clock, logger, name, ``is_calibrated`` publication).
-    :param lock: The node lock.
-    :param values: The node's live parameter values.
-    :param stream: :class:`~qfa_ros.ros.stream.SampleStream` that drives the schedule.
-    :param keeper: :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
+    Parameters
+    ----------
+    node
+        The node (clock, logger, name, ``is_calibrated`` publication).
+    lock
+        The node lock.
+    values
+        The node's live parameter values.
+    stream
+        :class:`~qfa_ros.ros.stream.SampleStream` that drives the schedule.
+    keeper
+        :class:`~qfa_ros.ros.calibration_keeper.CalibrationKeeper`.
     """
 
     def __init__(self, node, lock, values, stream, keeper):
@@ -284,8 +294,14 @@ class ScheduleService:
         and the pending call answers ``success: false``, ``... cancelled ...``. Call with
         the node lock held.
 
-        :param cause: How it was cancelled, for the pending call's answer.
-        :returns: ``(success, message)`` for the ``~/cancel`` answer.
+        Parameters
+        ----------
+        cause
+            How it was cancelled, for the pending call's answer.
+
+        Returns
+        -------
+        ``(success, message)`` for the ``~/cancel`` answer.
         """
         stream = self._stream
         run = stream.schedule
