@@ -77,6 +77,15 @@ class GyroBiasSettings:
             if not is_finite(value, bool_ok=False) or value <= 0:
                 raise ValueError(f'{name} must be positive, got {value!r}')
 
+    @property
+    def blocks(self):
+        """Return the blocks of :data:`BLOCK_S` averaged: ``duration_s`` rounded, at least two."""
+        return max(2, int(round(self.duration_s / BLOCK_S)))
+
+    def sensor_time_s(self):
+        """Return the sensor time of one schedule [s]: its whole blocks."""
+        return self.blocks * BLOCK_S
+
 
 @dataclass
 class GyroBiasResult:
@@ -171,8 +180,8 @@ def gyro_bias_schedule(sensor, state, settings=GyroBiasSettings()):
     require_closed(port)
     start_ns = port.sensor_time_ns()
     block = port.samples_for(BLOCK_S)
-    blocks = max(2, int(round(settings.duration_s / BLOCK_S)))
-    yield Phase('averaging', f'{blocks} blocks of {BLOCK_S:g} s', blocks * BLOCK_S)
+    blocks = settings.blocks
+    yield Phase('averaging', f'{blocks} blocks of {BLOCK_S:g} s', settings.sensor_time_s())
     samples = port.view((yield block * blocks))
     if not samples.valid.all() or np.any(samples.saturated):
         raise EstimationError('output invalid or saturated while averaging: nothing applied')

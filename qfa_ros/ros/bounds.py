@@ -19,7 +19,6 @@ from qfa_ros.calibration.estimation import (
     forward_sensor_time_s,
     ForwardSettings,
 )
-from qfa_ros.calibration.gyro_bias import BLOCK_S
 from qfa_ros.calibration.temperature import TemperatureSettings
 from qfa_ros.model.constants import PPM
 from qfa_ros.model.hardware import AxisHardware, nominal_gains
@@ -99,11 +98,6 @@ def forward_sweep_problem(settings, hardware, forward_drift_ppm=(0.0,)):
             f'(N_FPGA {hardware.n_fpga} + the span stays under the ADC full scale with '
             f'{FORWARD_HEADROOM - 1:.0%} headroom; a positive drift.forward_ppm raises the '
             f'open-loop output and narrows it)')
-
-
-def gyro_bias_sensor_time_s(duration_s):
-    """Return the sensor time of one gyro bias schedule of ``duration_s`` [s] (whole blocks)."""
-    return max(2, round(duration_s / BLOCK_S)) * BLOCK_S
 
 
 LARGEST_FORWARD = ForwardSettings(points=FORWARD_MAX_POINTS,

@@ -24,13 +24,12 @@ from qfa_ros.calibration.estimation import (
     forward_sensor_time_s,
     self_calibrate,
 )
-from qfa_ros.calibration.gyro_bias import gyro_bias_schedule
+from qfa_ros.calibration.gyro_bias import gyro_bias_schedule, GyroBiasSettings
 from qfa_ros.calibration.temperature import temperature_calibration
 from qfa_ros.ros.bounds import (
     CHAMBER_WORST_S,
     FEEDBACK_WORST_S,
     FORWARD_WORST_S,
-    gyro_bias_sensor_time_s,
     MAX_SCHEDULE_LOOP_STEPS,
     SCHEDULE_WORST_S,
     SETTLE_TIME_S,
@@ -132,6 +131,11 @@ class ServiceSpec:
         return self.name.removeprefix('~/')
 
 
+def gyro_bias_time_s(duration_s):
+    """Return the sensor time of one gyro bias calibration of ``duration_s`` [s]."""
+    return GyroBiasSettings(duration_s=duration_s).sensor_time_s()
+
+
 def _forward_s(values):
     return forward_sensor_time_s(forward_settings(values), SETTLE_TIME_S)
 
@@ -229,8 +233,8 @@ SERVICES = (
         schedule=lambda triad, state, values: gyro_bias_schedule(
             triad, state, gyro_bias_settings(values)),
         pause='gyro bias calibration running: averaging the gyros at rest',
-        sensor_time_s=lambda values: gyro_bias_sensor_time_s(values['gyro_bias.duration_s']),
-        worst_s=gyro_bias_sensor_time_s(SPECS['gyro_bias.duration_s'].high),
+        sensor_time_s=lambda values: gyro_bias_time_s(values['gyro_bias.duration_s']),
+        worst_s=gyro_bias_time_s(SPECS['gyro_bias.duration_s'].high),
         parameters='gyro_bias.duration_s'),
     ServiceSpec(
         '~/set_compensation', SetBool,
