@@ -131,7 +131,8 @@ class ScheduleReport:
             return None, []
         progress = run.progress
         phase = f'{progress.kind}: {progress.describe()}'
-        percent = 100 * progress.fraction
+        # Rounded once: the sentence's whole percent is the key value's, rounded again.
+        percent = round(100 * progress.fraction, 1)
         outcome = ANSWERING if self.outcome == RUNNING and not self.running else self.outcome
         values = [('schedule outcome', outcome), ('schedule phase', phase),
                   ('schedule progress [%]', f'{percent:.1f}'),
