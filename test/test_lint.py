@@ -22,7 +22,7 @@ def test_ruff_reports_no_issue():
 def test_no_merge_conflict_marker_is_left_in_the_sources_or_docs():
     # A marker in a Markdown file passes every other check (one was found in docs/node.md).
     markers = ('<<<<<<< ', '>>>>>>> ', '=======\n')
-    suffixes = ('.py', '.md', '.yaml', '.cfg', '.toml', '.txt')
+    suffixes = ('.py', '.md', '.rst', '.yaml', '.cfg', '.toml', '.txt')
     found = []
     # Hidden directories (the venvs, .git) and build/ pruned, not walked: walking the
     # venvs took seconds.
