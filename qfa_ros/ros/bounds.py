@@ -129,8 +129,8 @@ ESTIMATION_BOUND = (
 CHAMBER_BOUND = (
     f'; bounded: one call takes at most {CHAMBER_WORST_S:.0f} s of sensor time and '
     f'{MAX_SCHEDULE_LOOP_STEPS:.3g} model loop steps (the plateaus of cycles x period_s '
-    'between low_c and high_c, the soaks at the extremes and back, the I_ref steps at every '
-    'plateau, times loop_rate_hz)')
+    'between low_c and high_c, the soaks at the turning points and back, the I_ref steps at '
+    'every plateau, times loop_rate_hz)')
 
 
 def output_directory(values):

@@ -426,8 +426,9 @@ PARAMETERS = (
                   -60.0, 125.0),
     ParameterSpec('temperature_calibration.period_s', _CHAMBER.period_s,
                   'Chamber program of calibrate_temperature (all plateaus, six-position '
-                  'tumble) in sensor time [s], plus the soaks at the extremes and back to the '
-                  'starting temperature (always run as fast as the CPU allows)' + CHAMBER_BOUND,
+                  'tumble) in sensor time [s], plus the soaks at the turning points and back '
+                  'to the starting temperature (always run as fast as the CPU allows)'
+                  + CHAMBER_BOUND,
                   RUNTIME, 60.0, CHAMBER_MAX_PERIOD_S),
     ParameterSpec('temperature_calibration.cycles', _CHAMBER.cycles,
                   'Chamber programs of calibrate_temperature' + CHAMBER_BOUND, RUNTIME,

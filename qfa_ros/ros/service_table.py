@@ -192,8 +192,8 @@ SERVICES = (
         'and Shen), misalignment and K2; ROM stored, compensation on',
         kind='temperature',
         details='`temperature_calibration.*`: plateaus −40…+70 °C every 10 °C, 3600 s of '
-                'sensor time by default, the extremes held until the reading is stable; the '
-                'dividing head replaces any input. The fit is against the on-board reading '
+                'sensor time by default, the turning points held until the reading is stable; '
+                'the dividing head replaces any input. The fit is against the on-board reading '
                 "moved to the proof mass's temperature (the reading's lag behind the mass, "
                 "estimated from the data: `V + τ dV/dt`), Liu, Li and Shen's double "
                 'exponential (alternating iteration, linear baseline) on the fixed-point '
@@ -213,8 +213,8 @@ SERVICES = (
         parameters='temperature_calibration.period_s, temperature_calibration.low_c, '
                    'temperature_calibration.high_c, temperature_calibration.cycles, '
                    'temperature_calibration.reference_steps',
-        worst_note='its plateaus between low_c and high_c, the soaks at the extremes and '
-                   'back'),
+        worst_note='its plateaus between low_c and high_c, the soaks at the turning '
+                   'points and back'),
     ServiceSpec(
         '~/calibrate_gyros', Trigger,
         "gyro bias at rest (phidgets_spatial's `imu/calibrate`): the mean rate minus the "
