@@ -85,8 +85,11 @@ def disk_sample(output_dir):
             holding.append((bag, finished))
     # The oldest start and the newest end are in the oldest and the newest of those bags.
     looked = holding[:1] + holding[-1:] if len(holding) > 1 else holding
+    # A file with no message (a part cut right after a split, recovered) is listed with
+    # start 0: it covers nothing.
     spans = [(start, end) for bag, finished in looked
-             for name, (_, start, end) in (listing(bag) or {}).items() if name in finished]
+             for name, (count, start, end) in (listing(bag) or {}).items()
+             if name in finished and count]
     traces = trace_bytes = 0
     for path in (output_dir / 'traces').glob('*.mcap'):
         traces += 1

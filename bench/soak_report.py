@@ -7,6 +7,8 @@ from crash_helpers import LOSS_BOUND_S
 import numpy as np
 from soak_csv import column, MIB, NS_PER_S, read_csv
 
+from qfa_ros.ros.pacing import RECORD_PERIOD_S
+
 PAUSE_MARGIN_NS = 500_000_000
 """A gap this close to a schedule call's window counts as the schedule's pause [ns]."""
 STARVED_PERIODS = 4
@@ -95,7 +97,7 @@ def write_report(paths):
                             period, t0)
     lines += restart_section(run, restarts, events, gaps)
     lines += resource_section(run, node_rows, t_h)
-    lines += disk_section(run, node_rows, t_h, files)
+    lines += disk_section(run, node_rows, t_h, files, restarts)
     lines += readback_section(files, read_csv(paths.bags), stream_rows)
     lines += calls_section(events, node_rows)
     lines += ['', f'![RSS, descriptors, threads and stamp offset against time]'
@@ -342,7 +344,49 @@ def within_slope(t_h, y, runs):
     return coef[0], float(np.sqrt(sigma2 * np.linalg.pinv(design.T @ design)[0, 0]))
 
 
-def disk_section(run, node_rows, t_h, files):
+def over_words(values, bound):
+    """
+    Say how many samples were over a bound, and whether the next sample was within.
+
+    A retention pass runs on its own thread of low priority after a file finishes, so a
+    sample taken between the two may be over until the pass; one still over at the next
+    sample is not.
+    """
+    counted = np.isfinite(values)
+    over = np.where(counted, values, -np.inf) > bound
+    lasting = int(np.sum(over[:-1] & over[1:]))
+    if not over.any():
+        return f'within (0 of {int(counted.sum())} samples over)'
+    return (f'{"within after each pass" if not lasting else "**over**"} ({int(over.sum())} '
+            f'of {int(counted.sum())} samples over before the pass after a split, '
+            f'{lasting} over at the next sample too)')
+
+
+def kept_recording(node_rows, restarts, files):
+    """
+    Return the recording time kept at each sample [s] and the longest file read [s].
+
+    From the oldest finished file's start to the newest's end (``metadata.yaml``), less
+    each kill's downtime inside (the killed run's last recorded sample to the restarted
+    node's first): the time retention counts (``docs/node.md``, *Retention*). A sample
+    whose oldest file listed is empty (a part recovered with no message, its start 0) is
+    NaN.
+    """
+    oldest = column(node_rows, 'oldest_start_ns')
+    newest = column(node_rows, 'newest_end_ns')
+    oldest[oldest <= 0] = np.nan
+    span = (newest - oldest) / NS_PER_S
+    for row in restarts:
+        if row['last_stamp_ns'] and row['first_published_ns']:
+            down_from, down_to = int(row['last_stamp_ns']), int(row['first_published_ns'])
+            inside = (oldest <= down_from) & (newest >= down_to)
+            span[inside] -= (down_to - down_from) / NS_PER_S
+    longest = max((int(f['last_stamp_ns']) - int(f['first_stamp_ns'])
+                   for f in files if f['first_stamp_ns'] and f['last_stamp_ns']), default=0)
+    return span, longest / NS_PER_S
+
+
+def disk_section(run, node_rows, t_h, files, restarts):
     """Disk: the recorder directory against its limits, traces, the state file."""
     if not node_rows:
         return []
@@ -361,19 +405,22 @@ def disk_section(run, node_rows, t_h, files):
              f'{len(sizes)} files read ended within 10 % of the size limit.']
     if run.get('keep_bytes'):
         bound = run['keep_bytes'] + largest
-        over = int(np.sum(whole > bound))
         lines.append(f'- Against `{run["retention"]["keep_bytes"]}` plus one split (the '
-                     f'largest file; {bound / MIB:.1f} MiB): '
-                     f'{"within" if not over else "**over**"} ({over} of {len(whole)} '
-                     'samples over).')
+                     f'largest file; {bound / MIB:.1f} MiB): {over_words(whole, bound)}.')
     if run.get('keep_s'):
-        span = (column(node_rows, 'newest_end_ns') - column(node_rows, 'oldest_start_ns')) / 1e9
-        bound = run['keep_s'] + run['split_s']
-        over = int(np.nansum(span > bound))
+        span, longest = kept_recording(node_rows, restarts, files)
+        bound = run['keep_s'] + max(longest, run['split_s'] + RECORD_PERIOD_S)
+        empty = int(np.sum(np.isnan(span) & np.isfinite(column(node_rows, 'newest_end_ns'))))
         lines.append(f"- Recording kept (the oldest finished file's start to the newest's "
-                     f'end): at most {np.nanmax(span):.0f} s against '
-                     f'`{run["retention"]["keep_s"]}` plus one split ({bound:g} s): '
-                     f'{"within" if not over else "**over**"} ({over} samples over).')
+                     "end, less the time from a kill to the restarted node's first sample: "
+                     f'the time retention counts): at most {np.nanmax(span):.2f} s against '
+                     f'`{run["retention"]["keep_s"]}` plus one file ({bound:.2f} s; a file '
+                     f'ends at the first flush, every {RECORD_PERIOD_S} s, after '
+                     f'`recorder.max_duration_s`; the longest read {longest:.2f} s): '
+                     f'{over_words(span, bound)}' + (
+                         f'; {empty} samples while the oldest file listed was an empty one '
+                         'recovered from a kill (its start 0) not counted' if empty else '')
+                     + '.')
     recorded = column(node_rows, 'recorded_bytes') / MIB
     slope, _, _ = fit(t_h, recorded)
     if not run.get('keep_s') and not run.get('keep_bytes'):

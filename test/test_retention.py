@@ -21,6 +21,7 @@ from crash_helpers import (
     ENCODER,
     feed_imu,
     IMU_TOPIC,
+    killed_recording,
     read_bag,
     read_mcap,
     recorded_session,
@@ -42,7 +43,7 @@ import yaml
 from qfa_ros.bag import part_files
 from qfa_ros.bag.part_files import delete_finished_file, DELETION_SUFFIX
 from qfa_ros.bag.recovery import needs_recovery, recover
-from qfa_ros.bag.retention import Retention
+from qfa_ros.bag.retention import Retention, spans_ns
 from qfa_ros.ros import recording as recording_module
 from qfa_ros.ros.parameter_table import PARAMETERS
 from qfa_ros.ros.recording import FreeSpaceGuard, GUARD_BAND_BYTES, StreamRecording
@@ -91,6 +92,15 @@ def test_by_duration_the_oldest_go_first_earlier_sessions_included(tmp_path):
     assert retention.apply(live).deleted == 5
     live.close()
     assert len(assert_whole(live.bag_directory).imu_stamps) == 450
+
+
+def test_a_file_with_no_message_covers_nothing_and_does_not_cut_the_one_before():
+    # A kill right after a split leaves a part with no message; recovered, it is listed
+    # with start 0 (as rosbag2 lists an empty file).
+    entries = [('a', 10 * SECOND, SECOND - 1_000_000, 1000),
+               ('b', 11 * SECOND, SECOND - 1_000_000, 1000), ('c', 0, 0, 0)]
+    np.testing.assert_array_equal(spans_ns(entries), [SECOND, SECOND - 1_000_000, 0])
+    np.testing.assert_array_equal(spans_ns(entries, 12 * SECOND), [SECOND, SECOND, 0])
 
 
 def test_by_size_never_the_file_being_written(tmp_path):
@@ -234,7 +244,7 @@ DELETING_WRITER = textwrap.dedent("""
     import os, sys
     sys.path.insert(0, 'test')
     from crash_helpers import feed_imu, recorded_session, SECOND, SESSION_T0
-    from qfa_ros.bag.retention import Retention
+    from qfa_ros.bag.retention import Retention, spans_ns
     directory = sys.argv[1]
     for start in (0, 100):
         recorded_session(directory, start, 6.5)
@@ -379,3 +389,26 @@ def test_the_node_keeps_its_limits_over_restarts_and_from_strangers(tmp_path):
     for bag in recordings.iterdir():
         if bag.is_dir():
             assert_whole(bag)
+
+
+def test_a_killed_run_is_trimmed_once_recovered_not_at_the_next_split(tmp_path):
+    output = tmp_path / 'output'
+    recordings = output / 'recordings'
+    recordings.mkdir(parents=True)
+    # An earlier run killed: 3 s in 1 s files, its last one a .part, until recovered it
+    # holds retention back.
+    killed = killed_recording(recordings, 3000, split_s=1.0)
+    oldest = min(killed.glob('*.mcap'), key=lambda path: path.stat().st_mtime_ns)
+    domain = domain_id('retention_recovered')
+    # No split comes in the test (600 s): only the recovery can have the pass run.
+    node = NodeProcess(domain, tmp_path, {
+        'output_dir': str(output), 'state_file': '', 'recorder.enabled': True,
+        'recorder.max_duration_s': 600.0, 'recorder.keep_s': 1.0})
+    client = Client(domain)
+    try:
+        client.spin_until(lambda: not oldest.exists(), 60.0, 'the killed run trimmed')
+        assert not list(killed.glob('*.part'))
+    finally:
+        client.close()
+        assert node.stop() == 0, node.log()[-2000:]
+    assert_whole(killed)

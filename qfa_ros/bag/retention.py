@@ -109,7 +109,9 @@ def spans_ns(entries, next_start_ns=None):
     A file covers from its first message to the next file's first message (the split
     between them included), but a gap longer than :data:`MAX_GAP_NS` after its last
     message is not counted; the last file covers its own duration, or up to
-    ``next_start_ns``, the first message of the file being written after it.
+    ``next_start_ns``, the first message of the file being written after it. A file with
+    no message (a part a kill cut right after a split, recovered; its start 0) covers
+    nothing and is passed over as the next file.
 
     Parameters
     ----------
@@ -124,12 +126,15 @@ def spans_ns(entries, next_start_ns=None):
     list of int
         One span per entry [ns], none negative.
     """
-    starts = [start for _, start, _, _ in entries[1:]] + [next_start_ns]
-    spans = []
-    for (_, start, duration, _), following in zip(entries, starts):
+    spans, following = [], next_start_ns
+    for _, start, duration, count in reversed(entries):
+        if not count:
+            spans.append(0)
+            continue
         span = duration if following is None else min(following - start, duration + MAX_GAP_NS)
         spans.append(max(0, span))
-    return spans
+        following = start
+    return spans[::-1]
 
 
 def to_delete(files, keep_ns, keep_bytes):

@@ -103,7 +103,8 @@ class SensorWiring:
         # What an earlier run left unfinished (a kill, a power cut), recovered in the
         # background once the first samples are out (QfaNode.announce_start) or at
         # configure (QfaLifecycleNode).
-        self._startup_recovery = StartupRecovery(self, values)
+        self._startup_recovery = StartupRecovery(
+            self, values, on_recovered=self._recording.retain)
 
     def _build_model(self, values):
         """Build the model and its state from ``values``; return the trajectory file read."""

@@ -314,6 +314,11 @@ class StreamRecording:
             shortfall = self._guard.shortfall(directory, 'recorder.directory')
         return shortfall
 
+    def retain(self):
+        """Have a retention pass run soon (a recording finished elsewhere: a recovered one)."""
+        with self.lock:
+            self._retain_soon()
+
     def _retain_soon(self):
         """Have a pass run on the retention thread (started if none runs; the lock held)."""
         if self.retention is None:

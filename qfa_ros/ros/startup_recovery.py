@@ -32,11 +32,15 @@ class StartupRecovery:
         The node (its name: the recordings' prefix; its logger).
     values
         The node's parameter values at start.
+    on_recovered : callable, optional
+        Called with no argument, on the recovery thread, after it recovered a recording:
+        a killed bag held retention back until now (the node's retention pass).
     """
 
-    def __init__(self, node, values):
+    def __init__(self, node, values, on_recovered=None):
         self._node = node
         self._values = values
+        self._on_recovered = on_recovered
         self._stop = threading.Event()
         # Protects _started: start and stop may come from two threads.
         self._starting = threading.Lock()
@@ -104,6 +108,8 @@ class StartupRecovery:
                     f'unfinished (killed or cut off; `qfa-report recover DIR` does the same): '
                     + '; '.join(result.describe() for result in done))
             self.completed = not self._stop.is_set()
+            if recordings and self._on_recovered is not None and not self._stop.is_set():
+                self._on_recovered()
         except Exception as error:  # a thread of the node never raises; it says why
             if not self._stop.is_set():
                 logger.error(f'recovery of unfinished recordings at start failed: '
