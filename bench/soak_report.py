@@ -91,17 +91,19 @@ def write_report(paths):
     period = round(NS_PER_S / run.get('rate_hz', 1000.0))
     t0 = run['started_ns']
     t_h = (column(node_rows, 'wall_ns') - t0) / 3.6e12
+    headline = {}  # what the sections found that the figures block states
     lines = header(run, node_rows, t_h)
     lines += stream_section(stream_rows, gaps, events, node_rows,
                             recorded_holes(files, read_csv(paths.recorded_gaps), period),
-                            period, t0)
-    lines += restart_section(run, restarts, events, gaps)
-    lines += resource_section(run, node_rows, t_h)
-    lines += disk_section(run, node_rows, t_h, files, restarts)
+                            period, t0, headline)
+    lines += restart_section(run, restarts, events, gaps, headline)
+    lines += resource_section(run, node_rows, t_h, headline)
+    lines += disk_section(run, node_rows, t_h, files, restarts, headline)
     lines += readback_section(files, read_csv(paths.bags), stream_rows)
     lines += calls_section(events, node_rows)
     lines += ['', f'![RSS, descriptors, threads and stamp offset against time]'
                   f'({paths.figure.name})', '']
+    lines += days_figures(paths, run, node_rows, t_h, headline)
     paths.out.write_text('\n'.join(lines) + '\n')
     figure(paths, run, node_rows, stream_rows, events)
 
@@ -146,7 +148,8 @@ def header(run, node_rows, t_h):
     return lines
 
 
-def stream_section(stream_rows, gaps, events, node_rows, recorded_gaps, period, t0):
+def stream_section(stream_rows, gaps, events, node_rows, recorded_gaps, period, t0,
+                   headline):
     """Return the stream's lines: samples received and lost, the grid, the offset."""
     if not stream_rows:
         return ['## Stream', '', 'No subscriber rows.', '']
@@ -187,6 +190,7 @@ def stream_section(stream_rows, gaps, events, node_rows, recorded_gaps, period, 
              f'| stamps off the grid (each run its own grid: {last.get("grids", "1")}) | '
              f'{last["off_grid"]} |',
              f'| out of order or repeated | {last["out_of_order"]} |', '']
+    headline.update(lost=sum(int(g['missing']) for g in outside), span=span)
     if recorded_gaps:
         # Each bag is one run: a kill makes no hole in a recording.
         held, missed = classify_gaps(recorded_gaps, pauses)
@@ -227,7 +231,7 @@ def offset_lines(stream_rows):
             f'{slope_p50:+.2f} ± {error_p50:.2f} |', '']
 
 
-def restart_section(run, restarts, events, gaps):
+def restart_section(run, restarts, events, gaps, headline):
     """Return one line per kill: what it hit, the first sample after, what the kill left."""
     kills = [e for e in events if e['kind'] == 'kill']
     if not kills:
@@ -273,13 +277,18 @@ def restart_section(run, restarts, events, gaps):
                   f'{good} / {row["bags"]}', row['listing_as_left'], row['problem'] or '–']
         lines.append('| ' + ' | '.join(cells) + ' |')
     warned = sum(r['warn_line'] == '1' for r in restarts)
+    headline['restarts'] = (sum(
+        r['files_unreadable'] == '0' and r['bags_untrue'] == '0' and not r['problem']
+        and r['last_stamp_ns'] and (int(kills[int(r['run']) - 1]['sent_ns'])
+                                    - int(r['last_stamp_ns'])) / 1e9 <= LOSS_BOUND_S
+        for r in restarts), len(kills))
     lines += ['', f'The recording ended at most {worst:.2f} s before a kill; the start-up '
               f'recovery said so in a WARN line after {warned} of {len(restarts)} restarts.',
               '']
     return lines
 
 
-def resource_section(run, node_rows, t_h):
+def resource_section(run, node_rows, t_h, headline):
     """RSS, descriptors and threads: per run after its warm-up, and across the runs."""
     if len(t_h) < 3:
         return ['## Node process', '', 'Too few rows.', '']
@@ -307,6 +316,7 @@ def resource_section(run, node_rows, t_h):
         first = y[after & (runs == runs[after][0])] if after.any() else [np.nan]
         slope = across if np.isfinite(across) else within
         base = intercept if np.isfinite(across) else np.nan
+        headline[name] = (first[0], y[-1])
         lines.append(f'| {label} | {first[0]:.2f} | {y[-1]:.2f} | {within:+.3f} ± '
                      f'{error:.3f} | {across:+.3f} ± {across_error:.3f} | '
                      f'{base + slope * 24.0:.2f} |')
@@ -386,7 +396,7 @@ def kept_recording(node_rows, restarts, files):
     return span, longest / NS_PER_S
 
 
-def disk_section(run, node_rows, t_h, files, restarts):
+def disk_section(run, node_rows, t_h, files, restarts, headline):
     """Disk: the recorder directory against its limits, traces, the state file."""
     if not node_rows:
         return []
@@ -405,6 +415,7 @@ def disk_section(run, node_rows, t_h, files, restarts):
              f'{len(sizes)} files read ended within 10 % of the size limit.']
     if run.get('keep_bytes'):
         bound = run['keep_bytes'] + largest
+        headline['disk'] = (np.nanmax(whole) / MIB, bound / MIB)
         lines.append(f'- Against `{run["retention"]["keep_bytes"]}` plus one split (the '
                      f'largest file; {bound / MIB:.1f} MiB): {over_words(whole, bound)}.')
     if run.get('keep_s'):
@@ -468,6 +479,45 @@ def readback_section(files, bags, stream_rows):
     for b in [b for b in bags if b['true'] != '1'][:5]:
         lines.append(f'- bag {b["bag"]} (check {b["check"]}): {b["problem"]}')
     return lines + ['']
+
+
+def days_figures(paths, run, node_rows, t_h, headline):
+    """
+    Return the ``figures`` block of a days run (kills and retention; ``docs/figures.md``).
+
+    The ids carry the report's name (``soak_days``, ``soak_days_jazzy``): one per
+    distribution.
+    """
+    if not (run.get('kill_every_s') and run.get('keep_s')) or 'restarts' not in headline:
+        return []
+    stem, distro = paths.out.stem, ('Jazzy' if 'jazzy' in paths.out.stem else 'Kilted')
+    days = (f'Days simulated on {distro} ({t_h[-1]:.1f} h; a kill -9 every '
+            f'{run["kill_every_s"] / 60:g} min, retention {run["keep_s"] / 60:g} min, a file '
+            f'every {run["split_s"]:g} s, a parameter change every {run["param_every_s"]:g} '
+            f's, `~/self_calibrate` every {run["calibrate_every_s"] / 60:g} min)')
+    command = f'.venv/bin/python {run["bench"].split(" ", 1)[1].split(" --workdir")[0]}'
+    if distro == 'Jazzy':
+        command = command.replace('.venv/', '.venv-jazzy/')
+    clean, kills = headline['restarts']
+    rss_first, rss_last = headline['rss_kib']
+    disk, bound = headline.get('disk', (np.nan, np.nan))
+    load = np.median(column(node_rows, 'load1'))
+    common = [f'  command: {command}',
+              f'  machine: {run["machine"].split(", Linux")[0]} (load median {load:.1f})',
+              f'  date: {run["started"][:10]}']
+    return ['```figures',
+            f'- id: {stem}_restarts', '  group: Recording',
+            f'  what: "{days}: restarts after which every recording left read in full (mcap, '
+            'rosbags), each bag true to its files, at most 1 s lost before the kill"',
+            f"  value: '{clean}'", f'  unit: of {kills}',
+            f'  note: recorder directory at most {disk:.1f} MiB against `recorder.keep_bytes` '
+            f'plus one file ({bound:.1f} MiB)', *common,
+            f'- id: {stem}_lost', '  group: The node over DDS',
+            f'  what: "{days}: `imu/data_raw` samples a SensorDataQoS subscriber (depth 5) '
+            'lost outside schedules and kills"',
+            f"  value: '{headline['lost']:,}'", f"  unit: of {headline['span']:,}",
+            f'  note: node RSS {rss_first:.0f} MiB after the first warm-up, {rss_last:.0f} MiB '
+            'at the end', *common, '```', '']
 
 
 def calls_section(events, node_rows):
