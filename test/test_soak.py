@@ -43,6 +43,7 @@ from std_srvs.srv import Trigger
 import yaml
 
 from qfa_ros.bag.flight_recorder import FlightRecorder
+from qfa_ros.bag.part_files import DELETION_SUFFIX
 from qfa_ros.bag.qos import QOS_LATCHED, QosProfile
 from qfa_ros.bag.recovery import needs_recovery
 from qfa_ros.bag.types import encode_message
@@ -593,9 +594,24 @@ def test_a_kill_9_and_a_restart_keep_the_newest_recording_readable_and_bounded(t
     assert max(total for total, _ in disk) <= KEEP['recorder.keep_bytes'] + largest
 
 
+SETTLE_TRIES = 20
+"""Reads of a bag that a retention pass changed meanwhile, before one counts [number]."""
+
+
+def bag_state(bag):
+    """Return what a retention pass changes in ``bag``: its files and its listing's time."""
+    names = sorted(path.name for path in bag.iterdir())
+    return names, (bag / 'metadata.yaml').stat().st_mtime_ns if 'metadata.yaml' in names else 0
+
+
 def read_recording(bag, max_bytes):
     """
     Read a bag directory back as its users would; return what the node published.
+
+    A retention pass (after every split, and once the killed run is recovered) may delete
+    files meanwhile: it rewrites ``metadata.yaml`` first, then unlinks the file and its
+    ``.deleting`` marker. A read that fails while the bag changed, or with a marker there,
+    is read again; one that fails on a bag left alone fails.
 
     Asserts that no ``.part`` is left, that ``metadata.yaml`` lists exactly the finished
     files, each within ``max_bytes`` and read by the mcap reader and ``AnyReader`` with the
@@ -614,6 +630,20 @@ def read_recording(bag, max_bytes):
         ``(recorded, reports)``: ``(stamp, log time)`` of every ``imu/data_raw`` sample
         [ns] (int64, shape (n, 2)) and the ``/diagnostics`` arrays, in recording order.
     """
+    for attempt in range(SETTLE_TRIES):
+        before = bag_state(bag)
+        try:
+            return read_recording_once(bag, max_bytes)
+        except (AssertionError, FileNotFoundError):
+            moving = before != bag_state(bag) or any(
+                name.endswith(DELETION_SUFFIX) for name in before[0])
+            if not moving or attempt == SETTLE_TRIES - 1:
+                raise
+            time.sleep(0.05)
+
+
+def read_recording_once(bag, max_bytes):
+    """Read ``bag`` once (:func:`read_recording`)."""
     assert not list(bag.glob('*.part'))
     listed = {Path(f['path']).name: f['message_count'] for f in yaml.safe_load(
         (bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']['files']}
