@@ -45,10 +45,12 @@ Run (at least two hours, on a quiet machine)::
 
     .venv/bin/python bench/soak.py --hours 2 --domain 60 --out bench/results/soak.md
 
-Days of operation, simulated (retention small, a kill -9 every 10 minutes)::
+Days of operation, simulated (retention small, a kill -9 every 10 minutes; on Jazzy
+``.venv-jazzy`` and ``--out bench/results/soak_days_jazzy.md``)::
 
-    .venv/bin/python bench/soak.py --hours 2 --domain 60 --split-s 60 --keep-s 300 \
-        --calibrate-every 180 --kill-every 600 --out bench/results/soak_days.md
+    .venv/bin/python bench/soak.py --hours 2 --domain 111 --split-s 60 --keep-s 300 \
+        --keep-bytes 33554432 --param-every 5 --calibrate-every 180 --kill-every 600 \
+        --progress-every 600 --out bench/results/soak_days.md
 
 A try: ``--minutes 10 --out /tmp/soak/soak.md``. The report again from the CSV files:
 ``--report --out bench/results/soak.md`` (``--readback`` first reads what the run left,
