@@ -23,7 +23,7 @@ from qfa_ros.calibration.experiments import (
     PAPER_SCHEDULE,
 )
 from qfa_ros.calibration.gyro_bias import GyroBiasSettings
-from qfa_ros.calibration.schedule import EstimationError, run_schedule, ScheduleProgress
+from qfa_ros.calibration.schedule import EstimationError, Phase, run_schedule, ScheduleProgress
 from qfa_ros.calibration.state import CalibrationState
 from qfa_ros.model.constants import MICRO_G, PPM, STANDARD_GRAVITY
 from qfa_ros.model.input_profiles import SineProfile, StaticProfile, StepProfile
@@ -505,6 +505,23 @@ def test_old_state_without_reference_settings_is_refused_with_a_reason():
     with pytest.raises(ValueError, match='reference_settings.feedback must map names to '
                        'scalars'):
         CalibrationState.from_dict(bad)
+
+
+def test_the_pace_is_told_once_its_span_has_passed():
+    # A burst of blocks (a batch computed ahead) right after the first is no pace.
+    now = [10.0]
+    progress = ScheduleProgress('reference', 1000.0, clock=lambda: now[0], pace_after_s=0.5)
+    progress.announce(Phase('loops open', left_s=2.0))
+    progress.advance(100)
+    now[0] += 0.01
+    progress.advance(150)
+    assert progress.pace is None and progress.wall_left_s is None
+    now[0] += 0.49
+    progress.advance(250)
+    # 0.4 s of sensor time in the 0.5 s since the first block; 1.5 s left.
+    assert_allclose([progress.pace, progress.wall_left_s], [0.8, 1.5 / 0.8])
+    with pytest.raises(ValueError, match='pace_after_s'):
+        ScheduleProgress('reference', 1000.0, pace_after_s=-1.0)
 
 
 def test_a_schedule_announces_its_phases_and_the_sensor_time_left():

@@ -397,11 +397,19 @@ class ScheduleProgress:
         True when the phase's name changed (a log line, a bar's redraw).
     clock : callable
         Wall clock for the pace [s] (``time.monotonic``).
+    pace_after_s : float
+        Wall time after the first block before the pace is known [s]. A driver that
+        computes in batches ahead of its clock (the node in real time) hands its blocks in
+        bursts: over a shorter span the pace measures a burst, not the schedule.
     """
 
-    def __init__(self, kind, sample_rate_hz, listener=None, clock=time.monotonic):
+    def __init__(self, kind, sample_rate_hz, listener=None, clock=time.monotonic,
+                 pace_after_s=0.0):
         if not sample_rate_hz > 0:
             raise ValueError(f'sample_rate_hz must be positive, got {sample_rate_hz!r}')
+        if not pace_after_s >= 0:
+            raise ValueError(f'pace_after_s must be 0 or more, got {pace_after_s!r}')
+        self._pace_after_s = float(pace_after_s)
         self.kind = kind
         self._rate_hz = float(sample_rate_hz)
         self._listener = listener
@@ -455,17 +463,19 @@ class ScheduleProgress:
     @property
     def pace(self):
         """
-        Sensor seconds run per wall second since the first block, or None before a second.
+        Sensor seconds run per wall second since the first block, or None before then.
 
-        From the first block on, not from the start: a driver that computes ahead of its
-        clock (the node, ``stream.lead_s``) hands the first block early.
+        None until ``pace_after_s`` of wall time has passed since the first block and a
+        block has run since. From the first block on, not from the start: a driver that
+        computes ahead of its clock (the node, ``stream.lead_s``) hands the first block early.
         """
         if self._first_block is None:
             return None
         samples, then = self._first_block
         elapsed = self._clock() - then
         ran = self.samples - samples
-        return ran / self._rate_hz / elapsed if ran and elapsed > 0 else None
+        known = ran and elapsed > 0 and elapsed >= self._pace_after_s
+        return ran / self._rate_hz / elapsed if known else None
 
     @property
     def wall_left_s(self):

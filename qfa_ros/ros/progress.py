@@ -19,6 +19,11 @@ RUNNING = 'running'
 ANSWERING = 'answering'
 """The ``schedule outcome`` once its sensor time is over, while the call writes its trace
 and state and answers."""
+REALTIME_PACE_AFTER_S = 0.5
+"""Wall time a real-time schedule runs before its pace and wall time left are told [s]: the
+sensor thread feeds it in batches (``stream.batch_s``) up to ``stream.lead_s`` ahead, and
+on a busy machine catches a stall up at once, so a shorter span measures a burst. From the
+first block on, a 1 s schedule's first report read 0.0 s left (a CI run beside two soaks)."""
 
 
 def _seconds(value, digits=1):
@@ -73,9 +78,13 @@ class ScheduleReport:
         self.run = None
         self.outcome = None
 
-    def progress(self, kind):
-        """Return a new progress for a ``kind`` schedule that logs its phase changes."""
-        return ScheduleProgress(kind, self._rate_hz, self._log_phase)
+    def progress(self, kind, fast):
+        """Return a new progress for a ``kind`` schedule that logs its phase changes.
+
+        In real time (``fast`` False) the pace waits for :data:`REALTIME_PACE_AFTER_S`.
+        """
+        return ScheduleProgress(kind, self._rate_hz, self._log_phase,
+                                pace_after_s=0.0 if fast else REALTIME_PACE_AFTER_S)
 
     def started(self, run):
         """Show ``run`` (a :class:`~qfa_ros.ros.schedule_service.ScheduleRun`) from now on."""

@@ -223,7 +223,7 @@ class ScheduleService:
             fast = spec.always_fast or not self._values['estimation.realtime']
             try:
                 run = ScheduleRun(kind, spec.schedule(keeper.triad, keeper.state, self._values),
-                                  fast, self.report.progress(kind),
+                                  fast, self.report.progress(kind, fast),
                                   self._node.get_clock().now().nanoseconds)
             except Exception as error:
                 # EstimationError and ValueError are the expected refusals; anything else
