@@ -49,6 +49,7 @@ from qfa_ros.bag.recovery import needs_recovery
 from qfa_ros.bag.types import encode_message
 from qfa_ros.model.triad import NS_PER_S
 from qfa_ros.ros.pacing import CATCH_UP_BURST, CATCH_UP_SPACING_NS, LATE_NS, Pacer
+from qfa_ros.ros.stream import publishable
 
 T0 = 1_700_000_000_000_000_000
 STAMP = struct.Struct('<iI')
@@ -293,6 +294,21 @@ def test_a_resumption_publishes_every_message_stamped_from_the_instant_it_return
         pacer.stop()
     assert stamp[0] >= from_ns
     assert publisher.published == [b'due'] and pacer.unpublished == 0
+
+def test_a_batch_computed_ahead_when_paused_keeps_what_is_not_yet_due():
+    """
+    A batch handed over during a short pause keeps its samples stamped after the present.
+
+    A managed node deactivated and at once activated again (7 ms apart, a busy machine)
+    while the sensor thread computed a batch ahead: the batch was discarded whole as
+    paused, and its period's recording had a hole of 104 samples, 14 after its activation.
+    """
+    items = [(stamp, 'imu') for stamp in range(100, 110)]
+    assert publishable(items, None, lambda: 104) == items[4:]
+    assert publishable(items, None, lambda: 200) == []
+    assert publishable(items, 107, lambda: 0) == items[7:]
+    assert publishable(items, 50, lambda: 0) is items and publishable([], None, lambda: 0) == []
+
 
 # --- seconds of the live node -------------------------------------------------------------
 

@@ -62,6 +62,22 @@ _DURABILITY = {0: 'system_default', 1: 'transient_local', 2: 'volatile'}
 _LIVELINESS = {0: 'automatic', 1: 'automatic', 3: 'manual_by_topic'}
 
 
+def publishable(items, publish_from_ns, now_ns):
+    """
+    Return the queued ``(stamp_ns, ...)`` items that may still be published, in order.
+
+    Active (``publish_from_ns`` an instant [ns]), those stamped from it on. Paused
+    (``publish_from_ns`` None), those not yet due at ``now_ns()`` [ns]: a batch computed
+    ahead of the clock when the pause came, whose samples a quick resumption publishes (the
+    pacer drops each one that comes due while paused). Discarding them too left a hole of
+    a batch in the next active period (a CI run: 104 samples, 14 after its activation).
+    """
+    floor = now_ns() if publish_from_ns is None else publish_from_ns
+    if not items or items[0][0] >= floor:
+        return items
+    return [item for item in items if item[0] >= floor]
+
+
 def offered_qos(profile):
     """Return the rosbag2 offered QoS of an ``rclpy.qos.QoSProfile`` (a publisher's)."""
     def duration(value):
@@ -194,10 +210,10 @@ class SampleStream:
         Publish nothing from now on; the sensor runs on (a managed node's ``deactivate``).
 
         Returns once no publication is under way: nothing is published after it. The
-        samples still computed are counted (:attr:`unpublished`), not published or
-        recorded, and no longer computed ahead of the clock. Takes no lock the sensor
-        thread holds: a batch it is computing goes to the pacer, which drops what comes due
-        while paused.
+        samples computed while paused are counted (:attr:`unpublished`), not published or
+        recorded, and none ahead of the clock. Takes no lock the sensor thread holds: what
+        a batch it is computing holds ahead of the clock goes to the pacer, which drops
+        each one that comes due while paused (:func:`publishable`).
         """
         self.pacer.pause()
         self.publish_from_ns = None
@@ -498,13 +514,9 @@ class SampleStream:
                              (stamp, self._temperature_publisher, TEMPERATURE_TYPE,
                               serialize_message(message)))
         with self._publishing_lock:
-            publish_from = self.publish_from_ns
-            if publish_from is None or (items and items[0][0] < publish_from):
-                kept = [] if publish_from is None \
-                    else [i for i in items if i[0] >= publish_from]
-                self.unpublished += len(items) - len(kept)
-                items = kept
-            self.pacer.put(items)
+            kept = publishable(items, self.publish_from_ns, self._now_ns)
+            self.unpublished += len(items) - len(kept)
+            self.pacer.put(kept)
 
     # Diagnostics ------------------------------------------------------------------------
     def status(self):
