@@ -18,10 +18,11 @@ from qfa_ros.ros.service_table import SCHEDULE_SERVICES, SERVICE
 
 NODE = '/qfa_node'
 REALTIME = {'estimation.realtime': True, 'estimation.forward.points': 2,
-            'estimation.forward.average_s': 0.2, 'estimation.feedback.cycles': 1,
-            'estimation.feedback.order': 'single', 'estimation.feedback.average_s': 0.25,
+            'estimation.forward.average_s': 0.5, 'estimation.feedback.cycles': 1,
+            'estimation.feedback.order': 'single', 'estimation.feedback.average_s': 0.6,
             'gyro_bias.duration_s': 2.0}
-"""The smallest schedules the ranges allow that still last several diagnostics periods."""
+"""Short schedules (1.3-2.9 s) that still last several diagnostics periods after the half
+second before a real-time pace is told (``progress.REALTIME_PACE_AFTER_S``)."""
 FAST = {'estimation.realtime': False, 'estimation.forward.points': 20,
         'estimation.forward.average_s': 2.0, 'estimation.feedback.cycles': 2,
         'estimation.feedback.order': 'chopped', 'estimation.feedback.average_s': 5.0,
