@@ -295,6 +295,7 @@ def test_a_resumption_publishes_every_message_stamped_from_the_instant_it_return
     assert stamp[0] >= from_ns
     assert publisher.published == [b'due'] and pacer.unpublished == 0
 
+
 def test_a_batch_computed_ahead_when_paused_keeps_what_is_not_yet_due():
     """
     A batch handed over during a short pause keeps its samples stamped after the present.
